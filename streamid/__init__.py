@@ -1,0 +1,20 @@
+"""streamid: streaming online nonlinear system identification.
+
+A NARX model y(t) = F[y(t-1..t-ny), u(t-1..t-nu)] with F a Gaussian RBF
+network is identified by a cooperative coevolution of a binary Adaptive Harmony
+Search (lag selection) and Differential Evolution (centres and widths), and
+re-identified online from samples arriving over Eclipse Zenoh.
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+from streamid.errors import StreamidError
+
+try:
+    __version__ = version("streamid")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0.0.0+local"
+
+__all__ = ["StreamidError", "__version__"]

@@ -1,0 +1,5 @@
+import sys
+
+from streamid.cli import main
+
+sys.exit(main())

@@ -1,0 +1,73 @@
+"""The ``streamid`` command: one entry point, one subcommand per job.
+
+Subcommands are small modules exposing ``register(subparsers)``; each adds its
+parser and sets ``func`` (``func(args) -> int``).  Commands that belong to the
+packages around streamid (``recorders`` provides ``record`` and ``simulate``,
+``replay`` provides ``replay``) register themselves through the
+``streamid.commands`` entry-point group, so that streamid never imports them:
+data flows one way, and those packages depend on streamid, not the reverse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+from importlib.metadata import entry_points
+
+from streamid import __version__
+from streamid.errors import StreamidError
+
+#: Subcommands that live inside streamid itself, in the order ``--help`` lists them.
+BUILTIN_COMMANDS: tuple[str, ...] = (
+    "streamid.commands.identify",
+    "streamid.commands.daemon",
+    "streamid.commands.watch",
+    "streamid.commands.demo",
+    "streamid.commands.bench",
+)
+
+ENTRY_POINT_GROUP = "streamid.commands"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="streamid",
+        description=(
+            "Streaming online nonlinear system identification: coevolutionary "
+            "RBF-NARX models fitted from samples on Eclipse Zenoh or from logs."
+        ),
+    )
+    parser.add_argument("--version", action="version", version=f"streamid {__version__}")
+    sub = parser.add_subparsers(title="commands", dest="command", metavar="COMMAND")
+    for name in BUILTIN_COMMANDS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # command not built yet in this tree
+                continue
+            raise
+        module.register(sub)
+    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        ep.load()(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except StreamidError as exc:
+        print(f"streamid {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
