@@ -1,0 +1,107 @@
+"""``streamid replay`` (registered through an entry point)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from streamid.errors import ConfigError
+from streamid.mcaplog import bundled_log, bundled_logs
+from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags, settings_from_args
+
+__all__ = ["register", "run", "resolve_log"]
+
+
+def resolve_log(name: str) -> Path:
+    """A path, or the name of a bundled log (``mr_damper``, ``piezo_p885``)."""
+    path = Path(name)
+    stem = name[:-5] if name.endswith(".mcap") else name
+    if not path.exists() and stem in bundled_logs():
+        return bundled_log(stem)
+    return path
+
+
+@contextmanager
+def stop_on_signals(event: threading.Event) -> Iterator[None]:
+    """Set ``event`` on SIGINT/SIGTERM while inside the block (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {}
+
+    def _handler(signum: int, frame: object) -> None:
+        event.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, _handler)
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "replay",
+        help="play an MCAP log onto Zenoh with its original timing (scaled) or at full speed",
+        description=(
+            "Play a streamid MCAP log onto Zenoh. The bytes put on Zenoh are the logged bytes "
+            "(byte-exact), except with --stream (the batch's stream name is rewritten) and on "
+            "the 2nd+ pass of --loop (sequence numbers and times continue forward). LOG is a "
+            f"file or a bundled log name ({', '.join(bundled_logs()) or 'none'})."
+        ),
+    )
+    p.add_argument("log", help="MCAP log file or bundled log name")
+    speed = p.add_mutually_exclusive_group()
+    speed.add_argument("--rate", type=float, default=1.0,
+                       help="time scale, 1.0 = real time (default), 2.0 = twice as fast")
+    speed.add_argument("--max-speed", action="store_true", help="put messages back to back")
+    p.add_argument("--loop", type=int, nargs="?", const=0, default=1, metavar="N",
+                   help="play N passes (default 1); --loop alone repeats until SIGINT/SIGTERM")
+    p.add_argument("--start", type=float, default=0.0, metavar="S",
+                   help="skip the first S seconds of the log")
+    p.add_argument("--end", type=float, default=None, metavar="S",
+                   help="stop S seconds after the log's start")
+    p.add_argument("--stream", action="append", metavar="NEW|OLD=NEW",
+                   help="publish under another stream name (repeatable as OLD=NEW)")
+    p.add_argument("--key", action="append", dest="keys", metavar="KEY",
+                   help="replay only this logged key (repeatable)")
+    p.add_argument("--wait-subscribers", type=float, default=5.0, metavar="S",
+                   help="wait up to S seconds for a subscriber before starting (default 5)")
+    p.add_argument("--partial", action="store_true",
+                   help="replay every complete chunk of a truncated/corrupt log")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON line")
+    add_connection_flags(p, default_connect=(DEFAULT_ENDPOINT,))
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from replay.player import ReplayConfig, parse_stream_map, replay_log
+
+    if args.rate is not None and not args.rate > 0:
+        raise ConfigError(f"--rate must be > 0 (1.0 = real time); got {args.rate}")
+    config = ReplayConfig(
+        rate=args.rate, max_speed=args.max_speed, loops=args.loop, start_s=args.start,
+        end_s=args.end, stream_map=parse_stream_map(args.stream),
+        keys=tuple(args.keys) if args.keys else None,
+        wait_subscribers_s=args.wait_subscribers, partial=args.partial,
+    )
+    stop = threading.Event()
+    with stop_on_signals(stop):
+        report = replay_log(resolve_log(args.log), settings_from_args(args), config, stop_event=stop)
+    if args.json:
+        print(json.dumps({
+            "path": str(report.path), "messages": report.messages, "samples": report.samples,
+            "bytes": report.bytes, "passes": report.passes, "wall_s": report.wall_s,
+            "samples_per_s": report.samples_per_s, "per_key": report.per_key,
+            "timing_error_us": report.timing_error_us(), "problem": report.problem,
+        }), flush=True)
+    else:
+        print(report.summary(), flush=True)
+    return 0

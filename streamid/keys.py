@@ -1,0 +1,120 @@
+"""Zenoh key expressions used by streamid.
+
+Every stream lives under ``streamid/<stream>/``:
+
+========================  =====================================================
+``streamid/<s>/samples``  sample batches carrying inputs and outputs together
+``streamid/<s>/u``        sample batches carrying inputs only (e.g. from a DAC)
+``streamid/<s>/y``        sample batches carrying outputs only (e.g. a sensor)
+``streamid/<s>/model``    identified models (JSON, ``streamid.model/1``)
+``streamid/<s>/status``   stream status (JSON)
+========================  =====================================================
+
+A stream name is one Zenoh chunk: 1-128 characters from ``A-Z a-z 0-9 _ - .``
+(no ``/``, no wildcard), so it is also a safe file-name component.
+"""
+
+from __future__ import annotations
+
+import re
+
+from streamid.errors import ConfigError
+
+__all__ = [
+    "PREFIX",
+    "KINDS",
+    "SAMPLE_KINDS",
+    "STREAM_NAME_RULE",
+    "ALL_SAMPLES",
+    "check_stream_name",
+    "is_valid_stream_name",
+    "stream_key",
+    "samples_key",
+    "u_key",
+    "y_key",
+    "model_key",
+    "status_key",
+    "parse_key",
+]
+
+PREFIX = "streamid"
+#: Every kind of key under a stream.
+KINDS: tuple[str, ...] = ("samples", "u", "y", "model", "status")
+#: The kinds that carry sample batches.
+SAMPLE_KINDS: tuple[str, ...] = ("samples", "u", "y")
+#: Key expressions matching every sample batch of every stream.
+ALL_SAMPLES: tuple[str, ...] = tuple(f"{PREFIX}/*/{k}" for k in SAMPLE_KINDS)
+
+STREAM_NAME_RULE = "1 to 128 characters from A-Z a-z 0-9 _ - . (not '.' or '..')"
+_STREAM_RE = re.compile(r"[A-Za-z0-9_.\-]{1,128}")
+
+
+def is_valid_stream_name(name: object) -> bool:
+    """Whether ``name`` is an accepted stream name (see :data:`STREAM_NAME_RULE`)."""
+    return (
+        isinstance(name, str)
+        and _STREAM_RE.fullmatch(name) is not None
+        and name not in (".", "..")
+    )
+
+
+def check_stream_name(name: object) -> str:
+    """Return ``name`` if it is a valid stream name, else raise :class:`ConfigError`."""
+    if not is_valid_stream_name(name):
+        raise ConfigError(f"stream name must be {STREAM_NAME_RULE}; got {name!r}")
+    return name  # type: ignore[return-value]
+
+
+def stream_key(stream: str, kind: str) -> str:
+    """``streamid/<stream>/<kind>`` with both parts checked."""
+    check_stream_name(stream)
+    if kind not in KINDS:
+        raise ConfigError(f"key kind must be one of {', '.join(KINDS)}; got {kind!r}")
+    return f"{PREFIX}/{stream}/{kind}"
+
+
+def samples_key(stream: str) -> str:
+    """Key of combined input/output sample batches: ``streamid/<stream>/samples``."""
+    return stream_key(stream, "samples")
+
+
+def u_key(stream: str) -> str:
+    """Key of input-only sample batches: ``streamid/<stream>/u``."""
+    return stream_key(stream, "u")
+
+
+def y_key(stream: str) -> str:
+    """Key of output-only sample batches: ``streamid/<stream>/y``."""
+    return stream_key(stream, "y")
+
+
+def model_key(stream: str) -> str:
+    """Key of published models: ``streamid/<stream>/model``."""
+    return stream_key(stream, "model")
+
+
+def status_key(stream: str) -> str:
+    """Key of the stream status: ``streamid/<stream>/status``."""
+    return stream_key(stream, "status")
+
+
+def parse_key(key: str) -> tuple[str, str]:
+    """Split ``streamid/<stream>/<kind>`` into ``(stream, kind)``.
+
+    Raises
+    ------
+    ConfigError
+        If ``key`` is not of that form with a valid stream name and known kind.
+    """
+    parts = key.split("/") if isinstance(key, str) else []
+    if len(parts) != 3 or parts[0] != PREFIX:
+        raise ConfigError(
+            f"key must be of the form '{PREFIX}/<stream>/<kind>' with kind in "
+            f"{', '.join(KINDS)}; got {key!r}"
+        )
+    _, stream, kind = parts
+    if not is_valid_stream_name(stream):
+        raise ConfigError(f"stream name in key {key!r} must be {STREAM_NAME_RULE}; got {stream!r}")
+    if kind not in KINDS:
+        raise ConfigError(f"key kind must be one of {', '.join(KINDS)}; got {kind!r} in {key!r}")
+    return stream, kind

@@ -1,0 +1,427 @@
+"""Eclipse Zenoh transport: the only module of streamid that imports ``zenoh``.
+
+Everything else talks to the bus through :class:`Bus`, whose payloads are
+always ``bytes``.  The defaults are loopback-friendly and quiet: multicast
+scouting is off unless asked for, and a session listens only on the endpoints
+it is given (never on every interface), so peers meet through explicit
+``--listen`` / ``--connect`` endpoints such as ``tcp/127.0.0.1:7447``.
+
+Publishers of samples use BLOCK congestion control: with Zenoh's default
+(DROP) a burst of puts can silently lose messages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import zenoh
+
+from streamid.errors import ConfigError, TransportError
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "MODES",
+    "ZenohSettings",
+    "add_connection_flags",
+    "settings_from_args",
+    "Bus",
+    "BusPublisher",
+]
+
+_log = logging.getLogger(__name__)
+
+#: The endpoint streamid's daemon listens on by default and clients connect to.
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+#: Accepted Zenoh session modes.
+MODES: tuple[str, ...] = ("peer", "client", "router")
+
+_ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe")
+
+
+def _check_endpoint(endpoint: str, what: str) -> str:
+    if not isinstance(endpoint, str) or "/" not in endpoint:
+        raise ConfigError(
+            f"{what} endpoint must be a Zenoh locator '<protocol>/<address>' such as "
+            f"'tcp/127.0.0.1:7447'; got {endpoint!r}"
+        )
+    proto = endpoint.split("/", 1)[0]
+    if proto not in _ENDPOINT_PROTOCOLS:
+        raise ConfigError(
+            f"{what} endpoint protocol must be one of {', '.join(_ENDPOINT_PROTOCOLS)}; "
+            f"got {proto!r} in {endpoint!r}"
+        )
+    return endpoint
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """How to open a Zenoh session.
+
+    Parameters
+    ----------
+    mode : {"peer", "client", "router"} or None
+        Zenoh session mode (a ``router`` session is a working Zenoh router).
+        ``None``: the ``config_file``'s mode (``peer`` without a file).
+    connect : tuple of str
+        Endpoints to connect to, e.g. ``("tcp/127.0.0.1:7447",)``.
+    listen : tuple of str
+        Endpoints to listen on. Empty means: listen nowhere (unless a
+        ``config_file`` says otherwise); never all interfaces by default.
+    config_file : str or None
+        A Zenoh JSON5 configuration file (access control, TLS, ...).  It is
+        loaded first; explicit ``connect``/``listen``/scouting values given
+        here override it only when non-empty / when scouting is asked for.
+    multicast_scouting : bool
+        Enable multicast scouting (off by default: it sends on a multicast
+        group and delays ``open`` by ~0.5 s).
+    """
+
+    mode: str | None = "peer"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    config_file: str | None = None
+    multicast_scouting: bool = False
+    #: Extra raw JSON5 key/value pairs inserted last (e.g. ``{"adminspace/enabled": "true"}``).
+    extra: tuple[tuple[str, str], ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        if self.mode is not None and self.mode not in MODES:
+            raise ConfigError(f"zenoh mode must be one of {', '.join(MODES)}; got {self.mode!r}")
+        object.__setattr__(self, "connect", tuple(self.connect))
+        object.__setattr__(self, "listen", tuple(self.listen))
+        for ep in self.connect:
+            _check_endpoint(ep, "connect")
+        for ep in self.listen:
+            _check_endpoint(ep, "listen")
+        if self.config_file is not None and not Path(self.config_file).is_file():
+            raise ConfigError(
+                f"zenoh config file must be an existing JSON5 file; got {self.config_file!r}"
+            )
+
+    def to_config(self) -> zenoh.Config:
+        """Build the :class:`zenoh.Config` these settings describe.
+
+        Raises
+        ------
+        TransportError
+            If the configuration file cannot be loaded or a value is refused by Zenoh.
+        """
+        try:
+            if self.config_file is not None:
+                conf = zenoh.Config.from_file(self.config_file)
+            else:
+                conf = zenoh.Config()
+            if self.mode is not None or self.config_file is None:
+                conf.insert_json5("mode", json.dumps(self.mode or "peer"))
+            if self.config_file is None or self.multicast_scouting:
+                conf.insert_json5(
+                    "scouting/multicast/enabled", "true" if self.multicast_scouting else "false"
+                )
+            if self.listen or self.config_file is None:
+                conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+            if self.connect or self.config_file is None:
+                conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+            for key, value in self.extra:
+                conf.insert_json5(key, value)
+        except zenoh.ZError as exc:
+            raise TransportError(
+                f"zenoh configuration refused ({exc}); settings: {self}"
+            ) from exc
+        return conf
+
+
+def add_connection_flags(
+    parser: argparse.ArgumentParser,
+    *,
+    default_connect: Sequence[str] = (),
+    default_listen: Sequence[str] = (),
+    default_mode: str = "peer",
+) -> None:
+    """Add the shared Zenoh connection flags to ``parser``.
+
+    Flags: ``--mode``, ``--connect ENDPOINT`` (repeatable), ``--listen
+    ENDPOINT`` (repeatable), ``--zenoh-config FILE``, ``--multicast-scouting``.
+    The default endpoints apply only when none of ``--connect``,
+    ``--listen`` and ``--zenoh-config`` is given.
+    """
+    group = parser.add_argument_group("zenoh connection")
+    group.add_argument("--mode", choices=MODES, default=None,
+                       help=f"Zenoh session mode (default: {default_mode}, or the --zenoh-config file's)")
+    group.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable; "
+                            f"default: {' '.join(default_connect) or 'none'})")
+    group.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; "
+                            f"default: {' '.join(default_listen) or 'none'})")
+    group.add_argument("--zenoh-config", default=None, metavar="FILE",
+                       help="Zenoh JSON5 configuration file (access control, TLS, ...)")
+    group.add_argument("--multicast-scouting", action="store_true",
+                       help="enable Zenoh multicast scouting (off by default)")
+    parser.set_defaults(_zenoh_default_connect=tuple(default_connect),
+                        _zenoh_default_listen=tuple(default_listen),
+                        _zenoh_default_mode=default_mode)
+
+
+def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
+    """Build :class:`ZenohSettings` from flags added by :func:`add_connection_flags`."""
+    config_file = getattr(args, "zenoh_config", None)
+    explicit = args.connect is not None or args.listen is not None or config_file is not None
+    if explicit:  # endpoints given (or a config file): no default endpoint is added
+        connect = tuple(args.connect or ())
+        listen = tuple(args.listen or ())
+    else:
+        connect = tuple(getattr(args, "_zenoh_default_connect", ()))
+        listen = tuple(getattr(args, "_zenoh_default_listen", ()))
+    mode = args.mode
+    if mode is None and config_file is None:
+        mode = getattr(args, "_zenoh_default_mode", "peer")
+    return ZenohSettings(
+        mode=mode,
+        connect=tuple(connect),
+        listen=tuple(listen),
+        config_file=config_file,
+        multicast_scouting=bool(getattr(args, "multicast_scouting", False)),
+    )
+
+
+Callback = Callable[[str, bytes], None]
+QueryHandler = Callable[[str], "bytes | None"]
+
+
+class BusPublisher:
+    """A declared publisher on one key: ``put(bytes)``, ``has_subscribers()``."""
+
+    def __init__(self, publisher: Any, key: str) -> None:
+        self._pub = publisher
+        self.key = key
+
+    def put(self, payload: bytes) -> None:
+        """Publish ``payload`` (``bytes``/``bytearray``) on this publisher's key."""
+        if not isinstance(payload, (bytes, bytearray)):
+            raise TypeError(f"payload must be bytes; got {type(payload).__name__}")
+        self._pub.put(bytes(payload) if isinstance(payload, bytearray) else payload)
+
+    def has_subscribers(self) -> bool:
+        """Whether a subscriber matching this key is known to exist right now."""
+        return bool(self._pub.matching_status.matching)
+
+    def wait_for_subscribers(self, timeout_s: float) -> bool:
+        """Poll :meth:`has_subscribers` until true or ``timeout_s`` passed; return the final state."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.has_subscribers():
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.005)
+
+    def close(self) -> None:
+        """Undeclare the publisher (idempotent)."""
+        try:
+            self._pub.undeclare()
+        except zenoh.ZError:
+            pass
+
+
+class _Handle:
+    """An undeclarable subscription or queryable."""
+
+    def __init__(self, entity: Any) -> None:
+        self._entity = entity
+
+    def close(self) -> None:
+        try:
+            self._entity.undeclare()
+        except zenoh.ZError:
+            pass
+
+
+class Bus:
+    """A Zenoh session with ``bytes`` payloads.
+
+    Use as a context manager::
+
+        with Bus(ZenohSettings(listen=("tcp/127.0.0.1:7447",))) as bus:
+            pub = bus.publisher("streamid/demo/samples")
+            pub.put(payload)
+
+    Callbacks run on Zenoh's threads; an exception escaping a callback is
+    logged (with the key) and swallowed so that the session keeps running.
+    """
+
+    def __init__(self, settings: ZenohSettings | None = None) -> None:
+        self.settings = settings if settings is not None else ZenohSettings()
+        conf = self.settings.to_config()
+        try:
+            self._session = zenoh.open(conf)
+        except zenoh.ZError as exc:
+            raise TransportError(
+                f"cannot open zenoh session ({exc}); check that listen endpoints are free "
+                f"and valid; settings: {self.settings}"
+            ) from exc
+        self._lock = threading.Lock()
+        self._entities: list[Any] = []
+        self._closed = False
+
+    # -- context manager -------------------------------------------------
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    @property
+    def zid(self) -> str:
+        """This session's Zenoh id."""
+        return str(self._session.zid())
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise TransportError("the zenoh session is closed; open a new Bus")
+
+    def _keep(self, entity: Any) -> None:
+        with self._lock:
+            self._entities.append(entity)
+
+    # -- pub/sub ---------------------------------------------------------
+    def subscribe(self, key_expr: str, callback: Callback) -> _Handle:
+        """Call ``callback(key, payload_bytes)`` for every sample put on ``key_expr``.
+
+        Returns a handle whose ``close()`` undeclares the subscription.
+        """
+        self._check_open()
+
+        def _on_sample(sample: Any) -> None:
+            key = str(sample.key_expr)
+            try:
+                if sample.kind != zenoh.SampleKind.PUT:
+                    return
+                callback(key, sample.payload.to_bytes())
+            except Exception:  # noqa: BLE001 - a callback must not kill zenoh's thread
+                _log.exception("subscriber callback failed on key %s", key)
+
+        try:
+            sub = self._session.declare_subscriber(key_expr, _on_sample)
+        except zenoh.ZError as exc:
+            raise TransportError(
+                f"cannot subscribe: key expression must be a valid Zenoh key expression "
+                f"such as 'streamid/**'; got {key_expr!r} ({exc})"
+            ) from exc
+        self._keep(sub)
+        return _Handle(sub)
+
+    def publisher(self, key: str, block: bool = True, *, express: bool = False) -> BusPublisher:
+        """Declare a publisher on ``key``.
+
+        ``block=True`` (default, for samples) uses BLOCK congestion control so
+        nothing is dropped when queues fill; ``block=False`` uses DROP (for
+        status or latest-value traffic that must never stall the caller).
+        """
+        self._check_open()
+        cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        try:
+            pub = self._session.declare_publisher(key, congestion_control=cc, express=express)
+        except zenoh.ZError as exc:
+            raise TransportError(
+                f"cannot declare publisher: key must be a Zenoh key without wildcards such "
+                f"as 'streamid/demo/samples'; got {key!r} ({exc})"
+            ) from exc
+        self._keep(pub)
+        return BusPublisher(pub, key)
+
+    def put(self, key: str, payload: bytes, block: bool = True) -> None:
+        """One-off put of ``payload`` on ``key`` (prefer :meth:`publisher` for streams)."""
+        self._check_open()
+        cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        try:
+            self._session.put(key, bytes(payload), congestion_control=cc)
+        except zenoh.ZError as exc:
+            raise TransportError(f"put on {key!r} failed ({exc})") from exc
+
+    # -- query/reply -----------------------------------------------------
+    def queryable(self, key: str, handler: QueryHandler) -> _Handle:
+        """Answer queries on ``key``: ``handler(query_key) -> bytes | None``.
+
+        A ``None`` result sends no reply.  The reply is sent on the queried key
+        when it is concrete, else on ``key``.
+        """
+        self._check_open()
+
+        def _on_query(query: Any) -> None:
+            qkey = str(query.key_expr)
+            try:
+                payload = handler(qkey)
+                if payload is not None:
+                    reply_key = key if ("*" in qkey or "$" in qkey) else qkey
+                    query.reply(reply_key, bytes(payload))
+            except Exception:  # noqa: BLE001
+                _log.exception("queryable handler failed on key %s", qkey)
+
+        try:
+            qbl = self._session.declare_queryable(key, _on_query)
+        except zenoh.ZError as exc:
+            raise TransportError(f"cannot declare queryable on {key!r} ({exc})") from exc
+        self._keep(qbl)
+        return _Handle(qbl)
+
+    def get(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
+        """Query ``key_expr``; return the successful replies as ``(key, payload)``.
+
+        Waits at most ``timeout_s``; error replies are skipped.
+        """
+        self._check_open()
+        if not timeout_s > 0:
+            raise ConfigError(f"timeout_s must be > 0 seconds; got {timeout_s!r}")
+        try:
+            replies = self._session.get(key_expr, timeout=float(timeout_s))
+        except zenoh.ZError as exc:
+            raise TransportError(f"get on {key_expr!r} failed ({exc})") from exc
+        out: list[tuple[str, bytes]] = []
+        for reply in replies:  # the handler ends when every replier answered or the timeout hit
+            ok = reply.ok
+            if ok is not None:
+                out.append((str(ok.key_expr), ok.payload.to_bytes()))
+        return out
+
+    # -- introspection ---------------------------------------------------
+    def peers(self) -> list[str]:
+        """Zenoh ids of the peers this session is connected to."""
+        info = self._session.info
+        return [str(z) for z in info.peers_zid()]
+
+    def routers(self) -> list[str]:
+        """Zenoh ids of the routers this session is connected to."""
+        info = self._session.info
+        return [str(z) for z in info.routers_zid()]
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            entities, self._entities = self._entities, []
+        for ent in reversed(entities):
+            try:
+                ent.undeclare()
+            except Exception:  # noqa: BLE001 - already undeclared by the user
+                pass
+        try:
+            self._session.close()
+        except zenoh.ZError:
+            pass
