@@ -123,11 +123,22 @@ class ZenohSettings:
                 conf = zenoh.Config()
             if self.mode is not None or self.config_file is None:
                 conf.insert_json5("mode", json.dumps(self.mode or "peer"))
-            if self.config_file is None or self.multicast_scouting:
+            # A file that leaves multicast scouting or the listen endpoints unset would get
+            # Zenoh's own defaults: scouting on a multicast group and listening on every
+            # interface.  streamid's rule is loopback unless configured otherwise, so both
+            # are forced off unless the file (or a flag) says something.
+            file_sets_scouting = (
+                self.config_file is not None and conf.get_json("scouting/multicast/enabled") != "null"
+            )
+            if self.multicast_scouting or not file_sets_scouting:
                 conf.insert_json5(
                     "scouting/multicast/enabled", "true" if self.multicast_scouting else "false"
                 )
-            if self.listen or self.config_file is None:
+            file_sets_listen = (
+                self.config_file is not None
+                and conf.get_json("listen/endpoints") != zenoh.Config().get_json("listen/endpoints")
+            )
+            if self.listen or not file_sets_listen:
                 conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
             if self.connect or self.config_file is None:
                 conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))

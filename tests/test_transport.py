@@ -182,3 +182,21 @@ def test_config_file_mode_is_kept_unless_mode_flag_given(tmp_path) -> None:
     assert json.loads(s.to_config().get_json("connect/endpoints")) == ["tcp/127.0.0.1:1"]
     s = settings_from_args(p.parse_args(["--zenoh-config", str(cfg), "--mode", "peer"]))
     assert json.loads(s.to_config().get_json("mode")) == "peer"
+
+
+def test_config_file_without_listen_or_scouting_stays_on_loopback(tmp_path) -> None:
+    """A file that says nothing about listening or scouting must not get Zenoh's
+    defaults (every interface, multicast on): streamid listens nowhere and scouts not."""
+    bare = tmp_path / "bare.json5"
+    bare.write_text('{ mode: "peer" }')
+    conf = ZenohSettings(mode=None, config_file=str(bare)).to_config()
+    assert json.loads(conf.get_json("listen/endpoints")) == []
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+    explicit = tmp_path / "explicit.json5"
+    explicit.write_text(
+        '{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:7999"] },'
+        ' scouting: { multicast: { enabled: true } } }'
+    )
+    conf = ZenohSettings(mode=None, config_file=str(explicit)).to_config()
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7999"]
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is True
