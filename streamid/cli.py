@@ -26,6 +26,7 @@ BUILTIN_COMMANDS: tuple[str, ...] = (
     "streamid.commands.watch",
     "streamid.commands.demo",
     "streamid.commands.bench",
+    "streamid.commands.router",
 )
 
 ENTRY_POINT_GROUP = "streamid.commands"
