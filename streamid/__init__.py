@@ -17,4 +17,34 @@ try:
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.0.0+local"
 
-__all__ = ["StreamidError", "__version__"]
+__all__ = [
+    "StreamidError",
+    "__version__",
+    "CoEAConfig",
+    "CoEAState",
+    "Coevolution",
+    "Model",
+    "Result",
+    "identify",
+    "validate",
+]
+
+_ENGINE_EXPORTS = {
+    "CoEAConfig": "streamid.engine.config",
+    "CoEAState": "streamid.engine.coevolution",
+    "Coevolution": "streamid.engine.coevolution",
+    "Model": "streamid.engine.model",
+    "Result": "streamid.engine.identify",
+    "identify": "streamid.engine.identify",
+    "validate": "streamid.engine.validation",
+}
+
+
+def __getattr__(name: str) -> object:
+    """Engine names re-exported lazily (``import streamid`` stays light for the CLI and the daemon)."""
+    module = _ENGINE_EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'streamid' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(module), name)

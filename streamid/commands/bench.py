@@ -1,0 +1,100 @@
+"""``streamid bench``: the figures that back streamid's claims, measured here and now.
+
+Prints the machine's description and one table of medians over repeated runs:
+identification time and R^2 on the reactor, the real MR damper and the real piezo
+logs, scaling in N and M, streaming figures (ingestion, replay -> record, update
+latency, cold vs warm updates), and with ``--peers`` the same data fitted by
+SysIdentPy in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import time
+from collections.abc import Callable, Iterable
+from importlib.metadata import entry_points
+
+from streamid.benchkit import BenchOptions, Measurement, format_table, machine_description
+from streamid.errors import ConfigError
+
+#: streamid's own providers, ``module:function`` with ``function(options) -> Iterable[Measurement]``.
+BUILTIN_PROVIDERS: dict[str, str] = {
+    "engine": "streamid.engine.benchmarks:bench",
+    "peers": "streamid.peers:bench",
+    "daemon": "streamid.daemon.bench:bench",
+}
+
+ENTRY_POINT_GROUP = "streamid.benchmarks"
+
+
+def _load(spec: str) -> Callable[[BenchOptions], Iterable[Measurement]]:
+    module, _, attr = spec.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def providers() -> dict[str, Callable[[BenchOptions], Iterable[Measurement]]]:
+    found: dict[str, Callable[[BenchOptions], Iterable[Measurement]]] = {}
+    for name, spec in BUILTIN_PROVIDERS.items():
+        try:
+            found[name] = _load(spec)
+        except ModuleNotFoundError:
+            continue
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        found[ep.name] = ep.load()
+    return found
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "bench",
+        help="measure identification and streaming figures on this machine",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--repeat", type=int, default=5, help="runs each figure is the median of (default 5)")
+    p.add_argument("--quick", action="store_true", help="small sizes and few runs: a smoke run, not for quoting")
+    p.add_argument("--peers", action="store_true", help="also fit the data sets with SysIdentPy (extra 'peers')")
+    p.add_argument("--only", action="append", metavar="SECTION", help="run only these sections (repeatable)")
+    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--json", metavar="FILE", help="also write the measurements as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.repeat < 1:
+        raise ConfigError(f"--repeat must be a whole number >= 1, got {args.repeat}")
+    options = BenchOptions(
+        repeat=1 if args.quick else args.repeat, quick=args.quick, peers=args.peers, seed=args.seed
+    )
+    found = providers()
+    wanted = list(found) if not args.only else args.only
+    unknown = [w for w in wanted if w not in found]
+    if unknown:
+        raise ConfigError(f"--only takes one of {sorted(found)}, got {unknown}")
+    if not args.peers:
+        wanted = [w for w in wanted if w != "peers" or args.only]
+    machine = machine_description()
+    print("streamid bench — " + ", ".join(f"{k}: {v}" for k, v in machine.items()))
+    rows: list[Measurement] = []
+    failures: list[str] = []
+    for name in wanted:
+        t0 = time.perf_counter()
+        print(f"[bench] {name} ...", file=sys.stderr, flush=True)
+        try:
+            got = list(found[name](options))
+        except Exception as exc:  # one broken section must not hide the others
+            failures.append(f"{name}: {type(exc).__name__}: {exc}")
+            print(f"[bench] {name} failed: {exc}", file=sys.stderr, flush=True)
+            continue
+        rows.extend(got)
+        print(f"[bench] {name} done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    print(format_table(rows))
+    for f in failures:
+        print(f"FAILED {f}")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"machine": machine, "measurements": [m.to_dict() for m in rows], "failures": failures}, fh, indent=1)
+    return 1 if failures else 0

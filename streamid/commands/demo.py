@@ -1,0 +1,266 @@
+"""``streamid demo``: the main job in one command, on loopback, in about a minute.
+
+Starts the identification daemon on a free loopback port, replays two bundled
+logs onto Zenoh as if a dSPACE board and a sensor were live -- the real MR damper
+(velocity -> force, 200 Hz, accelerated and looped) and the simulated piezo
+micromanipulator (voltage -> deflection, 20 kHz, real time, looped) -- and
+prints every model the daemon publishes as it arrives.  Ends with a summary
+table and the ``.rrd`` file of the diagnostics with the command that opens it
+in the Rerun viewer.  No router, viewer or configuration needed.
+
+Exit code 0 only if models were published for both streams.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from streamid.errors import ConfigError
+
+__all__ = ["DemoStream", "DEMO_STREAMS", "register", "run"]
+
+
+@dataclass(frozen=True)
+class DemoStream:
+    """One replayed log and how the daemon windows it."""
+
+    stream: str
+    log: str  # bundled log name
+    rate: float  # replay speed (1.0 = real time)
+    loops: int  # times the log is played
+    window_s: float  # stream time
+    update_every_s: float  # stream time
+    neurons: int
+    max_lag: int
+    description: str
+
+    def wall_s(self, log_seconds: float) -> float:
+        return log_seconds * self.loops / self.rate
+
+
+DEMO_STREAMS: tuple[DemoStream, ...] = (
+    DemoStream("mr_damper", "mr_damper", rate=2.0, loops=6, window_s=4.0, update_every_s=2.0,
+               neurons=10, max_lag=10, description="real MR damper, 200 Hz, x2 speed"),
+    DemoStream("piezo", "piezo_sim_20khz", rate=1.0, loops=3, window_s=0.5, update_every_s=1.0,
+               neurons=10, max_lag=10, description="simulated piezo, 20 kHz, real time"),
+)
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "demo",
+        help="replay the bundled MR damper and piezo logs through the daemon and show the models (about 1 min)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--out", default="streamid-demo", metavar="DIR",
+                   help="where the .rrd, the daemon's config and its log go (default ./streamid-demo)")
+    p.add_argument("--loops", type=int, default=None, metavar="N",
+                   help="play each log N times (default: 6 for the MR damper, 3 for the piezo: about a minute)")
+    p.add_argument("--port", type=int, default=0, help="loopback TCP port of the daemon (default: a free one)")
+    p.set_defaults(func=run)
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_listening(port: int, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise ConfigError(f"the daemon exited at start with code {proc.returncode}; see its log")
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return
+        except OSError:
+            time.sleep(0.05)
+    raise ConfigError(f"the daemon did not listen on 127.0.0.1:{port} within {timeout_s:.0f} s")
+
+
+def _config_toml(streams: Sequence[DemoStream]) -> str:
+    lines = [
+        "# written by `streamid demo`",
+        "[daemon]",
+        f"streams = [{', '.join(repr(s.stream).replace(chr(39), chr(34)) for s in streams)}]",
+        f"workers = {min(2, os.cpu_count() or 1)}",
+        "",
+    ]
+    for s in streams:
+        lines += [
+            f"[streams.{s.stream}]",
+            f"window_s = {s.window_s}",
+            f"update_every_s = {s.update_every_s}",
+            f"neurons = {s.neurons}",
+            f"max_lag_y = {s.max_lag}",
+            f"max_lag_u = {s.max_lag}",
+            "",
+        ]
+    return "\n".join(lines)
+
+
+@dataclass
+class _Tally:
+    versions: list[int] = field(default_factory=list)
+    last: Any = None
+    ident_s: list[float] = field(default_factory=list)
+    latency_s: list[float] = field(default_factory=list)
+
+
+def _line(t0: float, up: Any) -> str:
+    m = up.metrics
+    lags = up.model.lags
+    lag_text = f"y{lags['y']} u{lags['u'][0] if len(lags['u']) == 1 else lags['u']}"
+
+    def f(key: str) -> str:
+        v = m.get(key)
+        return f"{v:.4f}" if isinstance(v, (int, float)) else "  n/a "
+
+    return (
+        f"[{time.monotonic() - t0:5.1f} s] {up.stream:<9} v{up.version:<3} {'warm' if up.warm else 'cold'} "
+        f"G={up.generations:<3} R2 val OSA {f('r2_osa_val')} FR {f('r2_fr_val')} "
+        f"ident {up.identification_s:5.2f} s  lags {lag_text}"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from streamid.client import ModelSubscriber, latest_status
+    from streamid.mcaplog import bundled_log, log_info
+    from streamid.transport import ZenohSettings
+
+    if args.loops is not None and args.loops < 1:
+        raise ConfigError(f"--loops must be a whole number >= 1, got {args.loops}")
+    streams = tuple(
+        s if args.loops is None else DemoStream(**{**s.__dict__, "loops": args.loops}) for s in DEMO_STREAMS
+    )
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    rrd = out / "demo.rrd"
+    for old in out.glob("demo*.rrd"):
+        old.unlink()
+    cfg = out / "daemon.toml"
+    cfg.write_text(_config_toml(streams), encoding="utf-8")
+    port = args.port or _free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    py = [sys.executable, "-m", "streamid"]
+
+    durations = {}
+    for s in streams:
+        info = log_info(bundled_log(s.log))
+        durations[s.stream] = s.wall_s(info.duration_s)
+    expected_s = max(durations.values())
+    print(f"streamid demo: daemon on {ep}, diagnostics -> {rrd}")
+    for s in streams:
+        print(f"  {s.stream:<9} {s.description}: log '{s.log}' x{s.loops}, window {s.window_s} s, "
+              f"update every {s.update_every_s} s  (~{durations[s.stream]:.0f} s)")
+    print(f"  expected run time ~{expected_s:.0f} s plus the first (cold) identifications\n", flush=True)
+
+    daemon_log = open(out / "daemon.log", "wb")
+    daemon = subprocess.Popen(
+        [*py, "daemon", "--config", str(cfg), "--listen", ep, "--rrd", str(rrd), "--rrd-rotate-mb", "0"],
+        stdout=daemon_log, stderr=subprocess.STDOUT,
+    )
+    replays: list[subprocess.Popen[bytes]] = []
+    tallies = {s.stream: _Tally() for s in streams}
+    lock = threading.Lock()
+    t0 = time.monotonic()
+
+    def on_update(up: Any) -> None:
+        with lock:
+            t = tallies.get(up.stream)
+            if t is None:
+                return
+            t.versions.append(up.version)
+            t.last = up
+            t.ident_s.append(up.identification_s)
+            if up.window_closed_unix_ns and up.published_unix_ns:
+                t.latency_s.append((up.published_unix_ns - up.window_closed_unix_ns) / 1e9)
+            print(_line(t0, up), flush=True)
+
+    client = ZenohSettings(connect=(ep,))
+    statuses: dict[str, Any] = {}
+    try:
+        _wait_listening(port, daemon, 30.0)
+        with ModelSubscriber(client, "*", on_update, fetch_latest=False):
+            for s in streams:
+                replays.append(subprocess.Popen(
+                    [*py, "replay", s.log, "--connect", ep, "--rate", str(s.rate), "--loop", str(s.loops),
+                     "--stream", s.stream],
+                    stdout=subprocess.DEVNULL, stderr=open(out / f"replay-{s.stream}.log", "wb"),
+                ))
+            deadline = time.monotonic() + 3 * expected_s + 60
+            for r in replays:
+                r.wait(timeout=max(1.0, deadline - time.monotonic()))
+            # let the last windows be identified and published
+            settle = time.monotonic() + 8.0
+            while time.monotonic() < settle:
+                time.sleep(0.25)
+            for s in streams:
+                statuses[s.stream] = latest_status(client, s.stream, timeout_s=2.0)
+    except KeyboardInterrupt:
+        print("\ninterrupted", file=sys.stderr)
+    finally:
+        for r in replays:
+            if r.poll() is None:
+                r.terminate()
+                r.wait(timeout=5)
+        if daemon.poll() is None:
+            daemon.send_signal(signal.SIGINT)
+            try:
+                daemon.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                daemon.kill()
+                daemon.wait()
+        daemon_log.close()
+
+    print()
+    print(_summary(streams, tallies, statuses))
+    print(f"\ndiagnostics: {rrd}\nopen them:   rerun {rrd}")
+    print(f"daemon log:  {out / 'daemon.log'}")
+    missing = [s.stream for s in streams if not tallies[s.stream].versions]
+    if missing:
+        print(f"no model was published for: {', '.join(missing)} (see {out / 'daemon.log'})", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _summary(streams: Sequence[DemoStream], tallies: dict[str, _Tally], statuses: dict[str, Any]) -> str:
+    head = ("stream", "models", "last v", "lags (last)", "R2 OSA val", "R2 FR val", "ident median s",
+            "publish latency median s", "samples in", "bad msgs")
+    rows = [head]
+    for s in streams:
+        t = tallies[s.stream]
+        st = statuses.get(s.stream) or {}
+        samples_in = st.get("samples_in", "n/a")
+        bad = st.get("bad_total", "n/a")
+        if t.last is None:
+            rows.append((s.stream, "0", "-", "-", "-", "-", "-", "-", str(samples_in), str(bad)))
+            continue
+        m = t.last.metrics
+        lags = t.last.model.lags
+        rows.append((
+            s.stream, str(len(t.versions)), str(t.last.version),
+            f"y{lags['y']} u{lags['u'][0] if len(lags['u']) == 1 else lags['u']}",
+            f"{m.get('r2_osa_val', float('nan')):.4f}", f"{m.get('r2_fr_val', float('nan')):.4f}",
+            f"{statistics.median(t.ident_s):.3f}",
+            f"{statistics.median(t.latency_s):.3f}" if t.latency_s else "n/a",
+            str(samples_in), str(bad),
+        ))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)

@@ -1,0 +1,290 @@
+"""``streamid identify``: identify an RBF-NARX model from a data file (CSV, MAT or MCAP log).
+
+Examples
+--------
+::
+
+    streamid identify data.csv --input u --output y
+    streamid identify mr.mcap --input velocity_cm_s --output force_N --est 2000 --model mr.json
+    streamid identify data.csv --input u --output y --paper --neurons 10 --generations 400 --runs 10 --json r.json
+
+Estimation data are the first samples (``--est N`` or ``--est-fraction F``,
+default half), validation data the rest. With ``--runs R`` the identification is
+repeated with seeds ``S .. S+R-1`` (in parallel over ``--workers`` processes) and
+the fitness statistics are reported like the paper's Table 4.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any, TextIO
+
+import numpy as np
+
+from streamid.dataset import Dataset, load_dataset
+from streamid.engine.coevolution import Progress
+from streamid.engine.config import DEFAULT, PAPER, SELECTIONS, CoEAConfig
+from streamid.engine.identify import identify
+from streamid.engine.model import Model
+from streamid.engine.validation import validate
+from streamid.errors import ConfigError
+
+__all__ = ["register", "run", "identify_runs"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "identify",
+        help="identify an RBF-NARX model from a CSV, MAT or MCAP file",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("data", metavar="DATA", help="CSV (header row), MATLAB .mat or streamid .mcap log")
+    p.add_argument("--input", action="append", required=True, metavar="COL", help="input column (repeat for several)")
+    p.add_argument("--output", required=True, metavar="COL", help="output column")
+    split = p.add_mutually_exclusive_group()
+    split.add_argument("--est", type=int, metavar="N", help="estimation samples: the first N (default: half)")
+    split.add_argument("--est-fraction", type=float, metavar="F", help="estimation samples: the first fraction F")
+    p.add_argument("--stream", help="stream of an MCAP log holding several")
+    p.add_argument(
+        "--paper",
+        action="store_true",
+        help="the paper's procedure: one run chosen by fitness, defaults M=10, G=400 (else streamid's defaults)",
+    )
+    p.add_argument("--neurons", type=int, metavar="M", help=f"RBF neurons (default {DEFAULT.neurons}; --paper {PAPER.neurons})")
+    p.add_argument("--max-lag", type=int, metavar="L", help="largest candidate lag of the output and of every input (default 10)")
+    p.add_argument(
+        "--generations", type=int, metavar="G", help=f"generations per run (default {DEFAULT.generations}; --paper {PAPER.generations})"
+    )
+    p.add_argument("--population", type=int, metavar="P", help="size of both populations (default 20)")
+    p.add_argument("--restarts", type=int, metavar="K", help=f"coevolution runs per identification (default {DEFAULT.restarts}; --paper 1)")
+    p.add_argument("--selection", choices=SELECTIONS, help=f"how the final model is chosen among candidates (default {DEFAULT.selection})")
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
+    p.add_argument("--runs", type=int, default=1, metavar="R", help="independent identifications, seeds S..S+R-1 (default 1)")
+    p.add_argument("--workers", type=int, default=2, metavar="W", help="processes (default 2; 1 = this process only)")
+    p.add_argument("--json", metavar="REPORT.json", help="write the report as JSON")
+    p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (streamid.model/1 JSON)")
+    p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal)")
+    p.set_defaults(func=run)
+
+
+def _config(args: argparse.Namespace) -> CoEAConfig:
+    base = PAPER if args.paper else DEFAULT
+    changes: dict[str, Any] = {}
+    for flag, field in (
+        ("neurons", "neurons"),
+        ("generations", "generations"),
+        ("population", "population"),
+        ("restarts", "restarts"),
+        ("selection", "selection"),
+    ):
+        v = getattr(args, flag)
+        if v is not None:
+            changes[field] = v
+    if args.max_lag is not None:
+        changes["max_lag_y"] = changes["max_lag_u"] = args.max_lag
+    if args.workers < 1:
+        raise ConfigError(f"--workers must be an integer >= 1; got {args.workers}")
+    if args.runs < 1:
+        raise ConfigError(f"--runs must be an integer >= 1; got {args.runs}")
+    if args.seed < 0:
+        raise ConfigError(f"--seed must be an integer >= 0; got {args.seed}")
+    changes["workers"] = args.workers if args.runs == 1 else 1
+    try:
+        return base.replace(**changes)
+    except ConfigError as exc:
+        raise ConfigError(f"{exc} (check the command-line options)") from None
+
+
+def _one(job: dict[str, Any]) -> dict[str, Any]:
+    """One identification + validation (also a worker process's body); JSON-able result."""
+    ds: Dataset = job["dataset"]
+    cfg = CoEAConfig.from_dict(job["config"])
+    res = identify(
+        ds.u_est,
+        ds.y_est,
+        cfg,
+        job["seed"],
+        callback=job.get("callback"),
+        input_names=ds.input_names,
+        output_name=ds.output_name,
+        window=ds.window(),
+    )
+    rep = validate(res.model, ds.u_est, ds.y_est, ds.u_val, ds.y_val)
+    model = res.model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
+    return {
+        "seed": job["seed"],
+        "seconds": res.seconds,
+        "evaluations": res.evaluations,
+        "fitness": res.fitness,
+        "lags": model.lags,
+        "regressors": model.labels(),
+        "r2": rep.r2_dict(),
+        "correlation": {"est": rep.correlation_est.to_dict(), "val": rep.correlation_val.to_dict()},
+        "selection_score": model.metrics.get("selection_score"),
+        "model": model.to_json(indent=None),
+    }
+
+
+class _Bar:
+    """A one-line progress bar on a stream, shown only once a second has passed."""
+
+    def __init__(self, stream: TextIO, enabled: bool, label: str) -> None:
+        self.stream, self.enabled, self.label = stream, enabled, label
+        self.t0 = time.perf_counter()
+        self.shown = False
+
+    def update(self, done: float, total: float, note: str = "") -> None:
+        if not self.enabled or time.perf_counter() - self.t0 < 1.0:
+            return
+        frac = 0.0 if total <= 0 else min(1.0, done / total)
+        width = 30
+        bar = "#" * int(round(frac * width))
+        self.stream.write(f"\r{self.label} [{bar:<{width}}] {100 * frac:5.1f}% {note}   ")
+        self.stream.flush()
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def identify_runs(
+    ds: Dataset, cfg: CoEAConfig, seeds: list[int], workers: int, bar: _Bar | None = None
+) -> list[dict[str, Any]]:
+    """Run one identification per seed (over ``workers`` processes when several) and validate each."""
+    jobs = [{"dataset": ds, "config": cfg.to_dict(), "seed": s} for s in seeds]
+    if len(jobs) == 1:
+        if bar is not None:
+            jobs[0]["callback"] = lambda p: bar.update(p.generation, p.generations, f"generation {p.generation}/{p.generations}")
+        return [_one(jobs[0])]
+    out: list[dict[str, Any]] = []
+    if workers <= 1:
+        for j in jobs:
+            out.append(_one(j))
+            if bar is not None:
+                bar.update(len(out), len(jobs), f"run {len(out)}/{len(jobs)}")
+        return out
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn")) as ex:
+        for r in ex.map(_one, jobs):
+            out.append(r)
+            if bar is not None:
+                bar.update(len(out), len(jobs), f"run {len(out)}/{len(jobs)}")
+    return out
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    a = np.asarray(values, dtype=np.float64)
+    return {
+        "min": float(a.min()),
+        "max": float(a.max()),
+        "mean": float(a.mean()),
+        "std": float(a.std(ddof=1)) if a.size > 1 else 0.0,
+        "median": float(np.median(a)),
+    }
+
+
+def _best_index(runs: list[dict[str, Any]], cfg: CoEAConfig) -> int:
+    """The run whose model is kept: the identification's own rule (never the validation data)."""
+    if cfg.selection == "fitness":
+        return int(np.argmin([r["fitness"] for r in runs]))
+    if cfg.selection == "fr_est":
+        return int(np.argmax([r["r2"]["fr_est"] for r in runs]))
+    return int(np.argmax([r["selection_score"] for r in runs]))
+
+
+def _fmt_lags(lags: dict[str, Any], names: tuple[str, ...], output: str) -> str:
+    parts = [f"{output}: " + " ".join(str(v) for v in lags["y"])] if lags["y"] else []
+    for name, ls in zip(names, lags["u"]):
+        if ls:
+            parts.append(f"{name}: " + " ".join(str(v) for v in ls))
+    return " | ".join(parts) if parts else "(none)"
+
+
+def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str, Any]], best: int, wall: float) -> None:
+    w = out.write
+    w(f"streamid identify: {ds.path}\n")
+    w(f"  model     {', '.join(ds.input_names)} -> {ds.output_name}\n")
+    w(f"  data      estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)\n")
+    w(
+        f"  settings  neurons {cfg.neurons}, max lag y {cfg.max_lag_y} / u {cfg.max_lag_u}, generations {cfg.generations}, "
+        f"population {cfg.population}, restarts {cfg.restarts}, selection {cfg.selection}\n\n"
+    )
+    header = f"{'run':>4} {'seed':>6} {'seconds':>8} {'evals':>7} {'fitness':>11} {'OSA est':>9} {'OSA val':>9} {'FR est':>9} {'FR val':>9}  lags"
+    w(header + "\n")
+    for i, r in enumerate(runs):
+        m = "*" if i == best else " "
+        r2d = r["r2"]
+        w(
+            f"{i:>3}{m} {r['seed']:>6} {r['seconds']:>8.2f} {r['evaluations']:>7} {r['fitness']:>11.5g} "
+            f"{r2d['osa_est']:>9.5f} {r2d['osa_val']:>9.5f} {r2d['fr_est']:>9.5f} {r2d['fr_val']:>9.5f}  "
+            f"{_fmt_lags(r['lags'], ds.input_names, ds.output_name)}\n"
+        )
+    if len(runs) > 1:
+        st = _stats([r["fitness"] for r in runs])
+        fr = _stats([r["r2"]["fr_val"] for r in runs])
+        w("\nfitness over runs (OSA MSE on estimation data, output units^2; as the paper's Table 4):\n")
+        w(f"  min {st['min']:.6g}  max {st['max']:.6g}  mean {st['mean']:.6g}  std {st['std']:.4g}\n")
+        w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
+    b = runs[best]
+    w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data), regressors {', '.join(b['regressors'])}\n")
+    for part in ("est", "val"):
+        c = b["correlation"][part]
+        cells = ", ".join(
+            f"{name} {100 * t['fraction_inside']:.0f}%{'' if t['passed'] else ' FAIL'}" for name, t in c["tests"].items()
+        )
+        w(f"correlation tests ({part}, lags inside +-{c['band']:.3f}): {cells}\n")
+    w(f"wall time {wall:.2f} s\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    cfg = _config(args)
+    ds = load_dataset(
+        args.data, list(args.input), args.output, est=args.est, est_fraction=args.est_fraction, stream=args.stream
+    )
+    show = args.progress == "always" or (args.progress == "auto" and sys.stderr.isatty())
+    bar = _Bar(sys.stderr, show, "identify")
+    seeds = list(range(args.seed, args.seed + args.runs))
+    try:
+        runs = identify_runs(ds, cfg, seeds, args.workers, bar)
+    finally:
+        bar.close()
+    best = _best_index(runs, cfg)
+    wall = time.perf_counter() - t0
+    _print_report(sys.stdout, ds, cfg, runs, best, wall)
+    if args.model:
+        model = Model.from_json(runs[best]["model"])
+        with open(args.model, "w", encoding="utf-8") as fh:
+            fh.write(model.to_json())
+    if args.json:
+        report = {
+            "format": "streamid.identify_report/1",
+            "data": {
+                "path": ds.path,
+                "inputs": list(ds.input_names),
+                "output": ds.output_name,
+                "n_est": ds.n_est,
+                "n_val": ds.n_val,
+            },
+            "config": cfg.to_dict(),
+            "runs": [{k: v for k, v in r.items() if k != "model"} for r in runs],
+            "best": best,
+            "summary": {
+                "fitness": _stats([r["fitness"] for r in runs]),
+                "r2": {k: _stats([r["r2"][k] for r in runs]) for k in ("osa_est", "osa_val", "fr_est", "fr_val")},
+                "seconds": _stats([r["seconds"] for r in runs]),
+                "evaluations": _stats([float(r["evaluations"]) for r in runs]),
+                "wall_seconds": wall,
+            },
+        }
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump(report, fh, indent=1, allow_nan=False)
+    return 0

@@ -1,0 +1,404 @@
+"""Daemon figures for ``streamid bench`` (and ``python -m streamid.daemon.bench`` for long soaks).
+
+* **ingestion**: samples/s the daemon receives, decodes and windows (no
+  identification) from a publisher in another process putting pre-encoded
+  batches back to back over Zenoh on loopback (BLOCK congestion control).
+* **update latency** and **soak**: the simulated 20 kHz piezo stream published
+  in real time by another process; 0.5 s window updated every 1 s (warm G=30);
+  latency = window closed -> model published; backlog (coalesced windows) and
+  resident memory over the run.
+* **cold vs warm**: time and validation R^2 of a cold run (G=400) and of warm
+  updates (G=30) on consecutive windows of a stationary system (the piezo).
+* **MR damper at max speed**: the real MR damper log put back to back; the
+  published models' free-run validation R^2 against an offline cold run with
+  the same settings on the same windows.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from streamid.benchkit import BenchOptions, Measurement
+from streamid.codec import SampleBatch, encode
+from streamid.daemon.config import DaemonConfig, StreamConfig
+from streamid.daemon.service import Daemon
+from streamid.daemon.window import WindowBuffer
+from streamid.daemon.worker import identify_window
+from streamid.transport import ZenohSettings
+
+__all__ = ["bench", "ingestion_rate", "realtime_run", "cold_vs_warm", "mr_damper_max_speed", "load_run"]
+
+SECTION = "daemon"
+
+
+def _free_endpoint() -> str:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm", encoding="ascii") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def _publisher(ep: str, device: str, batch: int, seconds: float, seed: int) -> subprocess.Popen[str]:
+    """Start a publisher process putting pre-encoded batches back to back; it prints one JSON line."""
+    code = f"from streamid.daemon.bench import _publish_main; _publish_main({ep!r}, {device!r}, {batch}, {seconds}, {seed})"
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+
+
+def _replayer(ep: str, seconds: float) -> subprocess.Popen[str]:
+    """Replay the bundled 20 kHz piezo log (20 s per pass) in real time for ``seconds``."""
+    passes = max(1, int(np.ceil(seconds / 20.0)))
+    extra = ["--end", f"{seconds:g}"] if seconds < 20.0 else ["--loop", str(passes)]
+    return subprocess.Popen(
+        [sys.executable, "-m", "streamid", "replay", "piezo_sim_20khz", "--connect", ep, "--json",
+         "--wait-subscribers", "20", *extra],
+        stdout=subprocess.PIPE, text=True,
+    )
+
+
+def _publish_main(ep: str, device: str, batch: int, seconds: float, seed: int) -> None:
+    """Publisher process body: simulate ``device``, encode it all, then put it as fast as Zenoh takes it."""
+    from streamid.sim import get_device
+    from streamid.transport import Bus
+
+    dev = get_device(device)
+    t, u, y = dev.simulate_seconds(seconds, seed=seed)
+    payloads = [
+        encode(SampleBatch(device, k, int(t[i]), dev.period_ns, None, {dev.input_name: u[i : i + batch]},
+                           {dev.output_name: y[i : i + batch]}))
+        for k, i in enumerate(range(0, len(y) - batch + 1, batch))
+    ]
+    with Bus(ZenohSettings(connect=(ep,))) as bus:
+        pub = bus.publisher(f"streamid/{device}/samples", block=True)
+        pub.wait_for_subscribers(10.0)
+        time.sleep(0.3)
+        t0 = time.perf_counter()
+        for p in payloads:
+            pub.put(p)
+        dt = time.perf_counter() - t0
+        time.sleep(0.2)
+    print(json.dumps({"samples": len(payloads) * batch, "seconds": dt}), flush=True)
+
+
+def ingestion_rate(batch: int = 1000, seconds: float = 100.0, seed: int = 0) -> dict[str, float]:
+    """Samples/s ingested by a daemon (no identification) from a back-to-back publisher process.
+
+    ``seconds`` is the simulated stream length (mr_damper at 200 Hz -> 20k samples per 100 s),
+    so the stream is the piezo at 20 kHz: ``seconds * 20000`` samples.
+    """
+    ep = _free_endpoint()
+    cfg = DaemonConfig(defaults=StreamConfig(window_s=0.5, update_every_s=1.0))
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,)), identify=False).start()
+    try:
+        proc = _publisher(ep, "piezo", batch, seconds, seed)
+        first: float | None = None
+        deadline = time.monotonic() + 120
+        want = int(seconds * 20000) // batch * batch
+        got = 0
+        while time.monotonic() < deadline:
+            rt = daemon.streams.get("piezo")
+            if rt is not None:
+                got = int(rt.buffer.counters().get("samples_in", 0))
+                if first is None and got > 0:
+                    first = time.perf_counter()
+                if got >= want:
+                    break
+            time.sleep(0.002)
+        last = time.perf_counter()
+        out, _ = proc.communicate(timeout=60)
+        pubstat = json.loads(out.strip().splitlines()[-1])
+        rt = daemon.streams["piezo"]
+        bad = rt.buffer.counters()["bad_total"]
+    finally:
+        daemon.stop()
+    if first is None or got < want:
+        raise RuntimeError(f"ingestion bench: only {got} of {want} samples arrived")
+    return {
+        "samples_per_s": got / max(last - first, 1e-9),
+        "publisher_samples_per_s": pubstat["samples"] / pubstat["seconds"],
+        "samples": float(got),
+        "bad": float(bad),
+    }
+
+
+def realtime_run(seconds: float = 30.0, seed: int = 0, warm_generations: int = 30, rrd: str | None = None) -> dict[str, Any]:
+    """The bundled 20 kHz piezo log replayed in real time; 0.5 s windows every 1 s.
+
+    Returns the steady-state latencies (window closed -> model published, from
+    update 4 on: update 1 is the cold run and 2-3 wait out the windows that
+    closed meanwhile), the cold run's time, backlog counters and resident memory.
+    """
+    ep = _free_endpoint()
+    cfg = DaemonConfig(defaults=StreamConfig(window_s=0.5, update_every_s=1.0, warm_generations=warm_generations,
+                                             seed=seed))
+    viz = None
+    if rrd is not None:
+        from streamid.viz import Viz, VizSettings
+
+        viz = Viz(VizSettings(rrd=rrd))
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,)), viz=viz).start()
+    rss: list[tuple[float, float]] = []
+    try:
+        proc = _replayer(ep, seconds)
+        t0 = time.monotonic()
+        next_rss = 0.0
+        while proc.poll() is None and time.monotonic() - t0 < seconds + 60:
+            time.sleep(0.1)
+            if time.monotonic() >= next_rss:
+                next_rss = time.monotonic() + 1.0
+                rss.append((time.monotonic() - t0, _rss_mb()))
+        out, _ = proc.communicate(timeout=30)
+        time.sleep(0.5)
+        rt = daemon.streams["piezo"]
+        st = rt.status()
+        with rt.lock:
+            lat = list(rt.recent_latencies)
+    finally:
+        daemon.stop()
+    steady = [x for v, x in lat if v > 3]
+    later = [m for t, m in rss if t >= seconds / 2]
+    earlier = [m for t, m in rss if 10.0 < t < seconds / 2]  # after warm-up (imports, first cold run)
+    return {
+        "latencies_s": steady,
+        "cold_latency_s": next((x for v, x in lat if v == 1), float("nan")),
+        "within_0_5s": float(np.mean(np.asarray(steady) <= 0.5)) if steady else float("nan"),
+        "versions": st["version"],
+        "windows": st["windows"],
+        "samples_in": st["samples_in"],
+        "bad_total": st["bad_total"],
+        "rss_mb": rss,
+        "rss_growth": (max(later) / max(earlier) - 1.0) if later and earlier else float("nan"),
+        "replay": json.loads(out.strip().splitlines()[-1]) if out.strip() else {},
+    }
+
+
+def _multi_publish_main(ep: str, streams: int, rate_hz: float, seconds: float, batch: int, seed: int) -> None:
+    """Publisher process body: ``streams`` streams at ``rate_hz`` in real time (piezo physics, decimated)."""
+    from streamid.sim import get_device
+    from streamid.transport import Bus
+
+    dev = get_device("piezo")
+    step = max(1, round(1e9 / rate_hz / dev.period_ns))
+    period = dev.period_ns * step
+    sigs = []
+    for k in range(streams):
+        _, u, y = dev.simulate_seconds(min(seconds, 10.0), seed=seed + k)
+        sigs.append((u[::step].copy(), y[::step].copy()))
+    n = len(sigs[0][1]) // batch * batch
+    names = [f"load{k}" for k in range(streams)]
+    sent = dict.fromkeys(names, 0)
+    with Bus(ZenohSettings(connect=(ep,))) as bus:
+        pubs = [bus.publisher(f"streamid/{s}/samples", block=True) for s in names]
+        for p in pubs:
+            p.wait_for_subscribers(20.0)
+        t0 = time.perf_counter()
+        total = int(seconds * 1e9 / period) // batch
+        for j in range(total):
+            due = t0 + (j + 1) * batch * period / 1e9
+            now = time.perf_counter()
+            if due > now:
+                time.sleep(due - now)
+            i0 = (j * batch) % n
+            for name, pub, (u, y) in zip(names, pubs, sigs, strict=True):
+                b = SampleBatch(name, j, j * batch * period, period, None, {dev.input_name: u[i0 : i0 + batch]},
+                                {dev.output_name: y[i0 : i0 + batch]})
+                pub.put(encode(b))
+                sent[name] += batch
+        time.sleep(0.3)
+    print(json.dumps({"sent": sent, "seconds": time.perf_counter() - t0}), flush=True)
+
+
+def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, seed: int = 0,
+             workers: int = 2) -> dict[str, Any]:
+    """``streams`` streams at ``rate_hz`` plus the 20 kHz piezo log, all in real time, one daemon.
+
+    Reports per stream samples published vs ingested, versions and coalesced
+    windows, and the daemon's resident memory over the run.
+    """
+    ep = _free_endpoint()
+    cfg = DaemonConfig(defaults=StreamConfig(window_s=0.5, update_every_s=1.0, seed=seed), workers=workers)
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,))).start()
+    rss: list[tuple[float, float]] = []
+    try:
+        code = (f"from streamid.daemon.bench import _multi_publish_main; "
+                f"_multi_publish_main({ep!r}, {streams}, {rate_hz}, {seconds}, 100, {seed})")
+        multi = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+        piezo = _replayer(ep, seconds)
+        t0 = time.monotonic()
+        while (multi.poll() is None or piezo.poll() is None) and time.monotonic() - t0 < seconds + 90:
+            time.sleep(1.0)
+            rss.append((time.monotonic() - t0, _rss_mb()))
+        mout, _ = multi.communicate(timeout=30)
+        pout, _ = piezo.communicate(timeout=30)
+        time.sleep(1.0)
+        status = {name: rt.status() for name, rt in daemon.streams.items()}
+    finally:
+        daemon.stop()
+    sent = json.loads(mout.strip().splitlines()[-1])["sent"]
+    sent["piezo"] = json.loads(pout.strip().splitlines()[-1])["samples"]
+    warm = [m for t, m in rss if t > 30.0]
+    return {
+        "per_stream": {
+            n: {"sent": sent.get(n), "ingested": st["samples_in"], "versions": st["version"],
+                "windows": st["windows"], "bad_total": st["bad_total"], "degraded": st["degraded"]}
+            for n, st in status.items()
+        },
+        "rss_mb": rss,
+        "rss_after_warmup_min_max": (min(warm), max(warm)) if warm else None,
+    }
+
+
+def _windows(device: str, seconds: float, cfg: StreamConfig, seed: int) -> list[Any]:
+    from streamid.sim import get_device
+
+    dev = get_device(device)
+    t, u, y = dev.simulate_seconds(seconds, seed=seed)
+    wb = WindowBuffer(device, cfg.window_params())
+    out = []
+    step = 1000
+    for k, i in enumerate(range(0, len(y), step)):
+        wb.append(SampleBatch(device, k, int(t[i]), dev.period_ns, None, {dev.input_name: u[i : i + step]},
+                              {dev.output_name: y[i : i + step]}))
+        w = wb.take()
+        if w is not None:
+            out.append(w)
+    return out
+
+
+def cold_vs_warm(seed: int = 0, updates: int = 4, quick: bool = False) -> dict[str, Any]:
+    """Cold (G=400) vs warm (G=30) on consecutive windows of the stationary piezo."""
+    cfg = StreamConfig(window_s=0.5, update_every_s=1.0, seed=seed, cold_generations=100 if quick else 400)
+    wins = _windows("piezo", 1.0 + updates, cfg, seed)
+    first = identify_window(wins[0], cfg, version=1)
+    cold_t, cold_r2 = [first.seconds], [first.summary.metrics["r2_fr_val"]]  # type: ignore[union-attr]
+    warm_t, warm_r2 = [], []
+    state, sig = first.state, first.signature
+    for k, w in enumerate(wins[1 : updates + 1], start=2):
+        warm = identify_window(w, cfg, version=k, warm_state=state, warm_signature=sig)
+        cold = identify_window(w, cfg, version=k, force_cold=True)
+        warm_t.append(warm.seconds)
+        warm_r2.append(warm.summary.metrics["r2_fr_val"])  # type: ignore[union-attr]
+        cold_t.append(cold.seconds)
+        cold_r2.append(cold.summary.metrics["r2_fr_val"])  # type: ignore[union-attr]
+        if warm.accepted:
+            state, sig = warm.state, warm.signature
+    return {"cold_s": cold_t, "warm_s": warm_t, "cold_r2_fr_val": cold_r2, "warm_r2_fr_val": warm_r2,
+            "cold_generations": cfg.cold_generations, "warm_generations": cfg.warm_generations}
+
+
+def mr_damper_max_speed(seed: int = 0) -> dict[str, Any]:
+    """The real MR damper log at max speed: published FR R^2 vs an offline cold run on the same windows."""
+    from replay.player import ReplayConfig, replay_log  # bench only: replay depends on streamid
+
+    from streamid.client import ModelSubscriber
+    from streamid.mcaplog import bundled_log, read_log_arrays
+
+    ep = _free_endpoint()
+    scfg = StreamConfig(window_s=4.0, update_every_s=2.0, seed=seed, max_lag_y=4, max_lag_u=4, neurons=8)
+    daemon = Daemon(DaemonConfig(defaults=scfg), ZenohSettings(listen=(ep,))).start()
+    got: list[Any] = []
+    try:
+        connect = ZenohSettings(connect=(ep,))
+        with ModelSubscriber(connect, "mr_damper", got.append, fetch_latest=False):
+            replay_log(bundled_log("mr_damper.mcap"), connect, ReplayConfig(max_speed=True))
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                rt = daemon.streams.get("mr_damper")
+                if rt is not None and not rt.busy and not rt.buffer.has_pending and rt.version:
+                    break
+                time.sleep(0.05)
+            time.sleep(0.3)
+    finally:
+        daemon.stop()
+    from streamid.engine.identify import identify
+    from streamid.engine.validation import validate
+
+    log = read_log_arrays(bundled_log("mr_damper.mcap"))
+    online, offline = [], []
+    for up in got:
+        w = up.window
+        i0 = int(np.searchsorted(log.t_ns, w["t0_ns"]))
+        u = log.inputs["velocity_cm_s"][i0 : i0 + w["n_samples"]]
+        y = log.outputs["force_N"][i0 : i0 + w["n_samples"]]
+        ne = w["n_estimation"]
+        res = identify(u[:ne], y[:ne], scfg.coea_config(cold=True), np.random.default_rng([seed, up.version]))
+        rep = validate(res.model, u[:ne], y[:ne], u[ne:], y[ne:])
+        online.append(up.metrics["r2_fr_val"])
+        offline.append(rep.fr_val)
+    return {"online_r2_fr_val": online, "offline_r2_fr_val": offline, "updates": len(got)}
+
+
+def bench(options: BenchOptions) -> Iterable[Measurement]:
+    """The daemon section of ``streamid bench``."""
+    reps = 1 if options.quick else max(1, min(options.repeat, 3))
+    rates = {b: [ingestion_rate(b, 25.0 if options.quick else 100.0, options.seed + i)["samples_per_s"]
+                 for i in range(reps)] for b in (100, 1000)}
+    for b, v in rates.items():
+        yield Measurement(SECTION, f"ingestion, batches of {b}", "samples/s", "samples/s", tuple(v),
+                          "decode + window, no identification; publisher in another process")
+    rt = realtime_run(8.0 if options.quick else 60.0, options.seed)
+    lat = rt["latencies_s"] or [float("nan")]
+    yield Measurement(SECTION, "piezo 20 kHz real time, 0.5 s window / 1 s", "update latency", "s", tuple(lat),
+                      "window closed -> model published, warm G=30, from update 4 on")
+    yield Measurement(SECTION, "piezo 20 kHz real time, 0.5 s window / 1 s", "updates within 0.5 s", "%",
+                      (100 * rt["within_0_5s"],), f"cold first update: {rt['cold_latency_s']:.2f} s")
+    yield Measurement(SECTION, "piezo 20 kHz real time, 0.5 s window / 1 s", "windows coalesced", "count",
+                      (float(rt["windows"]["coalesced"]),), f"of {rt['windows']['closed']} closed (first: cold run)")
+    if not options.quick:
+        yield Measurement(SECTION, "piezo 20 kHz real time, 0.5 s window / 1 s", "RSS growth 2nd half", "%",
+                          (100 * rt["rss_growth"],), "peak resident memory, 2nd half vs 10 s..half")
+    cw = cold_vs_warm(options.seed, 2 if options.quick else 4, options.quick)
+    yield Measurement(SECTION, f"piezo cold G={cw['cold_generations']}", "update time", "s", tuple(cw["cold_s"]))
+    yield Measurement(SECTION, f"piezo warm G={cw['warm_generations']}", "update time", "s", tuple(cw["warm_s"]))
+    yield Measurement(SECTION, f"piezo cold G={cw['cold_generations']}", "R2 FR val", "", tuple(cw["cold_r2_fr_val"]))
+    yield Measurement(SECTION, f"piezo warm G={cw['warm_generations']}", "R2 FR val", "", tuple(cw["warm_r2_fr_val"]))
+    if not options.quick:
+        mr = mr_damper_max_speed(options.seed)
+        yield Measurement(SECTION, "MR damper log, max speed", "R2 FR val online", "", tuple(mr["online_r2_fr_val"]),
+                          f"{mr['updates']} published models")
+        yield Measurement(SECTION, "MR damper log, same windows, offline identify (cold)", "R2 FR val", "",
+                          tuple(mr["offline_r2_fr_val"]), "streamid.engine.identify + validate, G=400")
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m streamid.daemon.bench soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``mr`` | ``load SECONDS``."""
+    what = argv[0] if argv else "soak"
+    if what == "soak":
+        r = realtime_run(float(argv[1]) if len(argv) > 1 else 300.0, rrd=argv[2] if len(argv) > 2 else None)
+        lat = r["latencies_s"]
+        print(json.dumps({k: v for k, v in r.items() if k not in ("latencies_s", "rss_mb")}))
+        print("rss_mb:", [round(m, 1) for _, m in r["rss_mb"][:: max(1, len(r["rss_mb"]) // 20)]])
+        if lat:
+            q = np.quantile(lat, [0.5, 0.95, 0.99])
+            print(f"latency s: median {q[0]:.3f} p95 {q[1]:.3f} p99 {q[2]:.3f} max {max(lat):.3f} n {len(lat)}; "
+                  f"within 0.5 s: {100 * r['within_0_5s']:.1f} %")
+    elif what == "ingest":
+        print(json.dumps(ingestion_rate(int(argv[1]) if len(argv) > 1 else 1000)))
+    elif what == "coldwarm":
+        print(json.dumps(cold_vs_warm()))
+    elif what == "mr":
+        print(json.dumps(mr_damper_max_speed()))
+    elif what == "load":
+        r = load_run(float(argv[1]) if len(argv) > 1 else 120.0)
+        print(json.dumps({k: v for k, v in r.items() if k != "rss_mb"}, indent=1))
+        print("rss_mb:", [round(m, 1) for _, m in r["rss_mb"][:: max(1, len(r["rss_mb"]) // 24)]])
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    threading.current_thread().name = "bench"
+    sys.exit(_main(sys.argv[1:]))

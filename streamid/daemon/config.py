@@ -1,0 +1,368 @@
+"""Configuration of the identification daemon: frozen dataclasses loaded from TOML.
+
+A configuration file is optional: every setting has an embedded default, so
+``streamid daemon`` runs with none.  The file has three kinds of tables::
+
+    [daemon]                  # the service as a whole
+    streams = ["bench1"]      # serve these streams (empty: discover streamid/*/samples)
+    discover = false          # also serve streams not listed (default: true only when none listed)
+    max_streams = 64
+    status_every_s = 1.0
+    workers = 1
+
+    [defaults]                # per-stream settings applied to every stream
+    window_s = 10.0
+    update_every_s = 1.0
+
+    [streams.bench1]          # overrides for one stream
+    window_s = 0.5
+    cold_generations = 200
+    outputs = ["force"]
+
+    [streams.bench1.engine]   # any other CoEAConfig field (de_f, centre_bounds, ...)
+    de_f = 0.5
+
+Unknown keys and wrong types are refused when the file is loaded, with a
+:class:`~streamid.errors.ConfigError` naming the key, the accepted form and the
+value found.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from streamid.daemon.window import WindowParams
+from streamid.engine.config import CoEAConfig
+from streamid.errors import ConfigError
+from streamid.keys import STREAM_NAME_RULE, is_valid_stream_name
+
+__all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping"]
+
+# Fields of CoEAConfig the daemon sets itself (generations: cold/warm; restarts: warm starts need one run).
+_ENGINE_RESERVED = ("generations", "restarts", "workers", "neurons", "max_lag_y", "max_lag_u", "population")
+
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """Identification settings of one stream (every field has a default).
+
+    Attributes
+    ----------
+    window_s, window_samples
+        Window length in seconds of stream time, or in samples (at most one).
+    update_every_s, update_every_samples
+        Re-identify every this many seconds of stream time / new samples.
+    validation_fraction
+        Newest fraction of each window held out for validation.
+    cold_generations, warm_generations
+        Generations of the first (cold) run and of the warm-started updates.
+    neurons, max_lag_y, max_lag_u, population
+        Model and search size (see :class:`~streamid.engine.CoEAConfig`).
+    seed
+        Seed of every random draw of this stream (with the stream name and version).
+    inputs, outputs
+        Signal names to use (None: as found in the batches).
+    output
+        Which output is modelled when there are several (None: the first).
+    min_r2_osa, min_r2_fr
+        A new model is published only if its one-step-ahead and free-run R^2 on
+        the validation part reach these; otherwise the stream is marked degraded
+        and the previous model stays current.
+    max_abs_value
+        Samples of larger magnitude are refused as absurd.
+    cold_after_failures
+        After this many failed updates in a row the next run starts cold.
+    engine
+        Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs.
+    """
+
+    window_s: float | None = None
+    window_samples: int | None = None
+    update_every_s: float | None = None
+    update_every_samples: int | None = None
+    validation_fraction: float = 0.3
+    cold_generations: int = 400
+    warm_generations: int = 30
+    neurons: int = 10
+    max_lag_y: int = 10
+    max_lag_u: int = 10
+    population: int = 20
+    seed: int = 0
+    inputs: tuple[str, ...] | None = None
+    outputs: tuple[str, ...] | None = None
+    output: str | None = None
+    min_r2_osa: float = 0.5
+    min_r2_fr: float = -1.0
+    max_abs_value: float = 1e12
+    cold_after_failures: int = 3
+    engine: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        self.window_params()  # geometry and names checked once, here
+        self.coea_config(cold=True)
+        if not 0.05 <= self.validation_fraction <= 0.9:
+            raise ConfigError(f"validation_fraction must be a number in [0.05, 0.9]; got {self.validation_fraction!r}")
+        if self.output is not None and self.outputs is not None and self.output not in self.outputs:
+            raise ConfigError(f"output must be one of outputs {list(self.outputs)}; got {self.output!r}")
+        for name in ("cold_generations", "warm_generations"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be an integer >= 1; got {getattr(self, name)!r}")
+        if self.cold_after_failures < 1:
+            raise ConfigError(f"cold_after_failures must be an integer >= 1; got {self.cold_after_failures!r}")
+
+    def window_params(self) -> WindowParams:
+        """The window geometry of this stream."""
+        return WindowParams(
+            window_s=self.window_s,
+            window_samples=self.window_samples,
+            hop_s=self.update_every_s,
+            hop_samples=self.update_every_samples,
+            inputs=self.inputs,
+            outputs=self.outputs,
+            max_abs_value=self.max_abs_value,
+        )
+
+    def coea_config(self, *, cold: bool) -> CoEAConfig:
+        """The engine configuration of a cold or a warm run."""
+        return CoEAConfig(
+            neurons=self.neurons,
+            max_lag_y=self.max_lag_y,
+            max_lag_u=self.max_lag_u,
+            population=self.population,
+            generations=self.cold_generations if cold else self.warm_generations,
+            **dict(self.engine),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON/TOML-ready dict (None values left out)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is None or f.name == "engine":
+                continue
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+        if self.engine:
+            out["engine"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.engine}
+        return out
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    """The daemon's configuration.
+
+    Attributes
+    ----------
+    streams
+        Streams to serve from the start.
+    discover
+        Also serve streams found on ``streamid/*/samples`` (and ``u``/``y``).
+    max_streams
+        Discovered streams beyond this are refused (counted), bounding memory.
+    status_every_s
+        Period of the status messages.
+    workers
+        Identification worker threads.
+    defaults
+        Settings of every stream.
+    overrides
+        ``(stream, settings)`` pairs for streams with their own table.
+    """
+
+    streams: tuple[str, ...] = ()
+    discover: bool = True
+    max_streams: int = 64
+    status_every_s: float = 1.0
+    workers: int = 1
+    defaults: StreamConfig = field(default_factory=StreamConfig)
+    overrides: tuple[tuple[str, StreamConfig], ...] = ()
+
+    def __post_init__(self) -> None:
+        for s in self.streams:
+            if not is_valid_stream_name(s):
+                raise ConfigError(f"daemon.streams entries must be stream names ({STREAM_NAME_RULE}); got {s!r}")
+        if not self.streams and not self.discover:
+            raise ConfigError("with daemon.discover = false, daemon.streams must name at least one stream; got none")
+        if not 1 <= self.max_streams <= 100_000:
+            raise ConfigError(f"daemon.max_streams must be an integer in [1, 100000]; got {self.max_streams!r}")
+        if not (math.isfinite(self.status_every_s) and 0.01 <= self.status_every_s <= 3600):
+            raise ConfigError(f"daemon.status_every_s must be a number of seconds in [0.01, 3600]; got {self.status_every_s!r}")
+        if not 1 <= self.workers <= 64:
+            raise ConfigError(f"daemon.workers must be an integer in [1, 64]; got {self.workers!r}")
+
+    def for_stream(self, stream: str) -> StreamConfig:
+        """Settings of ``stream`` (its override, else the defaults)."""
+        for name, cfg in self.overrides:
+            if name == stream:
+                return cfg
+        return self.defaults
+
+    def with_streams(self, streams: tuple[str, ...]) -> DaemonConfig:
+        """Serve exactly ``streams`` (no discovery), e.g. from ``--stream``."""
+        return dataclasses.replace(self, streams=tuple(dict.fromkeys(streams)), discover=False)
+
+
+# ----------------------------------------------------------------------------- loading
+_NUM = "a number"
+_INT = "an integer"
+_STREAM_KEYS: dict[str, tuple[str, str]] = {
+    # name: (kind, accepted form)
+    "window_s": ("float", "a number of seconds > 0"),
+    "window_samples": ("int", "an integer number of samples >= 2"),
+    "update_every_s": ("float", "a number of seconds > 0"),
+    "update_every_samples": ("int", "an integer number of samples >= 1"),
+    "validation_fraction": ("float", "a number in [0.05, 0.9]"),
+    "cold_generations": ("int", "an integer >= 1"),
+    "warm_generations": ("int", "an integer >= 1"),
+    "neurons": ("int", "an integer >= 1"),
+    "max_lag_y": ("int", "an integer >= 0"),
+    "max_lag_u": ("int", "an integer >= 0"),
+    "population": ("int", "an integer >= 4"),
+    "seed": ("int", "an integer >= 0"),
+    "inputs": ("names", "a list of signal names"),
+    "outputs": ("names", "a list of signal names"),
+    "output": ("str", "a signal name"),
+    "min_r2_osa": ("float", "a number <= 1"),
+    "min_r2_fr": ("float", "a number <= 1"),
+    "max_abs_value": ("float", "a number > 0"),
+    "cold_after_failures": ("int", "an integer >= 1"),
+    "engine": ("table", "a table of CoEAConfig fields"),
+}
+_DAEMON_KEYS: dict[str, tuple[str, str]] = {
+    "streams": ("names", "a list of stream names"),
+    "discover": ("bool", "true or false"),
+    "max_streams": ("int", "an integer in [1, 100000]"),
+    "status_every_s": ("float", "a number of seconds in [0.01, 3600]"),
+    "workers": ("int", "an integer in [1, 64]"),
+}
+_TOP_KEYS = ("daemon", "defaults", "streams")
+
+
+def _typed(where: str, key: str, value: Any, kind: str, form: str) -> Any:
+    path = f"{where}.{key}" if where else key
+    bad = ConfigError(f"{path} must be {form}; got {value!r} ({type(value).__name__})")
+    if kind == "float":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise bad
+        return float(value)
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if kind == "str":
+        if not isinstance(value, str) or not value:
+            raise bad
+        return value
+    if kind == "names":
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise bad
+        return tuple(value)
+    if kind == "table":
+        if not isinstance(value, dict):
+            raise bad
+        return value
+    raise AssertionError(kind)  # pragma: no cover
+
+
+def _unknown(where: str, table: Mapping[str, Any], accepted: Any) -> None:
+    extra = [k for k in table if k not in accepted]
+    if extra:
+        path = f"{where}.{extra[0]}" if where else extra[0]
+        raise ConfigError(f"unknown key {path!r}; accepted keys in [{where or 'top level'}]: {', '.join(sorted(accepted))}")
+
+
+def _stream_config(where: str, table: Any, base: StreamConfig) -> StreamConfig:
+    if not isinstance(table, dict):
+        raise ConfigError(f"[{where}] must be a table of stream settings; got {table!r}")
+    _unknown(where, table, _STREAM_KEYS)
+    kw: dict[str, Any] = {}
+    for key, value in table.items():
+        kind, form = _STREAM_KEYS[key]
+        kw[key] = _typed(where, key, value, kind, form)
+    if "engine" in kw:
+        eng = kw["engine"]
+        accepted = [f.name for f in fields(CoEAConfig) if f.name not in _ENGINE_RESERVED]
+        _unknown(f"{where}.engine", eng, accepted)
+        merged = dict(base.engine)
+        for k, v in eng.items():
+            merged[k] = tuple(v) if isinstance(v, list) else v
+        kw["engine"] = tuple(sorted(merged.items()))
+    # seconds and samples exclude each other: a table giving one clears the inherited other
+    for a, b in (("window_s", "window_samples"), ("update_every_s", "update_every_samples")):
+        if a in kw and b not in kw:
+            kw[b] = None
+        if b in kw and a not in kw:
+            kw[a] = None
+    try:
+        return dataclasses.replace(base, **kw)
+    except ConfigError as exc:
+        raise ConfigError(f"[{where}]: {exc}") from exc
+    except TypeError as exc:  # pragma: no cover - guarded by _STREAM_KEYS
+        raise ConfigError(f"[{where}]: {exc}") from exc
+
+
+def config_from_mapping(data: Mapping[str, Any], source: str = "<config>") -> DaemonConfig:
+    """Build a :class:`DaemonConfig` from parsed TOML (``source`` names it in errors)."""
+    try:
+        return _from_mapping(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from exc
+
+
+def _from_mapping(data: Mapping[str, Any]) -> DaemonConfig:
+    _unknown("", data, _TOP_KEYS)
+    defaults = StreamConfig()
+    if "defaults" in data:
+        defaults = _stream_config("defaults", data["defaults"], defaults)
+    overrides: list[tuple[str, StreamConfig]] = []
+    streams_tab = data.get("streams", {})
+    if not isinstance(streams_tab, dict):
+        raise ConfigError(f"[streams] must be a table of [streams.NAME] tables; got {streams_tab!r}")
+    for name, tab in streams_tab.items():
+        if not is_valid_stream_name(name):
+            raise ConfigError(f"[streams.{name}]: the table name must be a stream name ({STREAM_NAME_RULE})")
+        overrides.append((name, _stream_config(f"streams.{name}", tab, defaults)))
+    dkw: dict[str, Any] = {}
+    dtab = data.get("daemon", {})
+    if not isinstance(dtab, dict):
+        raise ConfigError(f"[daemon] must be a table; got {dtab!r}")
+    _unknown("daemon", dtab, _DAEMON_KEYS)
+    for key, value in dtab.items():
+        kind, form = _DAEMON_KEYS[key]
+        dkw[key] = _typed("daemon", key, value, kind, form)
+    streams = tuple(dict.fromkeys(dkw.pop("streams", ())))
+    if "discover" not in dkw:
+        dkw["discover"] = not streams
+    return DaemonConfig(streams=streams, defaults=defaults, overrides=tuple(overrides), **dkw)
+
+
+def load_config(path: str | Path | None) -> DaemonConfig:
+    """Load a TOML configuration file (None: the embedded defaults).
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read, is not TOML, or holds an unknown key or a
+        value of the wrong type or range (the message names it).
+    """
+    if path is None:
+        return DaemonConfig()
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"config file must be a readable UTF-8 TOML file; got {str(p)!r} ({exc})") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML ({exc})") from exc
+    return config_from_mapping(data, str(p))

@@ -1,0 +1,45 @@
+"""Turn an identification outcome into the :class:`streamid.viz_types.UpdateReport` that Rerun draws."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from streamid.daemon.window import Window
+from streamid.daemon.worker import Outcome
+from streamid.viz_types import CorrelationCurve, UpdateReport
+
+__all__ = ["update_report"]
+
+
+def update_report(stream: str, window: Window, out: Outcome, version: int, latency_s: float | None) -> UpdateReport:
+    """The drawing of one update (``out.summary`` must be set)."""
+    s = out.summary
+    assert s is not None
+    n_val = len(out.y_val)
+    val_t0 = window.t0_ns + (window.n - n_val) * window.period_ns
+    lags = out.model.lags if out.model is not None else {}
+    return UpdateReport(
+        stream=stream,
+        version=version,
+        accepted=out.accepted,
+        warm=out.warm,
+        generations=out.generations,
+        window_t0_ns=window.t0_ns,
+        window_end_ns=window.t_end_ns,
+        period_ns=window.period_ns,
+        val_t0_ns=val_t0,
+        y_val=np.asarray(out.y_val),
+        osa_val=np.asarray(s.osa_val),
+        fr_val=np.asarray(s.fr_val),
+        u_val=np.asarray(out.u_val)[:, 0] if out.u_val.ndim == 2 else np.asarray(out.u_val),
+        input_name=out.input_names[0] if out.input_names else "u",
+        output_name=out.output_name,
+        fitness=out.fitness,
+        correlations=tuple(CorrelationCurve(t.name, t.label, t.lags, t.values, t.band) for t in s.tests),
+        lags=lags,
+        metrics=dict(s.metrics),
+        identification_s=out.seconds,
+        latency_s=latency_s,
+        note="" if out.accepted else out.reason,
+        input_names=tuple(out.input_names),
+    )

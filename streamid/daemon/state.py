@@ -1,0 +1,218 @@
+"""``--state-dir`` persistence: the latest model and populations of every stream.
+
+One JSON document per stream, ``<state-dir>/<stream>.json``::
+
+    {"format": "streamid.daemon-state/1", "stream": ..., "version": 7,
+     "signature": {...}, "model_message": {...}, "coea_state": "...", "saved_unix_ns": ...}
+
+``model_message`` is the last message published on ``streamid/<stream>/model``
+(the engine's model JSON with version, window and metrics); ``coea_state`` the
+engine's final populations (its own JSON text), from which a restarted daemon
+resumes warm; ``signature`` (signal names, period, lag bounds...) tells whether
+that warm start still fits the stream.
+
+Every write is atomic: the document goes to a temporary file in the same
+directory, is flushed and fsync'ed, then ``os.replace``d over the old one (and
+the directory fsync'ed), so a crash at any moment leaves either the previous or
+the new document, never a half-written one.  Nothing is ever unpickled: the
+files are JSON, parsed with :func:`json.loads`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from streamid.errors import ConfigError, ModelFormatError
+from streamid.keys import STREAM_NAME_RULE, is_valid_stream_name
+
+__all__ = ["STATE_FORMAT", "StreamState", "StateStore", "atomic_write_text"]
+
+STATE_FORMAT = "streamid.daemon-state/1"
+_SUFFIX = ".json"
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temp file + fsync + os.replace + dir fsync)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    try:
+        dfd = os.open(path.parent, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory fds
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(dfd)
+
+
+@dataclass(frozen=True)
+class StreamState:
+    """What is saved of one stream.
+
+    Attributes
+    ----------
+    stream
+        Stream name.
+    version
+        Version of the last published model (the next one is ``version + 1``).
+    signature
+        Facts the warm start depends on (signal names, period, lag bounds).
+    model_message
+        The last published model message (a JSON object), or None.
+    coea_state
+        The engine's final populations as its own JSON text, or None.
+    saved_unix_ns
+        When it was written.
+    """
+
+    stream: str
+    version: int
+    signature: dict[str, Any] = field(default_factory=dict)
+    model_message: dict[str, Any] | None = None
+    coea_state: str | None = None
+    saved_unix_ns: int = 0
+
+    def to_json(self) -> str:
+        """The document written to disk (never NaN: ``allow_nan=False``)."""
+        return json.dumps(
+            {
+                "format": STATE_FORMAT,
+                "stream": self.stream,
+                "version": self.version,
+                "signature": self.signature,
+                "model_message": self.model_message,
+                "coea_state": self.coea_state,
+                "saved_unix_ns": self.saved_unix_ns or time.time_ns(),
+            },
+            allow_nan=False,
+            separators=(",", ":"),
+        )
+
+    @classmethod
+    def from_json(cls, text: str, *, source: str = "<state>") -> StreamState:
+        """Parse a state document.
+
+        Raises
+        ------
+        ModelFormatError
+            If ``text`` is not a ``streamid.daemon-state/1`` document.
+        """
+        try:
+            doc = json.loads(text)
+        except (json.JSONDecodeError, RecursionError, TypeError) as exc:
+            raise ModelFormatError(f"{source}: a daemon state file must be JSON; {exc}") from exc
+        if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT:
+            got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+            raise ModelFormatError(f"{source}: expected a document with format {STATE_FORMAT!r}; got {got!r}")
+        stream, version = doc.get("stream"), doc.get("version")
+        if not is_valid_stream_name(stream):
+            raise ModelFormatError(f"{source}: 'stream' must be a stream name ({STREAM_NAME_RULE}); got {stream!r}")
+        if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+            raise ModelFormatError(f"{source}: 'version' must be an integer >= 0; got {version!r}")
+        sig, msg, co = doc.get("signature", {}), doc.get("model_message"), doc.get("coea_state")
+        if not isinstance(sig, dict) or not (msg is None or isinstance(msg, dict)) or not (co is None or isinstance(co, str)):
+            raise ModelFormatError(
+                f"{source}: 'signature' must be an object, 'model_message' an object or null and "
+                "'coea_state' a string or null"
+            )
+        saved = doc.get("saved_unix_ns", 0)
+        return cls(stream, version, sig, msg, co, saved if isinstance(saved, int) else 0)
+
+
+class StateStore:
+    """The per-stream state files of one ``--state-dir``.
+
+    Parameters
+    ----------
+    directory
+        Created if missing.
+
+    Raises
+    ------
+    ConfigError
+        If the directory cannot be created or is not writable.
+    """
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"--state-dir must be a creatable, writable directory; got {str(directory)!r} ({exc})") from exc
+        if not os.access(self.directory, os.W_OK):
+            raise ConfigError(f"--state-dir must be a writable directory; got {str(directory)!r}")
+        for tmp in self.directory.glob(f".*{_SUFFIX}.*.tmp"):  # left by a writer killed mid-write
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+
+    def path(self, stream: str) -> Path:
+        """File of ``stream``."""
+        if not is_valid_stream_name(stream):
+            raise ConfigError(f"stream name must be {STREAM_NAME_RULE}; got {stream!r}")
+        return self.directory / f"{stream}{_SUFFIX}"
+
+    def streams(self) -> list[str]:
+        """Streams with a saved state."""
+        out = []
+        for p in sorted(self.directory.glob(f"*{_SUFFIX}")):
+            name = p.name[: -len(_SUFFIX)]
+            if is_valid_stream_name(name) and not name.startswith("."):
+                out.append(name)
+        return out
+
+    def load(self, stream: str) -> StreamState | None:
+        """The saved state of ``stream`` (None if there is none).
+
+        Raises
+        ------
+        ModelFormatError
+            If the file exists but is not a valid state document of that stream.
+        """
+        p = self.path(stream)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ModelFormatError(f"{p}: cannot read the daemon state ({exc})") from exc
+        st = StreamState.from_json(text, source=str(p))
+        if st.stream != stream:
+            raise ModelFormatError(f"{p}: holds the state of stream {st.stream!r}, expected {stream!r}")
+        return st
+
+    def save(self, state: StreamState) -> Path:
+        """Write ``state`` atomically; returns the file."""
+        p = self.path(state.stream)
+        atomic_write_text(p, state.to_json())
+        return p
+
+    def quarantine(self, stream: str) -> Path | None:
+        """Move an unreadable state file aside (``.corrupt-<ns>``); returns the new path."""
+        p = self.path(stream)
+        if not p.exists():
+            return None
+        q = p.with_name(f"{p.name}.corrupt-{time.time_ns()}")
+        os.replace(p, q)
+        return q

@@ -1,0 +1,476 @@
+"""Per-stream bounded window buffer with time alignment and fault detection.
+
+One :class:`WindowBuffer` per stream receives sample batches (combined
+``samples`` batches, or separate ``u`` and ``y`` batches that are aligned by
+time) and keeps the newest samples in a preallocated ring, one row per signal.
+Every ``hop`` new complete samples a window of the newest ``window`` samples
+*closes*: it is copied out and left as the single *pending* window, which the
+identification worker takes when it is free.  A window that closes while the
+previous one is still pending replaces it (counted as coalesced), so a slow
+identification never builds a queue and memory stays flat on an endless stream.
+
+Time is integer nanoseconds.  Every sample gets an integer index
+``k = round((t_ns - anchor_ns) / period_ns)`` on the stream's sample grid; u and
+y columns are written at their indices, and a sample is *complete* once every
+column holds it.  Faults are detected on that grid and never used across:
+
+* a forward jump in time (publisher stopped, batches lost) is a *gap*: the
+  window restarts after it, no stale window spans it;
+* a batch entirely before the expected position is a *duplicate* (its sequence
+  number was seen recently) or *out of order*, and is dropped; a partial overlap
+  is trimmed;
+* a jump back further than the ring holds is a *restart* of the publisher's
+  clock: the stream restarts from it;
+* a different ``period_ns`` or a different set of signal names resets the
+  stream (a new *epoch*: warm starts across it are meaningless);
+* non-finite values, values beyond ``max_abs_value``, bad periods and batches
+  with non-increasing explicit timestamps are refused and counted.
+
+Nothing here raises on bad data: every refusal increments a counter in
+:attr:`WindowBuffer.counters` and appends a bounded event.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+
+import numpy as np
+
+from streamid.daemon.window_types import (
+    DEFAULT_HOP_S,
+    DEFAULT_WINDOW_S,
+    BatchLike,
+    Event,
+    Window,
+    WindowParams,
+    estimate_period,
+)
+
+__all__ = ["DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "BatchLike", "Event", "Window", "WindowBuffer", "WindowParams"]
+
+_RECENT_SEQS = 64
+_RESTART = -1
+_EVENTS_MAX = 256
+
+
+class WindowBuffer:
+    """Bounded, time-aligned window buffer of one stream (thread-safe).
+
+    Parameters
+    ----------
+    stream
+        Stream name (for windows and messages).
+    params
+        Window geometry and checks.
+    notify
+        Called (outside the lock) whenever a new window becomes pending.
+    """
+
+    def __init__(
+        self,
+        stream: str,
+        params: WindowParams,
+        *,
+        notify: Callable[[], None] | None = None,
+    ) -> None:
+        self.stream = stream
+        self.params = params
+        self._notify = notify
+        self._lock = threading.Lock()
+        self._events: deque[Event] = deque(maxlen=_EVENTS_MAX)
+        self._counts: Counter[str] = Counter()
+        self._bad: Counter[str] = Counter()
+        self._resets: Counter[str] = Counter()
+        self._fixed_in = params.inputs
+        self._fixed_out = params.outputs
+        self._inputs: tuple[str, ...] = params.inputs or ()
+        self._outputs: tuple[str, ...] = params.outputs or ()
+        self._period: int | None = None
+        self._w = self._h = self._cap = self._slack = 0
+        self._ring = np.empty((0, 0))
+        self._rows: dict[str, int] = {}
+        self._heads: list[int] = []
+        self._anchor: int | None = None
+        self._start = 0
+        self._next_close = 0
+        self._epoch = 0
+        self._number = 0
+        self._coalesced_since = 0
+        self._src_expect: dict[str, int] = {}
+        self._src_seq: dict[str, int] = {}
+        self._src_recent: dict[str, deque[int]] = {}
+        self._pending: Window | None = None
+        self._last_t_ns: int | None = None
+
+    # ------------------------------------------------------------------ public
+    @property
+    def has_pending(self) -> bool:
+        """Whether a closed window waits to be taken."""
+        return self._pending is not None
+
+    @property
+    def period_ns(self) -> int | None:
+        """Current sample period, or None before the first good batch."""
+        return self._period
+
+    @property
+    def lengths(self) -> tuple[int, int, int]:
+        """(window, hop, ring capacity) in samples; zeros before the period is known."""
+        return self._w, self._h, self._cap
+
+    def take(self) -> Window | None:
+        """Remove and return the pending window (None if there is none)."""
+        with self._lock:
+            w, self._pending = self._pending, None
+            if w is not None:
+                self._coalesced_since = 0
+            return w
+
+    def counters(self) -> dict[str, object]:
+        """A snapshot of the counters (JSON-ready)."""
+        with self._lock:
+            out: dict[str, object] = {k: int(v) for k, v in sorted(self._counts.items())}
+            out["bad"] = dict(sorted(self._bad.items()))
+            out["bad_total"] = int(sum(self._bad.values()))
+            out["resets"] = dict(sorted(self._resets.items()))
+            out["epoch"] = self._epoch
+            out["period_ns"] = self._period
+            out["window_samples"] = self._w
+            out["hop_samples"] = self._h
+            out["buffered_samples"] = self._complete() - self._start if self._heads else 0
+            out["pending"] = self._pending is not None
+            out["inputs"] = list(self._inputs)
+            out["outputs"] = list(self._outputs)
+            out["last_t_ns"] = self._last_t_ns
+            return out
+
+    def drain_events(self) -> list[Event]:
+        """Remove and return the events recorded since the last call."""
+        with self._lock:
+            ev = list(self._events)
+            self._events.clear()
+            return ev
+
+    def count_bad(self, kind: str, message: str = "") -> None:
+        """Count a bad message found before the buffer (e.g. a decode error)."""
+        with self._lock:
+            self._bad_locked(kind, message)
+
+    def append(self, batch: BatchLike, source: str = "samples") -> int:
+        """Append one batch; returns how many samples were written.
+
+        ``source`` names the key the batch came on (``samples``, ``u`` or
+        ``y``); sequence numbers and continuity are tracked per source.  Never
+        raises on bad data: refusals are counted.
+        """
+        emitted = False
+        with self._lock:
+            written = self._append_locked(batch, source)
+            if written:
+                emitted = self._maybe_close()
+        if emitted and self._notify is not None:
+            self._notify()
+        return written
+
+    # ---------------------------------------------------------------- helpers
+    def _event(self, kind: str, message: str) -> None:
+        self._events.append(Event(time.monotonic_ns(), kind, f"{self.stream}: {message}"))
+
+    def _bad_locked(self, kind: str, message: str) -> None:
+        self._bad[kind] += 1
+        self._event(f"bad.{kind}", message or kind)
+
+    def _complete(self) -> int:
+        return min(self._heads) if self._heads else 0
+
+    def _select(self, batch: BatchLike) -> tuple[list[str], list[np.ndarray]] | None:
+        """Names and arrays this batch writes, after layout checks (None: refused)."""
+        b_in, b_out = batch.inputs, batch.outputs
+        names: list[str] = []
+        arrays: list[np.ndarray] = []
+        layout_changed = False
+        for part, fixed, attr in ((b_in, self._fixed_in, "_inputs"), (b_out, self._fixed_out, "_outputs")):
+            if not part:
+                continue
+            if fixed is not None:
+                missing = [s for s in fixed if s not in part]
+                if missing:
+                    self._bad_locked("missing_signal", f"batch lacks configured signal(s) {missing}; it has {sorted(part)}")
+                    return None
+                chosen = fixed
+            else:
+                chosen = tuple(part)
+                current = getattr(self, attr)
+                if set(chosen) != set(current):
+                    if current:
+                        self._resets["schema"] += 1
+                        self._event("reset.schema", f"signals changed from {list(current)} to {list(chosen)}")
+                    setattr(self, attr, chosen)
+                    layout_changed = True
+                else:
+                    chosen = current
+            for s in chosen:
+                names.append(s)
+                arrays.append(part[s])
+        if layout_changed:
+            self._realloc()
+        return names, arrays
+
+    def _realloc(self) -> None:
+        """(Re)allocate the ring for the current layout and period; new epoch."""
+        self._epoch += 1
+        self._rows = {s: i for i, s in enumerate(self._inputs + self._outputs)}
+        self._anchor = None
+        self._src_expect.clear()
+        self._src_seq.clear()
+        self._src_recent.clear()
+        self._pending = None
+        if self._period is None:
+            self._ring = np.empty((0, 0))
+            self._heads = []
+            return
+        self._w, self._h = self.params.samples(self._period)
+        self._slack = self.params.align_slack_samples or max(self._w, self._h)
+        self._cap = self._w + self._h + self._slack
+        nrows = len(self._rows)
+        if self._ring.shape != (nrows, self._cap):
+            self._ring = np.zeros((nrows, self._cap))
+        self._heads = [0] * nrows
+        self._start = 0
+        self._next_close = self._w
+
+    def _full_reset(self, kind: str, message: str) -> None:
+        self._resets[kind] += 1
+        self._event(f"reset.{kind}", message)
+        self._src_expect.clear()
+        self._src_seq.clear()
+        self._src_recent.clear()
+        self._heads = [0] * len(self._rows)
+        self._start = 0
+        self._next_close = self._w
+
+    def _append_locked(self, batch: BatchLike, source: str) -> int:
+        self._counts["batches_in"] += 1
+        n = len(batch)
+        if n == 0:
+            self._counts["empty_batches"] += 1
+            return 0
+        period = batch.period_ns
+        if period == 0 and batch.t_ns is not None:  # irregular time stamps: keep or estimate the grid
+            if self._period is not None:
+                period = self._period
+            elif n >= 2:
+                period = estimate_period(np.asarray(batch.t_ns, dtype=np.int64))
+        if not isinstance(period, (int, np.integer)) or period <= 0:
+            self._bad_locked(
+                "period", f"period_ns must be an integer > 0 (or t_ns given to estimate it); got {period!r}"
+            )
+            return 0
+        period = int(period)
+        if period != self._period:
+            w, _ = self.params.samples(period)
+            if w > self.params.max_window_samples:
+                self._bad_locked(
+                    "period",
+                    f"period_ns={period} makes the window {w} samples, more than max_window_samples="
+                    f"{self.params.max_window_samples}",
+                )
+                return 0
+        sel = self._select(batch)
+        if sel is None:
+            return 0
+        names, arrays = sel
+        # one pass over the values: NaN fails both comparisons, inf/absurd the bound
+        lim = self.params.max_abs_value
+        for s, a in zip(names, arrays, strict=True):
+            if a.shape != (n,):
+                self._bad_locked("shape", f"signal {s!r} has shape {a.shape}, expected ({n},)")
+                return 0
+            hi = a.max()
+            lo = a.min()
+            if not (hi <= lim and lo >= -lim):
+                if not (np.isfinite(hi) and np.isfinite(lo)):
+                    self._bad_locked("nonfinite", f"signal {s!r} holds NaN or infinity (batch seq {batch.seq})")
+                else:
+                    self._bad_locked(
+                        "magnitude", f"signal {s!r} reaches {max(abs(hi), abs(lo)):.3g}, beyond max_abs_value={lim:g}"
+                    )
+                return 0
+        if period != self._period:
+            if self._period is not None:
+                self._event("reset.period", f"sample period changed from {self._period} ns to {period} ns")
+                self._resets["period"] += 1
+            self._period = period
+            self._realloc()
+        elif not self._heads:
+            self._realloc()
+        t0 = int(batch.t0_ns)
+        if self._anchor is None:
+            self._anchor = t0 if batch.t_ns is None else int(batch.t_ns[0])
+        # sample indices on the grid: one run for regular batches
+        if batch.t_ns is None:
+            runs = [((t0 - self._anchor + period // 2) // period, 0, n)]
+        else:
+            runs = self._runs(np.asarray(batch.t_ns, dtype=np.int64), period, batch.seq)
+            if runs is None:
+                return 0
+        written = 0
+        for i, (k0, off, length) in enumerate(runs):
+            got = self._accept_run(source, int(batch.seq), k0, off, length, names, arrays, first=i == 0)
+            if got == _RESTART:  # the publisher's clock went back: restart the grid at this batch
+                self._anchor = self._anchor + k0 * period  # type: ignore[operator]
+                runs_again = [(k - k0, o, m) for k, o, m in runs]
+                for j, (k1, off1, len1) in enumerate(runs_again):
+                    written += self._accept_run(source, int(batch.seq), k1, off1, len1, names, arrays, first=j == 0)
+                break
+            written += got
+        if written:
+            self._counts["samples_in"] += written
+            self._last_t_ns = self._anchor + (self._complete() - 1) * period
+        return written
+
+    def _runs(self, t_ns: np.ndarray, period: int, seq: int) -> list[tuple[int, int, int]] | None:
+        idx = (t_ns - self._anchor + period // 2) // period
+        d = np.diff(idx)
+        if d.size == 0 or (d == 1).all():
+            return [(int(idx[0]), 0, len(idx))]
+        if (d <= 0).any():
+            self._bad_locked("nonmonotonic", f"batch seq {seq}: explicit t_ns not strictly increasing on the sample grid")
+            return None
+        cuts = np.flatnonzero(d != 1) + 1
+        bounds = [0, *cuts.tolist(), len(idx)]
+        return [(int(idx[a]), a, b - a) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def _accept_run(
+        self, source: str, seq: int, k0: int, off: int, n: int, names: list[str], arrays: list[np.ndarray], *, first: bool
+    ) -> int:
+        exp = self._src_expect.get(source)
+        recent = self._src_recent.get(source)
+        if exp is not None and first:
+            last = self._src_seq.get(source)
+            if last is not None and seq != last + 1 and seq not in recent:  # type: ignore[operator]
+                self._counts["seq_jumps"] += 1
+            if k0 > exp:
+                self._counts["gaps"] += 1
+                self._counts["gap_samples"] += k0 - exp
+                self._event("gap", f"{source}: {k0 - exp} samples missing before batch seq {seq}")
+            elif k0 < exp:
+                if k0 + n <= exp - self._cap:
+                    self._full_reset("restart", f"{source}: time went back {exp - k0} samples (publisher restarted?)")
+                    return _RESTART
+                if k0 + n <= exp:
+                    kind = "duplicate" if recent is not None and seq in recent else "out_of_order"
+                    self._bad_locked(kind, f"{source}: batch seq {seq} lies before the expected position")
+                    return 0
+                else:
+                    self._counts["overlap_samples"] += exp - k0
+                    cut = exp - k0
+                    off, n, k0 = off + cut, n - cut, exp
+        elif exp is not None and k0 > exp:  # gap inside a batch
+            self._counts["gaps"] += 1
+            self._counts["gap_samples"] += k0 - exp
+            self._event("gap", f"{source}: {k0 - exp} samples missing inside batch seq {seq}")
+        self._src_expect[source] = k0 + n
+        self._src_seq[source] = seq
+        if recent is None:
+            recent = self._src_recent[source] = deque(maxlen=_RECENT_SEQS)
+        if first:
+            recent.append(seq)
+        return self._write(k0, off, n, names, arrays)
+
+    def _write(self, a: int, off: int, n: int, names: list[str], arrays: list[np.ndarray]) -> int:
+        b = a + n
+        heads = self._heads
+        rows = [self._rows[s] for s in names]
+        if n > self._cap:  # only the newest cap samples can be held
+            self._counts["samples_discarded"] += n - self._cap
+            off += n - self._cap
+            a = b - self._cap
+        lo = min(heads[r] for r in rows)
+        if a < self._start:
+            cut = self._start - a
+            if cut >= b - a:
+                self._counts["samples_discarded"] += b - a
+                return 0
+            self._counts["samples_discarded"] += cut
+            off, a = off + cut, self._start
+        if a > lo:  # a column would have a hole: restart the window at a
+            self._start = a
+            self._next_close = a + self._w
+            for r in range(len(heads)):
+                if r in rows or heads[r] < a:
+                    heads[r] = a
+            self._resets["gap"] += 1
+        elif a < lo:  # already held (another source moved the ring on)
+            cut = lo - a
+            if cut >= b - a:
+                self._counts["samples_discarded"] += b - a
+                return 0
+            self._counts["samples_discarded"] += cut
+            off, a = off + cut, lo
+        cap = self._cap
+        s0 = a % cap
+        m = b - a
+        first_len = min(m, cap - s0)
+        ring = self._ring
+        for r, arr in zip(rows, arrays, strict=True):
+            ring[r, s0 : s0 + first_len] = arr[off : off + first_len]
+            if first_len < m:
+                ring[r, : m - first_len] = arr[off + first_len : off + m]
+            heads[r] = b
+        maxhead = max(heads)
+        complete = min(heads)
+        if maxhead - complete > self._slack:
+            x = maxhead - self._slack
+            lagging = [r for r in range(len(heads)) if heads[r] < x]
+            for r in lagging:
+                heads[r] = x
+            self._start = max(self._start, x)
+            self._next_close = max(self._next_close, self._start + self._w)
+            self._counts["unaligned"] += 1
+            names_lag = [s for s, r in self._rows.items() if r in lagging]
+            self._event("unaligned", f"signal(s) {names_lag} lag more than {self._slack} samples behind; skipped ahead")
+        self._start = max(self._start, maxhead - cap)
+        return m
+
+    def _maybe_close(self) -> bool:
+        complete = self._complete()
+        if complete < self._next_close or not self._inputs or not self._outputs:
+            return False
+        if len(self._rows) != len(self._inputs) + len(self._outputs):
+            return False
+        steps = (complete - self._next_close) // self._h
+        end = self._next_close + steps * self._h
+        self._next_close = end + self._h
+        self._counts["windows_closed"] += steps + 1
+        coalesced = steps + (1 if self._pending is not None else 0)
+        self._counts["windows_coalesced"] += coalesced
+        self._coalesced_since += coalesced
+        w, cap = self._w, self._cap
+        s0 = (end - w) % cap
+        if s0 + w <= cap:
+            block = self._ring[:, s0 : s0 + w]
+        else:
+            block = np.concatenate((self._ring[:, s0:], self._ring[:, : s0 + w - cap]), axis=1)
+        n_in = len(self._inputs)
+        self._number += 1
+        self._pending = Window(
+            stream=self.stream,
+            number=self._number,
+            epoch=self._epoch,
+            t0_ns=self._anchor + (end - w) * self._period,  # type: ignore[operator]
+            period_ns=self._period,  # type: ignore[arg-type]
+            input_names=self._inputs,
+            output_names=self._outputs,
+            u=block[:n_in].T.copy(),
+            y=block[n_in:].T.copy(),
+            closed_monotonic_ns=time.monotonic_ns(),
+            closed_unix_ns=time.time_ns(),
+            coalesced_before=self._coalesced_since,
+        )
+        self._counts["windows_emitted"] += 1
+        return True
+

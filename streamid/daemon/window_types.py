@@ -1,0 +1,168 @@
+"""Types of the window buffer: its parameters, the closed :class:`Window`, events.
+
+See :mod:`streamid.daemon.window` for the buffer itself.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from streamid.errors import ConfigError
+
+__all__ = ["DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "BatchLike", "Event", "Window", "WindowParams", "estimate_period"]
+
+#: Window length and hop used when neither seconds nor samples are given.
+DEFAULT_WINDOW_S = 10.0
+DEFAULT_HOP_S = 1.0
+
+
+class BatchLike(Protocol):
+    """What the buffer reads from a batch (:class:`streamid.codec.SampleBatch`)."""
+
+    stream: str
+    seq: int
+    t0_ns: int
+    period_ns: int
+    t_ns: np.ndarray | None
+    inputs: Mapping[str, np.ndarray]
+    outputs: Mapping[str, np.ndarray]
+
+    def __len__(self) -> int: ...
+
+
+@dataclass(frozen=True)
+class WindowParams:
+    """Window geometry and input checks of one stream.
+
+    Parameters
+    ----------
+    window_s, window_samples
+        Window length, in seconds of stream time or in samples (at most one;
+        neither: :data:`DEFAULT_WINDOW_S`).
+    hop_s, hop_samples
+        A window closes every this many seconds / new samples (at most one;
+        neither: :data:`DEFAULT_HOP_S`).
+    inputs, outputs
+        Signal names to use, in model order.  ``None``: taken from the batches
+        (the first batch carrying inputs / outputs fixes them; a later batch with
+        a different set resets the stream).
+    max_abs_value
+        Samples with a larger magnitude are refused (``magnitude``).
+    max_window_samples
+        Refuse a sample period that would make the window longer than this.
+    align_slack_samples
+        How far one column (e.g. u on its own key) may run ahead of another
+        before the lagging one is declared unaligned.  ``None``: max(window, hop).
+    """
+
+    window_s: float | None = None
+    window_samples: int | None = None
+    hop_s: float | None = None
+    hop_samples: int | None = None
+    inputs: tuple[str, ...] | None = None
+    outputs: tuple[str, ...] | None = None
+    max_abs_value: float = 1e12
+    max_window_samples: int = 4_000_000
+    align_slack_samples: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.window_s is None and self.window_samples is None:
+            object.__setattr__(self, "window_s", DEFAULT_WINDOW_S)
+        if self.hop_s is None and self.hop_samples is None:
+            object.__setattr__(self, "hop_s", DEFAULT_HOP_S)
+        _one_of("window_s", self.window_s, "window_samples", self.window_samples)
+        _one_of("hop_s", self.hop_s, "hop_samples", self.hop_samples)
+        for name in ("window_s", "hop_s"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a finite number of seconds > 0; got {v!r}")
+        for name in ("window_samples", "hop_samples", "max_window_samples"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 2 - (name == "hop_samples")):
+                raise ConfigError(f"{name} must be an integer >= {2 - (name == 'hop_samples')}; got {v!r}")
+        if self.align_slack_samples is not None and not (
+            isinstance(self.align_slack_samples, int) and self.align_slack_samples >= 1
+        ):
+            raise ConfigError(f"align_slack_samples must be an integer >= 1; got {self.align_slack_samples!r}")
+        if not (isinstance(self.max_abs_value, (int, float)) and self.max_abs_value > 0):
+            raise ConfigError(f"max_abs_value must be a number > 0; got {self.max_abs_value!r}")
+        for name in ("inputs", "outputs"):
+            v = getattr(self, name)
+            if v is not None and (
+                not isinstance(v, tuple) or not v or not all(isinstance(s, str) and s for s in v) or len(set(v)) != len(v)
+            ):
+                raise ConfigError(f"{name} must be a non-empty tuple of distinct signal names or None; got {v!r}")
+
+    def samples(self, period_ns: int) -> tuple[int, int]:
+        """Window and hop lengths in samples for a sample period (ns)."""
+        w = self.window_samples if self.window_samples is not None else round(self.window_s * 1e9 / period_ns)
+        h = self.hop_samples if self.hop_samples is not None else round(self.hop_s * 1e9 / period_ns)
+        return max(int(w), 2), max(int(h), 1)
+
+
+def _one_of(a: str, va: object, b: str, vb: object) -> None:
+    if (va is None) == (vb is None):
+        raise ConfigError(f"give at most one of {a} (seconds) or {b} (samples); got {a}={va!r}, {b}={vb!r}")
+
+
+def estimate_period(t_ns: np.ndarray) -> int:
+    """Sample period of jittered, possibly gappy time stamps (least squares on the grid)."""
+    d = np.diff(t_ns)
+    p0 = float(np.median(d))
+    if p0 <= 0:
+        return 0
+    k = np.concatenate(([0], np.cumsum(np.maximum(np.rint(d / p0), 1))))
+    kc = k - k.mean()
+    den = float(kc @ kc)
+    return int(round(float(kc @ (t_ns - t_ns[0]).astype(np.float64)) / den)) if den > 0 else int(p0)
+
+
+@dataclass(frozen=True, eq=False)
+class Window:
+    """A closed window: the newest samples of a stream at the moment it closed.
+
+    ``u`` has shape (n, n_inputs), ``y`` shape (n, n_outputs), both C-contiguous
+    float64 copies owned by the window.  ``epoch`` changes when the stream was
+    reset for a period or signal change (warm starts do not cross epochs).
+    """
+
+    stream: str
+    number: int
+    epoch: int
+    t0_ns: int
+    period_ns: int
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    u: np.ndarray
+    y: np.ndarray
+    closed_monotonic_ns: int
+    closed_unix_ns: int
+    coalesced_before: int
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.u.shape[0])
+
+    @property
+    def t_end_ns(self) -> int:
+        """Time of the last sample."""
+        return self.t0_ns + (self.n - 1) * self.period_ns
+
+    def times_ns(self) -> np.ndarray:
+        """Sample times (int64 ns)."""
+        return self.t0_ns + np.arange(self.n, dtype=np.int64) * np.int64(self.period_ns)
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something worth a line in the event log (gap, reset, refused batch)."""
+
+    monotonic_ns: int
+    kind: str
+    message: str

@@ -1,0 +1,245 @@
+"""Load identification data from CSV (header row), MATLAB ``.mat`` or streamid MCAP logs.
+
+:func:`load_table` reads every numeric column of a file into ``{name: array}``;
+:func:`load_dataset` picks the input and output columns by name and splits the
+samples into an estimation part (the first ones) and a validation part (the rest).
+
+Formats
+-------
+* ``.csv`` (or any other extension with ``format="csv"``): first row = column
+  names, then one row per sample, comma-separated numbers.
+* ``.mat`` (MATLAB v4-v7.2, read with :func:`scipy.io.loadmat`): every numeric
+  vector variable is a column (``N x 1`` or ``1 x N``); a matrix ``X`` of shape
+  ``N x k`` gives columns ``X[0] .. X[k-1]``. MATLAB v7.3 (HDF5) files are not supported.
+* ``.mcap``: a streamid log (see :mod:`streamid.mcaplog`); columns are the
+  stream's input and output channel names.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.errors import DataError
+
+__all__ = ["Table", "Dataset", "load_table", "load_dataset", "split_index"]
+
+
+@dataclass(frozen=True)
+class Table:
+    """Numeric columns of a data file (equal lengths), with sample times when the file has them."""
+
+    path: str
+    columns: dict[str, NDArray[np.float64]]
+    t_ns: NDArray[np.int64] | None = None
+    period_ns: int | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(next(iter(self.columns.values()))) if self.columns else 0
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        """One column; :class:`DataError` naming the available ones if unknown."""
+        if name not in self.columns:
+            raise DataError(
+                f"unknown column {name!r} in {self.path}; available columns: {sorted(self.columns)}"
+            )
+        return self.columns[name]
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """Inputs and output split into estimation and validation parts."""
+
+    path: str
+    input_names: tuple[str, ...]
+    output_name: str
+    u_est: NDArray[np.float64]
+    y_est: NDArray[np.float64]
+    u_val: NDArray[np.float64]
+    y_val: NDArray[np.float64]
+    n_est: int
+    t_ns: NDArray[np.int64] | None = None
+
+    @property
+    def n_val(self) -> int:
+        return int(self.y_val.shape[0])
+
+    def window(self) -> dict[str, Any]:
+        """Description of the estimation window (recorded in the model)."""
+        w: dict[str, Any] = {"source": os.path.basename(self.path), "start": 0, "stop": self.n_est, "n_samples": self.n_est}
+        if self.t_ns is not None and self.n_est:
+            w["t0_ns"] = int(self.t_ns[0])
+            w["t1_ns"] = int(self.t_ns[self.n_est - 1])
+        return w
+
+
+def _read_csv(path: Path) -> Table:
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read CSV file {path}: {exc}") from None
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    if len(rows) < 2:
+        raise DataError(f"{path}: a CSV file needs a header row with column names and at least one data row")
+    header = [h.strip() for h in rows[0]]
+    if len(set(header)) != len(header) or any(not h for h in header):
+        raise DataError(f"{path}: the header row must hold distinct, non-empty column names; got {header}")
+    body = rows[1:]
+    for i, r in enumerate(body):
+        if len(r) != len(header):
+            raise DataError(f"{path}: row {i + 2} has {len(r)} fields; the header has {len(header)}")
+    cols: dict[str, NDArray[np.float64]] = {}
+    for j, name in enumerate(header):
+        vals = np.empty(len(body))
+        for i, r in enumerate(body):
+            try:
+                vals[i] = float(r[j])
+            except ValueError:
+                raise DataError(
+                    f"{path}: column {name!r}, row {i + 2}: {r[j]!r} is not a number "
+                    "(every field of a data row must be a number)"
+                ) from None
+        cols[name] = vals
+    return Table(str(path), cols)
+
+
+def _read_mat(path: Path) -> Table:
+    from scipy.io import loadmat
+
+    try:
+        data = loadmat(str(path), squeeze_me=False)
+    except NotImplementedError:
+        raise DataError(f"{path}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 or export CSV") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise DataError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
+    cols: dict[str, NDArray[np.float64]] = {}
+    for name, val in data.items():
+        if name.startswith("__") or not isinstance(val, np.ndarray) or val.dtype.kind not in "biuf":
+            continue
+        a = np.asarray(val, dtype=np.float64)
+        if a.ndim != 2 or a.size == 0:
+            continue
+        if 1 in a.shape:
+            cols[name] = a.reshape(-1)
+        else:
+            for k in range(a.shape[1]):
+                cols[f"{name}[{k}]"] = a[:, k]
+    if not cols:
+        raise DataError(f"{path}: no numeric vector variables found")
+    return Table(str(path), cols, meta={"lengths": {k: len(v) for k, v in cols.items()}})
+
+
+def _read_mcap(path: Path, stream: str | None) -> Table:
+    from streamid.mcaplog import read_log_arrays
+
+    arr = read_log_arrays(path, stream)
+    cols = {**{k: np.asarray(v, dtype=np.float64) for k, v in arr.inputs.items()}}
+    for k, v in arr.outputs.items():
+        if k in cols:
+            raise DataError(f"{path}: channel name {k!r} is both an input and an output of stream {arr.stream!r}")
+        cols[k] = np.asarray(v, dtype=np.float64)
+    meta = {"stream": arr.stream, "inputs": list(arr.inputs), "outputs": list(arr.outputs), "metadata": arr.metadata}
+    return Table(str(path), cols, t_ns=np.asarray(arr.t_ns, dtype=np.int64), period_ns=int(arr.period_ns), meta=meta)
+
+
+def load_table(path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None) -> Table:
+    """Read a data file's numeric columns.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.csv``, ``.mat`` or ``.mcap`` file.
+    stream : str, optional
+        Stream of an MCAP log holding several.
+    fmt : {"csv", "mat", "mcap"}, optional
+        Format, if the extension does not tell.
+
+    Raises
+    ------
+    DataError
+        Unreadable file, non-numeric CSV field, unknown format.
+    LogError
+        An MCAP log that cannot be read.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise DataError(f"data file {str(path)!r} does not exist (or is not a file)")
+    kind = (fmt or p.suffix.lstrip(".")).lower()
+    if kind == "csv":
+        return _read_csv(p)
+    if kind == "mat":
+        return _read_mat(p)
+    if kind == "mcap":
+        return _read_mcap(p, stream)
+    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv (header row), .mat, .mcap")
+
+
+def split_index(n: int, est: int | None = None, est_fraction: float | None = None) -> int:
+    """Number of estimation samples: ``est``, or ``round(est_fraction * n)``, default half."""
+    if est is not None and est_fraction is not None:
+        raise DataError("give either the number of estimation samples or the fraction, not both")
+    if est is not None:
+        if not (isinstance(est, int) and 1 <= est < n):
+            raise DataError(f"the number of estimation samples must be an integer in [1, {n - 1}] for {n} samples; got {est!r}")
+        return est
+    f = 0.5 if est_fraction is None else est_fraction
+    if not (0.0 < f < 1.0):
+        raise DataError(f"the estimation fraction must be in (0, 1); got {f!r}")
+    k = int(round(f * n))
+    if not 1 <= k < n:
+        raise DataError(f"an estimation fraction of {f} leaves no estimation or no validation sample of {n}")
+    return k
+
+
+def load_dataset(
+    path: str | os.PathLike[str],
+    inputs: list[str] | tuple[str, ...],
+    output: str,
+    *,
+    est: int | None = None,
+    est_fraction: float | None = None,
+    stream: str | None = None,
+) -> Dataset:
+    """Load the named columns and split them (estimation first, validation after).
+
+    Parameters
+    ----------
+    path : path-like
+    inputs : list of str
+        Input column names (at least one).
+    output : str
+        Output column name.
+    est, est_fraction : optional
+        Estimation samples (count or fraction); default the first half.
+    stream : str, optional
+        Stream of an MCAP log.
+
+    Raises
+    ------
+    DataError
+        Unknown columns, columns of different lengths, NaN/inf values.
+    """
+    if not inputs:
+        raise DataError("at least one input column is needed")
+    table = load_table(path, stream=stream)
+    names = list(inputs) + [output]
+    cols = [table.column(c) for c in names]
+    lengths = {c: len(a) for c, a in zip(names, cols)}
+    if len(set(lengths.values())) != 1:
+        raise DataError(f"{path}: the columns have different lengths {lengths}; all must be equal")
+    for c, a in zip(names, cols):
+        if not np.all(np.isfinite(a)):
+            i = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise DataError(f"{path}: column {c!r} holds a non-finite value {float(a[i])!r} at sample {i}; only numbers are accepted")
+    u = np.column_stack(cols[:-1])
+    y = cols[-1]
+    k = split_index(len(y), est, est_fraction)
+    return Dataset(str(path), tuple(inputs), output, u[:k], y[:k], u[k:], y[k:], k, table.t_ns)

@@ -1,0 +1,33 @@
+"""The identification engine: coevolutionary RBF-NARX (see the modules for the method's details).
+
+``identify`` (one identification, possibly several runs), ``Coevolution`` (one
+steppable run with exportable ``CoEAState`` for warm starts), ``Model`` (prediction,
+free run, ``streamid.model/1`` JSON), ``validate`` / ``r2`` / ``correlation_tests``.
+"""
+
+from __future__ import annotations
+
+from streamid.engine.coevolution import CoEAState, Coevolution, Progress
+from streamid.engine.config import DEFAULT, PAPER, CoEAConfig
+from streamid.engine.identify import Result, RunSummary, identify
+from streamid.engine.model import MODEL_FORMAT, Model
+from streamid.engine.validation import CorrelationReport, ValidationReport, correlation_tests, r2, validate
+
+__all__ = [
+    "CoEAConfig",
+    "CoEAState",
+    "Coevolution",
+    "CorrelationReport",
+    "DEFAULT",
+    "MODEL_FORMAT",
+    "Model",
+    "PAPER",
+    "Progress",
+    "Result",
+    "RunSummary",
+    "ValidationReport",
+    "correlation_tests",
+    "identify",
+    "r2",
+    "validate",
+]

@@ -1,0 +1,195 @@
+"""Engine benchmark cases behind ``streamid bench`` (section ``engine``).
+
+Each ``*_case(seed)`` runs one identification on the project's own data (the
+reactor simulator; the MR damper and piezo logs bundled in ``streamid/data``)
+and returns a dict of figures; :func:`bench` turns repeated cases into the
+table rows of :mod:`streamid.benchkit`.
+
+Figures and targets (issue 2)
+------------------------------
+* reactor (paper eq. 17, 480 + 480 samples, G=400, M=10, L=10): whole
+  identification time (8,040 evaluations), FR validation R^2 (>= 0.9999), lags
+  ``y(t-1), u(t-1), u(t-2)`` (optionally ``y(t-2)``);
+* MR damper (first 2000 estimation, last 1499 validation): the paper's settings
+  (G=200, M=10) and streamid's defaults (:data:`~streamid.engine.config.DEFAULT`,
+  <= 3 s wall, OSA val R^2 >= 0.996, FR val R^2 median >= 0.98, min >= 0.97);
+* piezo (first half / second half, M=13, G=100): FR val R^2 >= 0.9997;
+* scaling: seconds of one run for N = 480, 2000, 10000 and M = 10, 20, 40.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from streamid.engine.config import DEFAULT, PAPER, CoEAConfig
+from streamid.engine.identify import identify
+from streamid.engine.validation import prediction_r2
+
+__all__ = [
+    "reactor_case",
+    "mr_damper_case",
+    "mr_damper_paper_case",
+    "piezo_case",
+    "scaling_case",
+    "reactor_lags_ok",
+    "bench",
+]
+
+REACTOR_CONFIG = PAPER.replace(neurons=10, generations=400, max_lag_y=10, max_lag_u=10)
+MR_PAPER_CONFIG = PAPER.replace(neurons=10, generations=200)
+PIEZO_CONFIG = PAPER.replace(neurons=13, generations=100)
+
+
+@lru_cache(maxsize=4)
+def _log(name: str, inp: str, out: str) -> tuple[np.ndarray, np.ndarray]:
+    from streamid.mcaplog import bundled_log, read_log_arrays
+
+    arr = read_log_arrays(bundled_log(name))
+    return np.asarray(arr.inputs[inp], dtype=np.float64), np.asarray(arr.outputs[out], dtype=np.float64)
+
+
+def mr_damper_data() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(u_est, y_est, u_val, y_val): the bundled MR damper log, 2000 + 1499 samples."""
+    u, y = _log("mr_damper", "velocity_cm_s", "force_N")
+    return u[:2000], y[:2000], u[2000:], y[2000:]
+
+
+def piezo_data() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(u_est, y_est, u_val, y_val): the bundled piezo log, first half / second half."""
+    u, y = _log("piezo_p885", "voltage_V", "displacement_um")
+    k = len(y) // 2
+    return u[:k], y[:k], u[k:], y[k:]
+
+
+def reactor_data(seed: int, n_est: int = 480, n_val: int = 480) -> tuple[np.ndarray, ...]:
+    """(u_est, y_est, u_val, y_val) from the reactor simulator (the seed draws the input)."""
+    from streamid.sim import simulate_reactor
+
+    _, u, y = simulate_reactor(n_est + n_val, seed)
+    return u[:n_est], y[:n_est], u[n_est:], y[n_est:]
+
+
+def reactor_lags_ok(lags: dict[str, Any]) -> bool:
+    """Exactly ``y(t-1), u(t-1), u(t-2)``, optionally with ``y(t-2)``."""
+    return lags["u"] == [[1, 2]] and lags["y"] in ([1], [1, 2])
+
+
+def _case(cfg: CoEAConfig, seed: int, data: tuple[np.ndarray, ...], **kw: Any) -> dict[str, Any]:
+    ue, ye, uv, yv = data
+    t0 = time.perf_counter()
+    res = identify(ue, ye, cfg, seed, **kw)
+    seconds = time.perf_counter() - t0
+    osa_v, fr_v, _ = prediction_r2(res.model, uv, yv)
+    osa_e, fr_e, _ = prediction_r2(res.model, ue, ye)
+    return {
+        "seed": seed,
+        "seconds": seconds,
+        "evaluations": res.evaluations,
+        "fitness": res.fitness,
+        "osa_est": osa_e,
+        "fr_est": fr_e,
+        "osa_val": osa_v,
+        "fr_val": fr_v,
+        "lags": res.model.lags,
+    }
+
+
+def reactor_case(seed: int) -> dict[str, Any]:
+    """The paper's reactor identification (one run, G=400, M=10, L=10) on simulated 480 + 480 samples."""
+    out = _case(REACTOR_CONFIG, seed, reactor_data(seed))
+    out["lags_ok"] = reactor_lags_ok(out["lags"])
+    return out
+
+
+def mr_damper_case(seed: int, config: CoEAConfig | None = None) -> dict[str, Any]:
+    """streamid's default identification of the real MR damper (wall time includes the worker processes)."""
+    return _case(DEFAULT if config is None else config, seed, mr_damper_data())
+
+
+def mr_damper_paper_case(seed: int) -> dict[str, Any]:
+    """The paper's settings (one run, G=200, M=10) on the real MR damper."""
+    return _case(MR_PAPER_CONFIG, seed, mr_damper_data())
+
+
+def piezo_case(seed: int) -> dict[str, Any]:
+    """The paper's settings (one run, G=100, M=13) on the real piezo actuator log."""
+    return _case(PIEZO_CONFIG, seed, piezo_data())
+
+
+def scaling_case(n_est: int, neurons: int, seed: int = 0, generations: int = 100) -> dict[str, Any]:
+    """Seconds of one paper-style run (P=20, L=10) on ``n_est`` reactor samples with ``neurons`` neurons."""
+    cfg = PAPER.replace(neurons=neurons, generations=generations)
+    ue, ye, _, _ = reactor_data(seed, n_est, 10)
+    t0 = time.perf_counter()
+    res = identify(ue, ye, cfg, seed)
+    seconds = time.perf_counter() - t0
+    return {
+        "n_est": n_est,
+        "neurons": neurons,
+        "generations": generations,
+        "seconds": seconds,
+        "evaluations": res.evaluations,
+        "us_per_evaluation": 1e6 * seconds / res.evaluations,
+    }
+
+
+def _rows(section: str, case: str, results: list[dict[str, Any]], metrics: Iterable[tuple[str, str, str]]) -> Iterator[Any]:
+    from streamid.benchkit import Measurement
+
+    for key, unit, note in metrics:
+        yield Measurement(section, case, key, unit, tuple(float(r[key]) for r in results), note)
+
+
+def bench(options: Any) -> Iterator[Any]:
+    """``streamid bench`` provider: the engine's figures (medians over ``options.repeat`` seeds)."""
+    from streamid.benchkit import Measurement
+
+    n = 2 if options.quick else max(1, options.repeat)
+    seeds = [options.seed + i for i in range(n)]
+    rea = [reactor_case(s) for s in seeds]
+    yield from _rows(
+        "engine",
+        "reactor G=400 M=10 (paper)",
+        rea,
+        [
+            ("seconds", "s", "whole identification, 8,040 evaluations; target <= 0.10 median"),
+            ("fr_val", "R2", "free run, validation; target >= 0.9999 each"),
+            ("osa_val", "R2", "one step ahead, validation"),
+        ],
+    )
+    yield Measurement(
+        "engine", "reactor G=400 M=10 (paper)", "lags y1,u1,u2(,y2)", "fraction",
+        (float(np.mean([r["lags_ok"] for r in rea])),), "target >= 0.8",
+    )
+    mrp = [mr_damper_paper_case(s) for s in seeds]
+    yield from _rows(
+        "engine", "MR damper, paper G=200 M=10", mrp,
+        [("fr_val", "R2", "free run, validation (paper's best of 30: 0.9591)"), ("osa_val", "R2", ""), ("seconds", "s", "one run")],
+    )
+    mrd = [mr_damper_case(s) for s in seeds]
+    yield from _rows(
+        "engine", "MR damper, streamid defaults", mrd,
+        [
+            ("fr_val", "R2", "target median >= 0.98, min >= 0.97"),
+            ("osa_val", "R2", "target >= 0.996 each"),
+            ("seconds", "s", f"wall, {DEFAULT.restarts} runs on {DEFAULT.workers} processes; target <= 3"),
+        ],
+    )
+    pz = [piezo_case(s) for s in seeds]
+    yield from _rows(
+        "engine", "piezo G=100 M=13 (paper)", pz,
+        [("fr_val", "R2", "target >= 0.9997 each"), ("osa_val", "R2", ""), ("seconds", "s", "one run")],
+    )
+    sizes = (480, 2000) if options.quick else (480, 2000, 10000)
+    for n_est in sizes:
+        for m in (10, 20, 40):
+            reps = [scaling_case(n_est, m, s, generations=20 if options.quick else 100) for s in seeds[: max(1, min(3, n))]]
+            yield from _rows(
+                "engine", f"scaling N={n_est} M={m}", reps,
+                [("seconds", "s", f"one run, G={reps[0]['generations']}, P=20"), ("us_per_evaluation", "us", "")],
+            )

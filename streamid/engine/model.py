@@ -1,0 +1,349 @@
+r"""The identified model: prediction, free-run simulation and its JSON file.
+
+Prediction formula (all a reader needs to reproduce predictions from the file)
+-------------------------------------------------------------------------------
+With ``norm`` the file's ``normalisation`` (``x_n = 2 (x - low) / (high - low) - 1``
+per signal, ``u_low[i]``/``u_high[i]`` for input ``i``, ``y_low``/``y_high`` for the
+output) and ``regressors`` the ordered list of ``{"signal", "index", "lag"}``::
+
+    r_j(t)  = norm(signal_j)(t - lag_j)                  j = 0 .. k-1   (y or input ``index``)
+    phi_m   = exp(-sum_j (r_j(t) - centres[m][j])^2 / (2 widths[m]^2))
+    yn(t)   = sum_m weights[m] phi_m
+    y(t)    = (yn(t) + 1) (y_high - y_low) / 2 + y_low
+
+One-step-ahead prediction uses measured past outputs; free run (simulation)
+uses the model's own past predictions after ``max_lag`` measured initial outputs.
+Both return arrays aligned with the input whose first ``max_lag`` values are the
+measured outputs given (no prediction exists there).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite
+from streamid.errors import DataError, ModelFormatError
+
+__all__ = ["Model", "MODEL_FORMAT", "free_run"]
+
+MODEL_FORMAT = "streamid.model/1"
+
+
+def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelFormatError(f"model field {name!r} must be an array of numbers of shape {shape}; got {value!r}") from None
+    if a.shape != shape:
+        raise ModelFormatError(f"model field {name!r} must have shape {shape}; got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ModelFormatError(f"model field {name!r} must contain only finite numbers (no NaN/inf); got {value!r}")
+    return a
+
+
+def free_run(
+    regressors: tuple[Regressor, ...],
+    centres: NDArray[np.float64],
+    widths: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    un: NDArray[np.float64],
+    yn_init: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Free-run simulation of several networks with the same regressors at once (normalised units).
+
+    Parameters
+    ----------
+    regressors : tuple of Regressor
+        Shared by all networks; ``L = max lag``.
+    centres : ndarray, shape (C, M, k)
+    widths, weights : ndarray, shape (C, M)
+    un : ndarray, shape (N, n_inputs)
+        Normalised inputs.
+    yn_init : ndarray, shape (C, L)
+        Normalised initial outputs (the first ``L`` samples).
+
+    Returns
+    -------
+    ndarray, shape (C, N)
+        The first ``L`` columns are ``yn_init``; then each network's recursive prediction.
+    """
+    C, M, _ = centres.shape
+    n = un.shape[0]
+    L = max((r.lag for r in regressors), default=0)
+    a = 1.0 / (2.0 * widths**2)  # (C, M)
+    yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
+    lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
+    # Squared distances contributed by the input regressors, for every step at once.
+    du = np.zeros((C, n, M))
+    for j, reg in enumerate(regressors):
+        if reg.signal == "u":
+            col = np.zeros(n)
+            col[reg.lag :] = un[: n - reg.lag, reg.index]
+            du += (col[None, :, None] - centres[:, None, :, j]) ** 2
+    du *= a[:, None, :]
+    cy = np.ascontiguousarray(centres[:, :, yj])  # (C, M, ky)
+    y = np.empty((C, n))
+    y[:, :L] = yn_init[:, :L]
+    for t in range(L, n):
+        if lags.size:
+            diff = y[:, t - lags][:, None, :] - cy  # (C, M, ky)
+            d = du[:, t, :] + np.einsum("cmk,cmk->cm", diff, diff) * a
+        else:
+            d = du[:, t, :]
+        y[:, t] = np.einsum("cm,cm->c", np.exp(-d), weights)
+    return y
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A Gaussian RBF NARX model (see the module docstring for the formula).
+
+    Attributes
+    ----------
+    regressors : tuple of Regressor
+        Selected lagged terms, in the order of the centre coordinates.
+    centres : ndarray, shape (M, k)
+    widths : ndarray, shape (M,)
+    weights : ndarray, shape (M,)
+    normalisation : Normalisation
+    input_names : tuple of str
+    output_name : str
+    metrics : dict
+        Fitness and validation figures (JSON-able).
+    window : dict
+        The data the model was fitted on (sample count, indices/times when known).
+    config : dict
+        The :class:`~streamid.engine.config.CoEAConfig` used (as a dict).
+
+    Raises
+    ------
+    ModelFormatError
+        If any parameter is not finite or the shapes disagree (a Model never holds NaN).
+    """
+
+    regressors: tuple[Regressor, ...]
+    centres: NDArray[np.float64]
+    widths: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    normalisation: Normalisation
+    input_names: tuple[str, ...] = ()
+    output_name: str = "y"
+    metrics: dict[str, Any] = field(default_factory=dict)
+    window: dict[str, Any] = field(default_factory=dict)
+    config: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        m = int(np.shape(self.widths)[0]) if np.ndim(self.widths) == 1 else -1
+        k = len(self.regressors)
+        if m < 1:
+            raise ModelFormatError(f"model widths must be a 1-D array with >= 1 neuron; got shape {np.shape(self.widths)}")
+        object.__setattr__(self, "centres", _finite_array("centres", self.centres, (m, k)))
+        object.__setattr__(self, "widths", _finite_array("widths", self.widths, (m,)))
+        object.__setattr__(self, "weights", _finite_array("weights", self.weights, (m,)))
+        if np.any(self.widths <= 0):
+            raise ModelFormatError(f"model widths must be > 0; got {self.widths.tolist()}")
+        n_in = self.normalisation.n_inputs
+        for r in self.regressors:
+            ok = (r.signal == "y" and r.index == 0) or (r.signal == "u" and 0 <= r.index < n_in)
+            if not ok or r.lag < 1:
+                raise ModelFormatError(
+                    f"regressor {r} must be signal 'y' (index 0) or 'u' (index 0..{n_in - 1}) with lag >= 1"
+                )
+        if not self.input_names:
+            object.__setattr__(self, "input_names", tuple(f"u{i}" for i in range(n_in)))
+        if len(self.input_names) != n_in:
+            raise ModelFormatError(f"model has {n_in} inputs but {len(self.input_names)} input names {self.input_names}")
+        for key, val in self.metrics.items():
+            if isinstance(val, float) and not math.isfinite(val):
+                raise ModelFormatError(f"model metric {key!r} must be finite; got {val!r}")
+        for c in self.centres, self.widths, self.weights:
+            c.setflags(write=False)
+
+    # ------------------------------------------------------------------ structure
+    @property
+    def n_inputs(self) -> int:
+        return self.normalisation.n_inputs
+
+    @property
+    def neurons(self) -> int:
+        return int(self.widths.shape[0])
+
+    @property
+    def max_lag(self) -> int:
+        """Largest selected lag: samples needed before the first prediction."""
+        return max((r.lag for r in self.regressors), default=0)
+
+    @property
+    def lags(self) -> dict[str, Any]:
+        """Selected lags ``{"y": [...], "u": [[...] per input]}``."""
+        return {
+            "y": [r.lag for r in self.regressors if r.signal == "y"],
+            "u": [[r.lag for r in self.regressors if r.signal == "u" and r.index == i] for i in range(self.n_inputs)],
+        }
+
+    def labels(self) -> list[str]:
+        """Readable names of the regressors, e.g. ``['y(t-1)', 'u(t-1)']``."""
+        return [r.label(self.input_names, self.output_name) for r in self.regressors]
+
+    # ------------------------------------------------------------------ prediction
+    def _check(self, u: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        ua, ya = as_data(u, y, min_samples=self.max_lag + 1)
+        if ua.shape[1] != self.n_inputs:
+            raise DataError(f"the model has {self.n_inputs} input(s); got u with {ua.shape[1]} column(s)")
+        return ua, ya
+
+    def _phi(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
+        d2 = np.zeros((r.shape[0], self.neurons))
+        for j in range(r.shape[1]):
+            d2 += (r[:, j : j + 1] - self.centres[None, :, j]) ** 2
+        return np.exp(-d2 / (2.0 * self.widths**2))
+
+    def predict_osa(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+        """One-step-ahead prediction from measured inputs and outputs.
+
+        Parameters
+        ----------
+        u : array_like, shape (N,) or (N, n_inputs)
+        y : array_like, shape (N,)
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            ``yhat[t]`` for ``t >= max_lag``; the first ``max_lag`` values are ``y``'s.
+        """
+        ua, ya = self._check(u, y)
+        n, L = ya.shape[0], self.max_lag
+        un, yn = self.normalisation.u(ua), self.normalisation.y(ya)
+        r = np.empty((n - L, len(self.regressors)))
+        for j, reg in enumerate(self.regressors):
+            src = yn if reg.signal == "y" else un[:, reg.index]
+            r[:, j] = src[L - reg.lag : n - reg.lag]
+        out = ya.copy()
+        out[L:] = self.normalisation.y_inverse(self._phi(r) @ self.weights)
+        return out
+
+    def simulate(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
+        """Free run: recursive simulation on the model's own past outputs.
+
+        Parameters
+        ----------
+        u : array_like, shape (N,) or (N, n_inputs)
+        y_init : array_like
+            At least ``max_lag`` measured outputs: the first ``max_lag`` samples.
+            (A full-length measured output may be passed; only its start is used.)
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            First ``max_lag`` values from ``y_init``, then the simulated outputs.
+        """
+        L = self.max_lag
+        try:
+            yi = np.asarray(y_init, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise DataError(f"y_init must be an array of numbers; got {y_init!r}") from None
+        if yi.size < L:
+            raise DataError(f"y_init must hold at least max_lag = {L} samples; got {yi.size}")
+        try:
+            n_u = int(np.shape(u)[0])
+        except (IndexError, TypeError):
+            raise DataError(f"u must have shape (N,) or (N, n_inputs); got {u!r}") from None
+        ua, _ = self._check(u, np.zeros(n_u))
+        check_finite("y_init", yi[:L])
+        yn0 = self.normalisation.y(yi[:L])
+        yn = free_run(
+            self.regressors,
+            self.centres[None],
+            self.widths[None],
+            self.weights[None],
+            self.normalisation.u(ua),
+            yn0[None],
+        )[0]
+        out = self.normalisation.y_inverse(yn)
+        out[:L] = yi[:L]
+        return out
+
+    # ------------------------------------------------------------------ file format
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON document as a dict (see :meth:`to_json`)."""
+        return {
+            "format": MODEL_FORMAT,
+            "kind": "gaussian-rbf-narx",
+            "formula": (
+                "yn(t) = sum_m weights[m] * exp(-sum_j (r_j(t) - centres[m][j])^2 / (2 widths[m]^2)); "
+                "r_j(t) = normalised signal_j(t - lag_j); x_n = 2 (x - low)/(high - low) - 1; "
+                "y = (yn + 1) (y_high - y_low)/2 + y_low"
+            ),
+            "inputs": list(self.input_names),
+            "output": self.output_name,
+            "regressors": [
+                {**r.to_dict(), "name": r.label(self.input_names, self.output_name)} for r in self.regressors
+            ],
+            "lags": self.lags,
+            "max_lag": self.max_lag,
+            "normalisation": self.normalisation.to_dict(),
+            "centres": self.centres.tolist(),
+            "widths": self.widths.tolist(),
+            "weights": self.weights.tolist(),
+            "metrics": self.metrics,
+            "window": self.window,
+            "config": self.config,
+        }
+
+    def to_json(self, indent: int | None = 1) -> str:
+        """Serialise to the versioned JSON format ``streamid.model/1`` (never pickle)."""
+        return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, d: Any) -> Model:
+        """Inverse of :meth:`to_dict`; raises :class:`ModelFormatError` on anything invalid."""
+        if not isinstance(d, Mapping):
+            raise ModelFormatError(f"a model document must be a JSON object; got {type(d).__name__}")
+        fmt = d.get("format")
+        if fmt != MODEL_FORMAT:
+            raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT!r}; got {fmt!r}")
+        try:
+            regs = tuple(Regressor(str(r["signal"]), int(r["index"]), int(r["lag"])) for r in d["regressors"])
+            widths = d["widths"]
+            m = len(widths)
+            return cls(
+                regressors=regs,
+                centres=_finite_array("centres", d["centres"] if regs else [[]] * m, (m, len(regs))),
+                widths=_finite_array("widths", widths, (m,)),
+                weights=_finite_array("weights", d["weights"], (m,)),
+                normalisation=Normalisation.from_dict(d["normalisation"]),
+                input_names=tuple(str(s) for s in d.get("inputs", ())),
+                output_name=str(d.get("output", "y")),
+                metrics=dict(d.get("metrics", {})),
+                window=dict(d.get("window", {})),
+                config=dict(d.get("config", {})),
+            )
+        except ModelFormatError:
+            raise
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelFormatError(
+                f"model document is missing or has a malformed field ({type(exc).__name__}: {exc}); "
+                f"expected the {MODEL_FORMAT} fields regressors, centres, widths, weights, normalisation"
+            ) from None
+
+    @classmethod
+    def from_json(cls, text: str | bytes) -> Model:
+        """Parse a ``streamid.model/1`` JSON document."""
+        try:
+            d = json.loads(text)
+        except (json.JSONDecodeError, UnicodeDecodeError, TypeError) as exc:
+            raise ModelFormatError(f"a model file must be JSON text; parsing failed: {exc}") from None
+        return cls.from_dict(d)
+
+    def with_metrics(self, **metrics: Any) -> Model:
+        """A copy with metrics added (values must be finite)."""
+        from dataclasses import replace
+
+        return replace(self, metrics={**self.metrics, **metrics})

@@ -1,0 +1,257 @@
+"""Input checks, normalisation to [-1, 1] and the candidate-lag regressor matrix.
+
+Conventions
+-----------
+``u`` has shape ``(N, n_inputs)`` (a 1-D array is one input), ``y`` shape ``(N,)``.
+Candidate regressors are ordered output lags first, then each input's lags::
+
+    y(t-1) .. y(t-Ly), u_0(t-1) .. u_0(t-Lu), u_1(t-1) .. u_1(t-Lu), ...
+
+This order is the bit order of a lag harmony and the coordinate order of a
+centre. Row ``k`` of the regressor matrix is the regressor at time
+``t = L + k`` where ``L = max(Ly, Lu)``; rows exist for ``t = L .. N-1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from streamid.errors import DataError, ModelFormatError
+
+__all__ = [
+    "Normalisation",
+    "Regressor",
+    "as_data",
+    "candidate_regressors",
+    "lag_matrix",
+    "check_finite",
+]
+
+
+@dataclass(frozen=True)
+class Regressor:
+    """One lagged term: ``signal`` is ``"y"`` or ``"u"``, ``index`` the input number (0 for ``"y"``)."""
+
+    signal: str
+    index: int
+    lag: int
+
+    def label(self, input_names: tuple[str, ...] | None = None, output_name: str | None = None) -> str:
+        """Human-readable name such as ``y(t-1)`` or ``u0(t-2)`` (or the column names)."""
+        if self.signal == "y":
+            name = output_name or "y"
+        else:
+            name = input_names[self.index] if input_names else f"u{self.index}"
+        return f"{name}(t-{self.lag})"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"signal": self.signal, "index": self.index, "lag": self.lag}
+
+
+def candidate_regressors(max_lag_y: int, max_lag_u: int, n_inputs: int) -> tuple[Regressor, ...]:
+    """All candidate terms in harmony-bit order (see the module docstring)."""
+    regs = [Regressor("y", 0, k) for k in range(1, max_lag_y + 1)]
+    for i in range(n_inputs):
+        regs.extend(Regressor("u", i, k) for k in range(1, max_lag_u + 1))
+    return tuple(regs)
+
+
+def check_finite(name: str, a: NDArray[np.float64]) -> None:
+    """Raise :class:`DataError` naming the first NaN/inf of ``a`` (its sample and column)."""
+    if not np.all(np.isfinite(a)):
+        idx = np.argwhere(~np.isfinite(a))[0]
+        where = f"sample {int(idx[0])}" + (f", column {int(idx[1])}" if a.ndim > 1 and a.shape[1] > 1 else "")
+        raise DataError(
+            f"{name} must contain only finite numbers (no NaN or inf); got {float(a[tuple(idx)])!r} at {where}"
+        )
+
+
+def as_data(u: ArrayLike, y: ArrayLike, *, min_samples: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Validate and convert identification data.
+
+    Parameters
+    ----------
+    u : array_like, shape (N,) or (N, n_inputs)
+        Inputs (a 1-D array is one input).
+    y : array_like, shape (N,) or (N, 1)
+        Output.
+    min_samples : int
+        Minimum number of samples accepted.
+
+    Returns
+    -------
+    u : ndarray, shape (N, n_inputs), float64, C-contiguous
+    y : ndarray, shape (N,), float64
+
+    Raises
+    ------
+    DataError
+        On wrong shapes, different lengths, NaN/inf, or fewer than ``min_samples`` samples.
+    """
+    try:
+        ua = np.array(u, dtype=np.float64, copy=True)
+        ya = np.array(y, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"u and y must be arrays of numbers; conversion failed: {exc}") from None
+    if ua.ndim == 1:
+        ua = ua[:, None]
+    if ya.ndim == 2 and ya.shape[1] == 1:
+        ya = ya[:, 0]
+    if ua.ndim != 2 or ua.shape[1] < 1:
+        raise DataError(f"u must have shape (N,) or (N, n_inputs) with n_inputs >= 1; got shape {np.shape(u)}")
+    if ya.ndim != 1:
+        raise DataError(
+            f"y must have shape (N,) (one output; identify several outputs one at a time); got shape {np.shape(y)}"
+        )
+    if ua.shape[0] != ya.shape[0]:
+        raise DataError(f"u and y must have the same number of samples; got {ua.shape[0]} and {ya.shape[0]}")
+    if ya.shape[0] < min_samples:
+        raise DataError(f"at least {min_samples} samples are needed; got {ya.shape[0]}")
+    check_finite("u", ua)
+    check_finite("y", ya)
+    return np.ascontiguousarray(ua), ya
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """Affine map of every signal to [-1, 1] with the min/max of the estimation data.
+
+    ``x_n = 2 (x - low) / (high - low) - 1``. Part of every model.
+    """
+
+    u_low: tuple[float, ...]
+    u_high: tuple[float, ...]
+    y_low: float
+    y_high: float
+
+    @classmethod
+    def fit(cls, u: NDArray[np.float64], y: NDArray[np.float64]) -> Normalisation:
+        """From estimation data; a constant signal raises :class:`DataError`."""
+        lo_u, hi_u = u.min(axis=0), u.max(axis=0)
+        for i, (lo, hi) in enumerate(zip(lo_u, hi_u)):
+            if not hi > lo:
+                raise DataError(
+                    f"input {i} is constant over the estimation data (min = max = {lo!r}); each signal needs a "
+                    "non-zero range to be normalised to [-1, 1]"
+                )
+        lo_y, hi_y = float(y.min()), float(y.max())
+        if not hi_y > lo_y:
+            raise DataError(
+                f"the output is constant over the estimation data (min = max = {lo_y!r}); it needs a non-zero "
+                "range to be normalised to [-1, 1]"
+            )
+        if not (np.isfinite(hi_y - lo_y) and np.all(np.isfinite(hi_u - lo_u))):
+            raise DataError(
+                f"signal ranges must be finite float64 numbers; got inputs {lo_u}..{hi_u}, output {lo_y}..{hi_y}"
+            )
+        return cls(tuple(float(v) for v in lo_u), tuple(float(v) for v in hi_u), lo_y, hi_y)
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self.u_low)
+
+    @property
+    def y_half_range(self) -> float:
+        """``(high - low) / 2`` of the output: one normalised unit in output units."""
+        return 0.5 * (self.y_high - self.y_low)
+
+    def u(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        lo = np.asarray(self.u_low)
+        hi = np.asarray(self.u_high)
+        return 2.0 * (u - lo) / (hi - lo) - 1.0
+
+    def y(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
+        return 2.0 * (y - self.y_low) / (self.y_high - self.y_low) - 1.0
+
+    def y_inverse(self, yn: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (yn + 1.0) * (0.5 * (self.y_high - self.y_low)) + self.y_low
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "rule": "x_n = 2 (x - low) / (high - low) - 1",
+            "u_low": list(self.u_low),
+            "u_high": list(self.u_high),
+            "y_low": self.y_low,
+            "y_high": self.y_high,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Any) -> Normalisation:
+        try:
+            out = cls(
+                tuple(float(v) for v in d["u_low"]),
+                tuple(float(v) for v in d["u_high"]),
+                float(d["y_low"]),
+                float(d["y_high"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelFormatError(
+                "normalisation must be an object with u_low, u_high (lists of numbers), y_low, y_high; "
+                f"got {d!r} ({exc})"
+            ) from None
+        vals = np.array([*out.u_low, *out.u_high, out.y_low, out.y_high])
+        if (
+            not np.all(np.isfinite(vals))
+            or len(out.u_low) != len(out.u_high)
+            or len(out.u_low) == 0
+            or not out.y_high > out.y_low
+            or not all(h > lo for lo, h in zip(out.u_low, out.u_high))
+        ):
+            raise ModelFormatError(
+                f"normalisation needs finite values with high > low for every signal and >= 1 input; got {d!r}"
+            )
+        return out
+
+
+def lag_matrix(
+    un: NDArray[np.float64],
+    yn: NDArray[np.float64],
+    max_lag_y: int,
+    max_lag_u: int,
+    *,
+    start: int | None = None,
+) -> NDArray[np.float64]:
+    """Regressor matrix of all candidate lags (normalised data).
+
+    Parameters
+    ----------
+    un : ndarray, shape (N, n_inputs)
+    yn : ndarray, shape (N,)
+    max_lag_y, max_lag_u : int
+    start : int, optional
+        First time index with a row (default ``max(max_lag_y, max_lag_u)``;
+        must be at least that).
+
+    Returns
+    -------
+    ndarray, shape (N - start, max_lag_y + n_inputs * max_lag_u)
+        Row ``k`` holds the candidates at ``t = start + k`` in harmony-bit order.
+
+    Raises
+    ------
+    DataError
+        If there are no rows (too few samples for the lags).
+    """
+    n, n_in = un.shape
+    L = max(max_lag_y, max_lag_u)
+    s = L if start is None else int(start)
+    if s < L:
+        raise DataError(f"the first regressor row needs start >= max lag {L}; got start={s}")
+    rows = n - s
+    if rows < 1:
+        raise DataError(f"{n} samples are too few for lags up to {L}: at least {L + 1} samples are needed")
+    D = max_lag_y + n_in * max_lag_u
+    R = np.empty((rows, D))
+    col = 0
+    for k in range(1, max_lag_y + 1):
+        R[:, col] = yn[s - k : n - k]
+        col += 1
+    for i in range(n_in):
+        for k in range(1, max_lag_u + 1):
+            R[:, col] = un[s - k : n - k, i]
+            col += 1
+    return R

@@ -1,0 +1,301 @@
+r"""Model validation: R^2 (paper eq. 4) and the five residual correlation tests (eqs. 5-6).
+
+Correlation tests
+-----------------
+With the normalised cross-correlation of the paper (eq. 6)::
+
+    phi_ab(tau) = sum_{t=1}^{N-tau} (a(t) - mean a)(b(t+tau) - mean b)
+                  / sqrt(sum_t (a(t) - mean a)^2 * sum_t (b(t) - mean b)^2)
+
+(and ``phi_ab(-tau) = phi_ba(tau)`` for negative lags), a model is adequate when
+(Billings & Voon, the paper's ref. [37], eq. 5)::
+
+    phi_ee(tau)        = delta(tau)        tested at tau = 1 .. max_lag
+    phi_ue(tau)        = 0                 tau = -max_lag .. max_lag
+    phi_e(eu)(tau)     = 0, tau >= 0       tau = 0 .. max_lag, (eu)(t) = e(t+1) u(t+1)
+    phi_(u^2)'e(tau)   = 0                 tau = -max_lag .. max_lag, (u^2)'(t) = u(t)^2 - mean(u)^2
+    phi_(u^2)'e^2(tau) = 0                 tau = -max_lag .. max_lag
+
+each within the 95 % band ``+-1.96 / sqrt(N)``. streamid reports, per test (and
+per input for the input tests), the values, the fraction of the tested lags
+inside the band, and ``passed`` = at least 95 % of them inside (a white
+residual leaves about 5 % outside by chance) *and* none outside the 99.9 % band
+``+-3.29 / sqrt(N)`` (so that one strong correlation at a single lag, a missed
+term, is not excused by the 5 % allowance; a white residual exceeds it at one of
+41 lags in about 4 % of cases).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from streamid.engine.regressors import as_data
+from streamid.errors import DataError
+
+if TYPE_CHECKING:
+    from streamid.engine.model import Model
+
+__all__ = [
+    "r2",
+    "ccf",
+    "correlation_tests",
+    "CorrelationTest",
+    "CorrelationReport",
+    "ValidationReport",
+    "validate",
+    "PASS_FRACTION",
+    "STRICT_Z",
+]
+
+#: A test passes when at least this fraction of its lags lies inside the 95 % band...
+PASS_FRACTION = 0.95
+#: ...and no lag lies outside +-STRICT_Z / sqrt(N) (the 99.9 % band).
+STRICT_Z = 3.29
+
+
+def r2(y: ArrayLike, yhat: ArrayLike) -> float:
+    """Multiple correlation coefficient ``1 - sum (y - yhat)^2 / sum (y - mean y)^2`` (eq. 4).
+
+    Raises
+    ------
+    DataError
+        If the shapes differ, values are not finite, or ``y`` is constant.
+    """
+    ya = np.asarray(y, dtype=np.float64).reshape(-1)
+    yh = np.asarray(yhat, dtype=np.float64).reshape(-1)
+    if ya.shape != yh.shape or ya.size < 2:
+        raise DataError(f"r2 needs two arrays of the same length >= 2; got {np.shape(y)} and {np.shape(yhat)}")
+    if not (np.all(np.isfinite(ya)) and np.all(np.isfinite(yh))):
+        raise DataError("r2 needs finite values (no NaN or inf)")
+    ss = float(np.sum((ya - ya.mean()) ** 2))
+    if ss == 0.0:
+        raise DataError(f"r2 is undefined for a constant measured signal (all values {ya[0]!r})")
+    return 1.0 - float(np.sum((ya - yh) ** 2)) / ss
+
+
+def ccf(a: NDArray[np.float64], b: NDArray[np.float64], lags: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Normalised cross-correlation ``phi_ab(tau)`` of eq. (6) at the given lags (may be negative).
+
+    A constant sequence has no correlation: its values are 0.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    n = a.size
+    da, db = a - a.mean(), b - b.mean()
+    den = np.sqrt(float(da @ da) * float(db @ db))
+    out = np.zeros(len(lags))
+    if den == 0.0:
+        return out
+    for i, tau in enumerate(lags):
+        t = int(tau)
+        if abs(t) >= n:
+            continue
+        out[i] = (da[: n - t] @ db[t:]) / den if t >= 0 else (db[: n + t] @ da[-t:]) / den
+    return out
+
+
+@dataclass(frozen=True)
+class CorrelationTest:
+    """One correlation test: its lags, values, band, fraction inside and verdict."""
+
+    name: str
+    formula: str
+    lags: tuple[int, ...]
+    values: tuple[float, ...]
+    band: float
+
+    @property
+    def fraction_inside(self) -> float:
+        v = np.abs(np.asarray(self.values))
+        return float(np.mean(v <= self.band)) if v.size else 1.0
+
+    @property
+    def strict_band(self) -> float:
+        """The 99.9 % band ``STRICT_Z / sqrt(N)`` (``band`` is ``1.96 / sqrt(N)``)."""
+        return self.band * STRICT_Z / 1.96
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.fraction_inside >= PASS_FRACTION and self.max_abs <= self.strict_band)
+
+    @property
+    def max_abs(self) -> float:
+        return float(np.max(np.abs(self.values))) if self.values else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "formula": self.formula,
+            "lags": list(self.lags),
+            "values": [float(v) for v in self.values],
+            "band": self.band,
+            "strict_band": self.strict_band,
+            "fraction_inside": self.fraction_inside,
+            "max_abs": self.max_abs,
+            "passed": self.passed,
+        }
+
+
+@dataclass(frozen=True)
+class CorrelationReport:
+    """The five tests (input tests once per input)."""
+
+    n: int
+    band: float
+    tests: tuple[CorrelationTest, ...]
+
+    @property
+    def passed(self) -> bool:
+        return all(t.passed for t in self.tests)
+
+    def __getitem__(self, name: str) -> CorrelationTest:
+        for t in self.tests:
+            if t.name == name:
+                return t
+        raise KeyError(f"no correlation test {name!r}; tests: {[t.name for t in self.tests]}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "n": self.n,
+            "band": self.band,
+            "pass_rule": (
+                f"fraction of lags inside +-1.96/sqrt(N) >= {PASS_FRACTION} and none outside +-{STRICT_Z}/sqrt(N)"
+            ),
+            "passed": self.passed,
+            "tests": {t.name: t.to_dict() for t in self.tests},
+        }
+
+
+def correlation_tests(residual: ArrayLike, u: ArrayLike, max_lag: int = 20) -> CorrelationReport:
+    """The five correlation tests of eq. (5) on a residual and the inputs at the same times.
+
+    Parameters
+    ----------
+    residual : array_like, shape (N,)
+        Model residual ``e(t) = y(t) - yhat(t)`` (normally one-step-ahead).
+    u : array_like, shape (N,) or (N, n_inputs)
+        Inputs at the same time instants.
+    max_lag : int
+        Largest lag tested (default 20).
+
+    Returns
+    -------
+    CorrelationReport
+        Test names: ``ee``; for input ``i``: ``ue[i]``, ``e_eu[i]``, ``u2_e[i]``, ``u2_e2[i]``.
+    """
+    ua, e = as_data(u, residual, min_samples=3)
+    if not (isinstance(max_lag, (int, np.integer)) and max_lag >= 1):
+        raise DataError(f"max_lag must be an integer >= 1; got {max_lag!r}")
+    n = e.size
+    L = int(min(max_lag, n - 2))
+    band = float(1.96 / np.sqrt(n))
+    pos = np.arange(1, L + 1)
+    nonneg = np.arange(0, L + 1)
+    both = np.arange(-L, L + 1)
+    tests = [CorrelationTest("ee", "phi_ee(tau) = delta(tau)", tuple(pos.tolist()), tuple(ccf(e, e, pos).tolist()), band)]
+    for i in range(ua.shape[1]):
+        ui = ua[:, i]
+        eu = np.zeros(n)
+        eu[:-1] = e[1:] * ui[1:]  # (eu)(t) = e(t+1) u(t+1)
+        u2 = ui**2 - ui.mean() ** 2
+        tests += [
+            CorrelationTest(f"ue[{i}]", "phi_ue(tau) = 0", tuple(both.tolist()), tuple(ccf(ui, e, both).tolist()), band),
+            CorrelationTest(
+                f"e_eu[{i}]", "phi_e(eu)(tau) = 0, tau >= 0", tuple(nonneg.tolist()), tuple(ccf(e[:-1], eu[:-1], nonneg).tolist()), band
+            ),
+            CorrelationTest(f"u2_e[{i}]", "phi_(u^2)'e(tau) = 0", tuple(both.tolist()), tuple(ccf(u2, e, both).tolist()), band),
+            CorrelationTest(
+                f"u2_e2[{i}]", "phi_(u^2)'e^2(tau) = 0", tuple(both.tolist()), tuple(ccf(u2, e**2, both).tolist()), band
+            ),
+        ]
+    return CorrelationReport(n, float(band), tuple(tests))
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """R^2 of one-step-ahead and free-run predictions on estimation and validation data, plus the tests.
+
+    R^2 is computed over ``t >= model.max_lag`` (the samples the model predicts);
+    free runs start from the first ``max_lag`` measured samples of each data set.
+    The correlation tests use the one-step-ahead residuals.
+    """
+
+    osa_est: float
+    osa_val: float
+    fr_est: float
+    fr_val: float
+    correlation_est: CorrelationReport
+    correlation_val: CorrelationReport
+    extra: dict[str, Any] = field(default_factory=dict)
+    #: Full-length predictions aligned with the data (first ``max_lag`` values measured):
+    #: ``osa_est``, ``fr_est``, ``osa_val``, ``fr_val``. Not part of :meth:`to_dict`.
+    predictions: dict[str, NDArray[np.float64]] = field(default_factory=dict, repr=False)
+
+    def r2_dict(self) -> dict[str, float]:
+        return {"osa_est": self.osa_est, "osa_val": self.osa_val, "fr_est": self.fr_est, "fr_val": self.fr_val}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "r2": self.r2_dict(),
+            "correlation": {"est": self.correlation_est.to_dict(), "val": self.correlation_val.to_dict()},
+            **self.extra,
+        }
+
+
+def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, float, NDArray[np.float64]]:
+    """``(osa_r2, fr_r2, osa_residual)`` of a model on one data set (over ``t >= max_lag``)."""
+    osa_r2, fr_r2, res, _, _ = _predictions(model, u, y)
+    return osa_r2, fr_r2, res
+
+
+def _predictions(
+    model: Model, u: ArrayLike, y: ArrayLike
+) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
+    L = model.max_lag
+    osa = model.predict_osa(ua, ya)
+    fr = model.simulate(ua, ya[:L])
+    return r2(ya[L:], osa[L:]), r2(ya[L:], fr[L:]), ya[L:] - osa[L:], osa, fr
+
+
+def validate(
+    model: Model,
+    u_est: ArrayLike,
+    y_est: ArrayLike,
+    u_val: ArrayLike,
+    y_val: ArrayLike,
+    *,
+    max_lag: int = 20,
+) -> ValidationReport:
+    """OSA and free-run R^2 on estimation and validation data, and the correlation tests of both.
+
+    Parameters
+    ----------
+    model : Model
+    u_est, y_est, u_val, y_val : array_like
+        Estimation and validation data (inputs ``(N,)`` or ``(N, n_inputs)``).
+    max_lag : int
+        Largest lag of the correlation tests.
+
+    Returns
+    -------
+    ValidationReport
+        Also carries the four prediction arrays in ``predictions``.
+    """
+    ue, ye = as_data(u_est, y_est)
+    uv, yv = as_data(u_val, y_val)
+    L = model.max_lag
+    osa_e, fr_e, res_e, p_osa_e, p_fr_e = _predictions(model, ue, ye)
+    osa_v, fr_v, res_v, p_osa_v, p_fr_v = _predictions(model, uv, yv)
+    return ValidationReport(
+        osa_est=osa_e,
+        osa_val=osa_v,
+        fr_est=fr_e,
+        fr_val=fr_v,
+        correlation_est=correlation_tests(res_e, ue[L:], max_lag),
+        correlation_val=correlation_tests(res_v, uv[L:], max_lag),
+        predictions={"osa_est": p_osa_e, "fr_est": p_fr_e, "osa_val": p_osa_v, "fr_val": p_fr_v},
+    )

@@ -1,0 +1,171 @@
+"""Plain data of the Rerun diagnostics: sink settings and what one update draws.
+
+No ``rerun`` import here (:mod:`streamid.viz` is the only module that imports
+it), so the daemon can build reports and check settings without it.
+"""
+
+from __future__ import annotations
+
+import math
+import urllib.parse
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from streamid.errors import ConfigError
+
+__all__ = ["VizSettings", "UpdateReport", "CorrelationCurve", "parse_rerun_url", "model_markdown", "fmt_metric"]
+
+
+def parse_rerun_url(url: str) -> tuple[str, int]:
+    """Host and port of a ``rerun+http://HOST:PORT/proxy`` URL (for the reachability probe)."""
+    p = urllib.parse.urlparse(url)
+    if p.scheme not in ("rerun", "rerun+http", "rerun+https") or not p.hostname or p.path != "/proxy":
+        raise ConfigError(
+            f"--rerun-connect must be a URL like rerun+http://127.0.0.1:9876/proxy "
+            f"(scheme rerun, rerun+http or rerun+https, path /proxy); got {url!r}"
+        )
+    try:
+        port = p.port or (443 if p.scheme == "rerun+https" else 9876)
+    except ValueError as exc:
+        raise ConfigError(f"--rerun-connect port must be an integer 1-65535; got {url!r}") from exc
+    return p.hostname, port
+
+
+@dataclass(frozen=True)
+class VizSettings:
+    """Where the diagnostics go.
+
+    Attributes
+    ----------
+    rrd
+        Path of an ``.rrd`` file to write (None: no file).
+    connect
+        URL of a running viewer (``rerun+http://127.0.0.1:9876/proxy``).
+    serve_port
+        Serve a gRPC endpoint on 127.0.0.1:PORT for viewers to connect to.
+    serve_bind
+        Address the served endpoint binds (loopback unless configured).
+    serve_memory_limit
+        Memory the served endpoint keeps for late viewers (oldest dropped).
+    probe_every_s
+        How often the viewer link of ``connect`` is checked.
+    application_id, recording_id
+        Rerun identifiers.
+    rrd_rotate_mb, rrd_keep
+        When the ``.rrd`` file passes this size it is closed (footer written) and
+        continued in ``<stem>.001.rrd``, ``<stem>.002.rrd``...; only the newest
+        ``rrd_keep`` files are kept (default: 16 files of 64 MB).  A file sink
+        keeps per-chunk metadata in memory for its footer (about a quarter of
+        the file's size here): rotation bounds that memory on an endless run.
+        None: one file, never rotated.
+    max_points
+        Longest series drawn per update (validation part and input-output plane
+        are decimated by a stride beyond it).
+    """
+
+    rrd: str | None = None
+    connect: str | None = None
+    serve_port: int | None = None
+    serve_bind: str = "127.0.0.1"
+    serve_memory_limit: str = "256MiB"
+    probe_every_s: float = 2.0
+    application_id: str = "streamid"
+    recording_id: str | None = None
+    rrd_rotate_mb: float | None = 64.0
+    rrd_keep: int = 16
+    max_points: int = 1000
+
+    def __post_init__(self) -> None:
+        if self.connect is not None:
+            parse_rerun_url(self.connect)
+        if self.serve_port is not None and not (
+            isinstance(self.serve_port, int) and 1 <= self.serve_port <= 65535
+        ):
+            raise ConfigError(f"--rerun-serve must be a TCP port 1-65535; got {self.serve_port!r}")
+        if self.rrd_rotate_mb is not None and not self.rrd_rotate_mb > 0:
+            raise ConfigError(f"rrd_rotate_mb must be a size in MB > 0 or None; got {self.rrd_rotate_mb!r}")
+        if not (isinstance(self.rrd_keep, int) and self.rrd_keep >= 1):
+            raise ConfigError(f"rrd_keep must be an integer >= 1; got {self.rrd_keep!r}")
+        if not (isinstance(self.max_points, int) and self.max_points >= 10):
+            raise ConfigError(f"max_points must be an integer >= 10; got {self.max_points!r}")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any sink is configured."""
+        return self.rrd is not None or self.connect is not None or self.serve_port is not None
+
+
+@dataclass(frozen=True)
+class CorrelationCurve:
+    """One residual correlation test: values at lags and the ±band of 95 % confidence."""
+
+    name: str
+    label: str
+    lags: np.ndarray
+    values: np.ndarray
+    band: float
+
+
+@dataclass(frozen=True)
+class UpdateReport:
+    """Everything drawn for one identification update of a stream.
+
+    Arrays of the validation part share one length; times are
+    ``val_t0_ns + i * period_ns``.
+    """
+
+    stream: str
+    version: int
+    accepted: bool
+    warm: bool
+    generations: int
+    window_t0_ns: int
+    window_end_ns: int
+    period_ns: int
+    val_t0_ns: int
+    y_val: np.ndarray
+    osa_val: np.ndarray
+    fr_val: np.ndarray
+    u_val: np.ndarray
+    input_name: str
+    output_name: str
+    fitness: np.ndarray
+    correlations: tuple[CorrelationCurve, ...]
+    lags: Mapping[str, Any]
+    metrics: Mapping[str, float]
+    identification_s: float
+    latency_s: float | None = None
+    note: str = ""
+    input_names: tuple[str, ...] = field(default=())
+
+
+def fmt_metric(v: float | None) -> str:
+    """A metric for display: 4 decimals, or n/a."""
+    return "n/a" if v is None or not math.isfinite(v) else f"{v:.4f}"
+
+
+def model_markdown(r: UpdateReport) -> str:
+    lags = r.lags
+    parts = [f"{r.output_name}(t−{', '.join(str(x) for x in lags.get('y', [])) or '·'})"]
+    names = r.input_names or (r.input_name,)
+    for i, lu in enumerate(lags.get("u", [])):
+        nm = names[i] if i < len(names) else f"u{i}"
+        parts.append(f"{nm}(t−{', '.join(str(x) for x in lu) or '·'})")
+    m = r.metrics
+    fit = ""
+    if len(r.fitness):
+        fit = f" · best fitness (OSA MSE) {float(r.fitness[0]):.4g} → {float(r.fitness[-1]):.4g}"
+    return "\n".join(
+        [
+            f"**{r.stream}** v{r.version} · {'warm' if r.warm else 'cold'} · G={r.generations} · "
+            f"{r.identification_s:.2f} s{fit}{'' if r.accepted else ' · **rejected**'}",
+            "",
+            f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
+            f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})",
+            "",
+            "lags: " + " · ".join(parts),
+        ]
+    )

@@ -1,0 +1,128 @@
+"""Model: prediction formula, free run, the streamid.model/1 JSON file and its checks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from streamid.engine import Model
+from streamid.engine.regressors import Normalisation, Regressor
+from streamid.errors import DataError, ModelFormatError
+
+
+def _model() -> Model:
+    rng = np.random.default_rng(0)
+    regs = (Regressor("y", 0, 1), Regressor("u", 0, 1), Regressor("u", 1, 3))
+    return Model(
+        regressors=regs,
+        centres=rng.uniform(-1, 1, (4, 3)),
+        widths=rng.uniform(0.5, 2, 4),
+        weights=rng.normal(size=4) * 0.3,
+        normalisation=Normalisation((0.0, -2.0), (10.0, 2.0), -5.0, 5.0),
+        input_names=("a", "b"),
+        output_name="out",
+        metrics={"fitness": 1.5},
+        window={"n_samples": 100},
+    )
+
+
+def _predict_from_json(doc: dict, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """What a reader with only numpy and the README's formula would write."""
+    nz = doc["normalisation"]
+    un = 2 * (u - np.array(nz["u_low"])) / (np.array(nz["u_high"]) - np.array(nz["u_low"])) - 1
+    yn = 2 * (y - nz["y_low"]) / (nz["y_high"] - nz["y_low"]) - 1
+    L = doc["max_lag"]
+    out = y.copy()
+    c, s, w = np.array(doc["centres"]), np.array(doc["widths"]), np.array(doc["weights"])
+    for t in range(L, len(y)):
+        r = np.array([(yn if g["signal"] == "y" else un[:, g["index"]])[t - g["lag"]] for g in doc["regressors"]])
+        phi = np.exp(-((r - c) ** 2).sum(axis=1) / (2 * s**2))
+        out[t] = (phi @ w + 1) * (nz["y_high"] - nz["y_low"]) / 2 + nz["y_low"]
+    return out
+
+
+def test_osa_prediction_reproducible_from_the_file_alone() -> None:
+    m = _model()
+    rng = np.random.default_rng(1)
+    u = np.column_stack([rng.uniform(0, 10, 50), rng.uniform(-2, 2, 50)])
+    y = rng.uniform(-5, 5, 50)
+    doc = json.loads(m.to_json())
+    assert doc["format"] == "streamid.model/1"
+    assert [r["name"] for r in doc["regressors"]] == ["out(t-1)", "a(t-1)", "b(t-3)"]
+    np.testing.assert_allclose(m.predict_osa(u, y), _predict_from_json(doc, u, y), rtol=1e-12)
+
+
+def test_free_run_equals_osa_fed_with_its_own_outputs() -> None:
+    m = _model()
+    rng = np.random.default_rng(2)
+    u = np.column_stack([rng.uniform(0, 10, 40), rng.uniform(-2, 2, 40)])
+    y0 = rng.uniform(-5, 5, 40)
+    sim = m.simulate(u, y0[: m.max_lag])
+    assert sim.shape == (40,)
+    assert sim[: m.max_lag].tolist() == y0[: m.max_lag].tolist()
+    # a free run is a fixed point of OSA prediction: predicting from the simulated outputs returns them
+    np.testing.assert_allclose(m.predict_osa(u, sim), sim, rtol=1e-11, atol=1e-11)
+    # a full-length y_init is accepted and only its start used
+    np.testing.assert_allclose(m.simulate(u, y0), sim)
+
+
+def test_json_round_trip_and_lags() -> None:
+    m = _model()
+    m2 = Model.from_json(m.to_json())
+    assert m2.regressors == m.regressors
+    np.testing.assert_array_equal(m2.centres, m.centres)
+    np.testing.assert_array_equal(m2.weights, m.weights)
+    assert m2.normalisation == m.normalisation
+    assert m2.lags == {"y": [1], "u": [[1], [3]]} == m.lags
+    assert m2.max_lag == 3
+    assert m2.metrics == {"fitness": 1.5} and m2.window == {"n_samples": 100}
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda d: d.update(format="streamid.model/9"), "format"),
+        (lambda d: d["weights"].__setitem__(0, float("nan")), "finite"),
+        (lambda d: d.update(widths=d["widths"][:2]), "shape"),
+        (lambda d: d.pop("centres"), "missing"),
+        (lambda d: d["regressors"].__setitem__(0, {"signal": "z", "index": 0, "lag": 1}), "signal"),
+        (lambda d: d["normalisation"].update(y_high=-10.0), "high > low"),
+    ],
+)
+def test_bad_documents_raise_model_format_error(mutate, match) -> None:
+    d = json.loads(_model().to_json())
+    mutate(d)
+    text = json.dumps(d)  # NaN allowed by json.dumps: the reader must refuse it
+    with pytest.raises(ModelFormatError, match=match):
+        Model.from_json(text)
+
+
+def test_not_json_and_not_object() -> None:
+    with pytest.raises(ModelFormatError, match="JSON"):
+        Model.from_json("{nope")
+    with pytest.raises(ModelFormatError, match="object"):
+        Model.from_json("[1, 2]")
+
+
+def test_a_model_never_holds_nan() -> None:
+    m = _model()
+    with pytest.raises(ModelFormatError, match="finite"):
+        Model(m.regressors, m.centres, m.widths, np.array([1.0, np.inf, 0.0, 0.0]), m.normalisation)
+    with pytest.raises(ModelFormatError, match="finite"):
+        m.with_metrics(r2=float("nan"))
+    with pytest.raises(ModelFormatError, match="> 0"):
+        Model(m.regressors, m.centres, -m.widths, m.weights, m.normalisation)
+
+
+def test_prediction_input_errors() -> None:
+    m = _model()
+    with pytest.raises(DataError, match="2 input"):
+        m.predict_osa(np.zeros((10, 3)), np.zeros(10))
+    with pytest.raises(DataError, match="finite"):
+        m.predict_osa(np.full((10, 2), np.nan), np.zeros(10))
+    with pytest.raises(DataError, match="at least max_lag"):
+        m.simulate(np.zeros((10, 2)), [1.0])
+    with pytest.raises(DataError, match="at least"):
+        m.predict_osa(np.zeros((3, 2)), np.zeros(3))

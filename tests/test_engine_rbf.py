@@ -1,0 +1,118 @@
+"""RBF network evaluation and least squares against direct formulas and numpy.linalg.lstsq."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamid.engine.rbf import BatchEvaluator, activations, fit_weights, rbf_output
+
+
+def _direct(r: np.ndarray, c: np.ndarray, s: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Eqs. (2)-(3) of the paper, term by term."""
+    out = np.zeros(r.shape[0])
+    for t in range(r.shape[0]):
+        for m in range(c.shape[0]):
+            d2 = sum((r[t, i] - c[m, i]) ** 2 for i in range(r.shape[1]))
+            out[t] += w[m] * np.exp(-d2 / (2 * s[m] ** 2))
+    return out
+
+
+def test_rbf_output_matches_formula() -> None:
+    rng = np.random.default_rng(0)
+    r = rng.uniform(-1, 1, (30, 3))
+    c = rng.uniform(-2, 2, (4, 3))
+    s = rng.uniform(0.3, 2, 4)
+    w = rng.normal(size=4)
+    np.testing.assert_allclose(rbf_output(r, c, s, w), _direct(r, c, s, w), rtol=1e-12, atol=1e-14)
+
+
+def _problem(seed: int, n: int = 200, d: int = 8, m: int = 6, p: int = 7):
+    rng = np.random.default_rng(seed)
+    R = rng.uniform(-1, 1, (n, d))
+    y = np.sin(2 * R[:, 0]) + R[:, 3] * R[:, 1] + 0.05 * rng.normal(size=n)
+    masks = rng.random((p, d)) < 0.4
+    masks[0] = False  # an empty mask: every activation is 1
+    masks[1, :] = True
+    centres = rng.uniform(-1.5, 1.5, (p, m, d))
+    widths = rng.uniform(0.4, 3.0, (p, m))
+    return R, y, masks, centres, widths
+
+
+def test_batched_activations_match_direct() -> None:
+    R, y, masks, centres, widths = _problem(1)
+    ev = BatchEvaluator(R, y, 6, 7)
+    phi = ev.activations_into(masks, centres, widths).copy()
+    for i in range(masks.shape[0]):
+        cols = np.flatnonzero(masks[i])
+        ref = activations(R[:, cols], centres[i][:, cols], widths[i])
+        np.testing.assert_allclose(phi[i].T, ref, rtol=1e-10, atol=1e-13)
+
+
+def test_shared_mask_path_equals_general_path() -> None:
+    R, y, masks, centres, widths = _problem(2)
+    same = np.broadcast_to(masks[3], masks.shape)
+    ev = BatchEvaluator(R, y, 6, 7)
+    a = ev.evaluate(same, centres, widths, shared=True)
+    b = ev.evaluate(same.copy(), centres, widths, shared=False)
+    c = ev.evaluate(same.copy(), centres, widths)
+    np.testing.assert_allclose(a, b, rtol=1e-10)
+    np.testing.assert_allclose(a, c, rtol=1e-10)
+
+
+def test_batched_least_squares_matches_lstsq() -> None:
+    R, y, masks, centres, widths = _problem(3)
+    ev = BatchEvaluator(R, y, 6, 7, ridge=1e-14)
+    mse, w = ev.evaluate(masks, centres, widths, return_weights=True)
+    for i in range(masks.shape[0]):
+        cols = np.flatnonzero(masks[i])
+        phi = activations(R[:, cols], centres[i][:, cols], widths[i])
+        ref = np.linalg.lstsq(phi, y, rcond=None)[0]
+        ref_mse = np.mean((phi @ ref - y) ** 2)
+        assert mse[i] == pytest.approx(ref_mse, rel=1e-7)
+        if np.linalg.cond(phi) < 1e4:  # well-posed: the weights themselves agree
+            np.testing.assert_allclose(w[i], ref, rtol=1e-6, atol=1e-9)
+
+
+def test_fit_weights_matches_lstsq() -> None:
+    rng = np.random.default_rng(4)
+    phi = rng.random((100, 5))
+    y = rng.normal(size=100)
+    np.testing.assert_allclose(fit_weights(phi, y, 0.0), np.linalg.lstsq(phi, y, rcond=None)[0], rtol=1e-10)
+    # the ridge solves the scaled, augmented problem
+    ridge = 1e-3
+    s = 1 / np.sqrt((phi**2).sum(axis=0))
+    a = np.vstack([phi * s, np.sqrt(ridge) * np.eye(5)])
+    z = np.linalg.lstsq(a, np.concatenate([y, np.zeros(5)]), rcond=None)[0]
+    np.testing.assert_allclose(fit_weights(phi, y, ridge), z * s, rtol=1e-10)
+
+
+def test_dead_neuron_gets_zero_weight_and_finite_fitness() -> None:
+    R, y, masks, centres, widths = _problem(5, p=2)
+    masks[:] = True
+    centres[:, 0, :] = 4.0  # far from every sample...
+    widths[:, 0] = 0.01  # ...and narrow: exp underflows to exactly 0
+    ev = BatchEvaluator(R, y, 6, 2)
+    mse, w = ev.evaluate(masks, centres, widths, return_weights=True)
+    assert np.all(np.isfinite(mse)) and np.all(np.isfinite(w))
+    assert np.all(w[:, 0] == 0.0)
+    cols = np.arange(R.shape[1])
+    phi = activations(R, centres[0][:, cols], widths[0])
+    assert np.all(phi[:, 0] == 0.0)
+    wf = fit_weights(phi, y, 1e-10)
+    assert np.all(np.isfinite(wf)) and wf[0] == 0.0
+
+
+def test_capacity_checked() -> None:
+    R, y, masks, centres, widths = _problem(6)
+    ev = BatchEvaluator(R, y, 6, 3)
+    with pytest.raises(ValueError, match="at most 3"):
+        ev.evaluate(masks, centres, widths)
+
+
+def test_weight_decay_shrinks_weights() -> None:
+    R, y, masks, centres, widths = _problem(7)
+    a_mse, a_w = BatchEvaluator(R, y, 6, 7).evaluate(masks, centres, widths, return_weights=True)
+    b_mse, b_w = BatchEvaluator(R, y, 6, 7, weight_decay=1e-2).evaluate(masks, centres, widths, return_weights=True)
+    assert np.all(b_mse >= a_mse - 1e-12)
+    assert np.all(np.abs(b_w).sum(axis=1) <= np.abs(a_w).sum(axis=1) + 1e-9)

@@ -1,0 +1,103 @@
+"""R^2 and the five correlation tests against direct implementations of the paper's formulas."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamid.engine.validation import PASS_FRACTION, ccf, correlation_tests, r2
+from streamid.errors import DataError
+
+
+def _phi_direct(a: np.ndarray, b: np.ndarray, tau: int) -> float:
+    """Eq. (6) of the paper written out with loops (1-based sums as printed)."""
+    n = len(a)
+    ma, mb = sum(a) / n, sum(b) / n
+    num = 0.0
+    for t in range(1, n - tau + 1):  # t = 1 .. N - tau
+        num += (a[t - 1] - ma) * (b[t + tau - 1] - mb)
+    den = (sum((x - ma) ** 2 for x in a) * sum((x - mb) ** 2 for x in b)) ** 0.5
+    return num / den
+
+
+def test_r2_formula() -> None:
+    y = np.array([1.0, 2.0, 3.0, 4.0])
+    yhat = np.array([1.1, 1.9, 3.2, 3.9])
+    expected = 1 - (0.01 + 0.01 + 0.04 + 0.01) / 5.0
+    assert r2(y, yhat) == pytest.approx(expected)
+    assert r2(y, y) == 1.0
+    assert r2(y, np.full(4, y.mean())) == pytest.approx(0.0)
+
+
+def test_r2_errors() -> None:
+    with pytest.raises(DataError, match="constant"):
+        r2(np.ones(5), np.zeros(5))
+    with pytest.raises(DataError, match="same length"):
+        r2(np.ones(5), np.zeros(4))
+    with pytest.raises(DataError, match="finite"):
+        r2(np.array([1.0, np.nan, 2.0]), np.zeros(3))
+
+
+def test_ccf_matches_equation_6() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=60)
+    b = 0.5 * np.roll(a, 3) + rng.normal(size=60)
+    lags = np.arange(-7, 8)
+    got = ccf(a, b, lags)
+    for tau, g in zip(lags, got):
+        ref = _phi_direct(a, b, tau) if tau >= 0 else _phi_direct(b, a, -tau)
+        assert g == pytest.approx(ref, abs=1e-12)
+    assert ccf(a, a, np.array([0]))[0] == pytest.approx(1.0)
+    assert ccf(a, np.ones(60), np.array([0, 1]))[0] == 0.0  # constant sequence: no correlation
+
+
+def test_tests_on_white_residual_pass_and_values_match_direct() -> None:
+    rng = np.random.default_rng(1)
+    n = 2000
+    u = rng.uniform(-1, 1, n)
+    e = rng.normal(size=n)
+    rep = correlation_tests(e, u, max_lag=20)
+    assert rep.band == pytest.approx(1.96 / np.sqrt(n))
+    assert {t.name for t in rep.tests} == {"ee", "ue[0]", "e_eu[0]", "u2_e[0]", "u2_e2[0]"}
+    for t in rep.tests:
+        assert t.fraction_inside >= PASS_FRACTION - 0.05  # white noise: ~5 % outside by chance
+        assert t.max_abs < t.strict_band * 1.2
+    ee = rep["ee"]
+    assert ee.lags == tuple(range(1, 21))
+    assert ee.values[4] == pytest.approx(_phi_direct(e, e, 5), abs=1e-12)
+    ue = rep["ue[0]"]
+    assert ue.lags == tuple(range(-20, 21))
+    assert ue.values[20 + 3] == pytest.approx(_phi_direct(u, e, 3), abs=1e-12)
+    assert ue.values[20 - 3] == pytest.approx(_phi_direct(e, u, 3), abs=1e-12)
+    eu = e[1:] * u[1:]  # (eu)(t) = e(t+1) u(t+1)
+    assert rep["e_eu[0]"].values[2] == pytest.approx(_phi_direct(e[:-1], eu, 2), abs=1e-12)
+    u2 = u**2 - u.mean() ** 2
+    assert rep["u2_e[0]"].values[20 + 1] == pytest.approx(_phi_direct(u2, e, 1), abs=1e-12)
+    assert rep["u2_e2[0]"].values[20] == pytest.approx(_phi_direct(u2, e**2, 0), abs=1e-12)
+
+
+def test_tests_detect_unmodelled_dynamics() -> None:
+    rng = np.random.default_rng(2)
+    n = 1000
+    u = rng.uniform(-1, 1, n)
+    w = rng.normal(size=n)
+    e = w + 0.8 * np.roll(w, 1)  # coloured residual
+    assert not correlation_tests(e, u)["ee"].passed
+    e2 = rng.normal(size=n) * 0.1 + np.roll(u, 2) ** 2  # a missed input term u(t-2)^2
+    rep = correlation_tests(e2, u)
+    assert not rep["u2_e[0]"].passed
+    assert not rep.passed
+    e3 = rng.normal(size=n) * 0.1 + 0.5 * np.roll(u, 1)  # a missed linear term
+    assert not correlation_tests(e3, u)["ue[0]"].passed
+
+
+def test_miso_tests_per_input_and_dict() -> None:
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-1, 1, (500, 2))
+    rep = correlation_tests(rng.normal(size=500), u, max_lag=5)
+    names = [t.name for t in rep.tests]
+    assert names == ["ee", "ue[0]", "e_eu[0]", "u2_e[0]", "u2_e2[0]", "ue[1]", "e_eu[1]", "u2_e[1]", "u2_e2[1]"]
+    d = rep.to_dict()
+    assert set(d["tests"]) == set(names)
+    t = d["tests"]["ue[1]"]
+    assert len(t["lags"]) == len(t["values"]) == 11 and isinstance(t["passed"], bool)

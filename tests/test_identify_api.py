@@ -1,0 +1,118 @@
+"""identify(): restarts in worker processes, selection rules; dataset loading from CSV, MAT and MCAP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from streamid.dataset import load_dataset, load_table, split_index
+from streamid.engine import CoEAConfig
+from streamid.engine.identify import free_run_r2, identify, refit_weights
+from streamid.errors import DataError
+
+DATA = Path(__file__).parent / "data"
+SMALL = CoEAConfig(neurons=6, max_lag_y=3, max_lag_u=3, generations=12)
+
+
+def narx(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    u = rng.uniform(-1, 1, n)
+    y = np.zeros(n)
+    for t in range(3, n):
+        y[t] = 0.5 * y[t - 1] + np.sin(2 * u[t - 2]) - 0.3 * u[t - 1] * y[t - 1]
+    return u, y
+
+
+def test_worker_processes_give_the_same_result_as_in_process() -> None:
+    u, y = narx(300, 0)
+    cfg = SMALL.replace(restarts=2, selection="fr_est")
+    here = identify(u, y, cfg.replace(workers=1), 3)
+    there = identify(u, y, cfg.replace(workers=2), 3)  # spawned processes
+    a, b = here.model.to_dict(), there.model.to_dict()
+    assert a.pop("config")["workers"] == 1 and b.pop("config")["workers"] == 2
+    assert a == b
+    assert [r.seed for r in here.runs] == [r.seed for r in there.runs]
+
+
+def test_selection_rules() -> None:
+    u, y = narx(400, 1)
+    fit = identify(u, y, SMALL.replace(restarts=3, selection="fitness"), 0)
+    assert fit.chosen == int(np.argmin([r.fitness for r in fit.runs]))
+    fr = identify(u, y, SMALL.replace(restarts=3, selection="fr_est"), 0)
+    # the chosen model's free-run R^2 on the estimation data is its selection score
+    score = free_run_r2([fr.model], u[:, None], y)[0]
+    assert score == pytest.approx(fr.model.metrics["selection_score"], rel=1e-12)
+    ho = identify(u, y, SMALL.replace(restarts=2, selection="holdout_fr", holdout_fraction=0.25), 0)
+    assert ho.model.metrics["holdout_samples"] == 100
+    # weights were refitted on all 400 estimation samples: refitting again changes nothing
+    again = refit_weights(ho.model, u, y, SMALL.ridge)
+    np.testing.assert_allclose(again.weights, ho.model.weights, rtol=1e-8, atol=1e-10)
+
+
+def test_holdout_too_short() -> None:
+    u, y = narx(100, 2)
+    with pytest.raises(DataError, match="hold-out of 5 samples"):
+        identify(u, y, SMALL.replace(restarts=2, selection="holdout_fr", holdout_fraction=0.05), 0)
+
+
+def test_paper_mode_reports_progress_every_generation() -> None:
+    u, y = narx(200, 3)
+    seen: list[int] = []
+    res = identify(u, y, SMALL, 0, callback=lambda p: seen.append(p.generation))
+    assert seen == list(range(1, 13))
+    assert len(res.fitness_history) == 12 and res.evaluations == 20 * 14
+
+
+def test_load_csv_mat_mcap(tmp_path: Path) -> None:
+    p = tmp_path / "x.csv"
+    p.write_text("a,b,c\n1,2,3\n4,5,6\n7,8,9.5\n")
+    t = load_table(p)
+    assert list(t.columns) == ["a", "b", "c"] and t.columns["c"].tolist() == [3.0, 6.0, 9.5]
+    ds = load_dataset(p, ["a", "b"], "c", est=2)
+    assert ds.u_est.shape == (2, 2) and ds.u_val.tolist() == [[7.0, 8.0]]
+    with pytest.raises(DataError, match=r"unknown column 'd'.*\['a', 'b', 'c'\]"):
+        load_dataset(p, ["d"], "c")
+    mat = load_table(DATA / "mr_damper" / "Magneto.mat")
+    assert {"U", "Y", "U_val", "Y_val"} <= set(mat.columns) and len(mat.columns["U"]) == 2000
+    from streamid.mcaplog import bundled_log
+
+    log = load_dataset(bundled_log("mr_damper"), ["velocity_cm_s"], "force_N", est=2000)
+    assert log.n_est == 2000 and log.n_val == 1499
+    np.testing.assert_array_equal(log.u_est[:, 0], mat.columns["U"])  # the log holds the same samples
+    np.testing.assert_array_equal(log.y_val, mat.columns["Y_val"])
+    assert log.window()["t1_ns"] == 1999 * 5_000_000
+
+
+def test_bad_files(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="does not exist"):
+        load_table(tmp_path / "none.csv")
+    (tmp_path / "x.txt").write_text("a\n1\n")
+    with pytest.raises(DataError, match="unknown data format 'txt'"):
+        load_table(tmp_path / "x.txt")
+    (tmp_path / "h.csv").write_text("a,a\n1,2\n")
+    with pytest.raises(DataError, match="distinct"):
+        load_table(tmp_path / "h.csv")
+    (tmp_path / "r.csv").write_text("a,b\n1,2\n3\n")
+    with pytest.raises(DataError, match="row 3 has 1 fields"):
+        load_table(tmp_path / "r.csv")
+    (tmp_path / "m.mat").write_bytes(b"garbage" * 20)
+    with pytest.raises(DataError, match="not a readable MATLAB"):
+        load_table(tmp_path / "m.mat")
+    (tmp_path / "l.csv").write_text("a,b\n1,2\n3,4\n5,6\n")
+    with pytest.raises(DataError, match="different lengths"):
+        from scipy.io import savemat
+
+        savemat(tmp_path / "l.mat", {"a": np.arange(5.0), "b": np.arange(4.0)})
+        load_dataset(tmp_path / "l.mat", ["a"], "b")
+
+
+def test_split_index() -> None:
+    assert split_index(10) == 5
+    assert split_index(10, est=3) == 3
+    assert split_index(10, est_fraction=0.7) == 7
+    with pytest.raises(DataError, match=r"integer in \[1, 9\]"):
+        split_index(10, est=10)
+    with pytest.raises(DataError, match="not both"):
+        split_index(10, est=3, est_fraction=0.5)
