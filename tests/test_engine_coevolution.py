@@ -155,3 +155,27 @@ def test_warm_start_must_fit_the_configuration() -> None:
         Coevolution(u, y, SMALL.replace(neurons=5), 0, warm_start=st)
     with pytest.raises(ConfigError, match="does not fit"):
         Coevolution(np.column_stack([u, u]), y, SMALL, 0, warm_start=st)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_reactor_with_the_papers_settings(seed: int) -> None:
+    """Paper eq. (17), 480 + 480 samples, G=400, M=10, L=10: the lags of the literature and FR R^2 >= 0.9999."""
+    from streamid.engine.benchmarks import REACTOR_CONFIG, reactor_data, reactor_lags_ok
+
+    ue, ye, uv, yv = reactor_data(seed)
+    res = identify(ue, ye, REACTOR_CONFIG, seed)
+    assert res.evaluations == 8040
+    assert reactor_lags_ok(res.model.lags)
+    osa, fr, _ = prediction_r2(res.model, uv, yv)
+    assert fr >= 0.9999 and osa >= 0.9999
+
+
+def test_mr_damper_with_streamids_defaults() -> None:
+    """The real MR damper (bundled log), 2000 estimation / 1499 validation samples, default identify()."""
+    from streamid.engine.benchmarks import mr_damper_data
+
+    ue, ye, uv, yv = mr_damper_data()
+    res = identify(ue, ye, None, 0)
+    assert len(res.runs) == 4 and res.model.neurons == 30
+    osa, fr, _ = prediction_r2(res.model, uv, yv)
+    assert osa >= 0.996 and fr >= 0.97

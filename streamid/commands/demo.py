@@ -122,19 +122,9 @@ class _Tally:
 
 
 def _line(t0: float, up: Any) -> str:
-    m = up.metrics
-    lags = up.model.lags
-    lag_text = f"y{lags['y']} u{lags['u'][0] if len(lags['u']) == 1 else lags['u']}"
+    from streamid.commands.watch import format_update
 
-    def f(key: str) -> str:
-        v = m.get(key)
-        return f"{v:.4f}" if isinstance(v, (int, float)) else "  n/a "
-
-    return (
-        f"[{time.monotonic() - t0:5.1f} s] {up.stream:<9} v{up.version:<3} {'warm' if up.warm else 'cold'} "
-        f"G={up.generations:<3} R2 val OSA {f('r2_osa_val')} FR {f('r2_fr_val')} "
-        f"ident {up.identification_s:5.2f} s  lags {lag_text}"
-    )
+    return f"[{time.monotonic() - t0:5.1f} s] {format_update(up)}"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import multiprocessing
 import sys
 import time
@@ -28,7 +27,6 @@ from typing import Any, TextIO
 import numpy as np
 
 from streamid.dataset import Dataset, load_dataset
-from streamid.engine.coevolution import Progress
 from streamid.engine.config import DEFAULT, PAPER, SELECTIONS, CoEAConfig
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
@@ -63,6 +61,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--generations", type=int, metavar="G", help=f"generations per run (default {DEFAULT.generations}; --paper {PAPER.generations})"
     )
     p.add_argument("--population", type=int, metavar="P", help="size of both populations (default 20)")
+    p.add_argument(
+        "--lag-search-neurons",
+        type=int,
+        metavar="M1",
+        help=f"two-stage runs: neurons of the lag-search stage, 0 = one stage (default {DEFAULT.lag_search_neurons}; --paper 0)",
+    )
+    p.add_argument(
+        "--lag-search-generations",
+        type=int,
+        metavar="G1",
+        help=f"two-stage runs: generations of the lag-search stage (default {DEFAULT.lag_search_generations})",
+    )
     p.add_argument("--restarts", type=int, metavar="K", help=f"coevolution runs per identification (default {DEFAULT.restarts}; --paper 1)")
     p.add_argument("--selection", choices=SELECTIONS, help=f"how the final model is chosen among candidates (default {DEFAULT.selection})")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
@@ -83,6 +93,8 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         ("population", "population"),
         ("restarts", "restarts"),
         ("selection", "selection"),
+        ("lag_search_neurons", "lag_search_neurons"),
+        ("lag_search_generations", "lag_search_generations"),
     ):
         v = getattr(args, flag)
         if v is not None:
@@ -163,7 +175,9 @@ def identify_runs(
     jobs = [{"dataset": ds, "config": cfg.to_dict(), "seed": s} for s in seeds]
     if len(jobs) == 1:
         if bar is not None:
-            jobs[0]["callback"] = lambda p: bar.update(p.generation, p.generations, f"generation {p.generation}/{p.generations}")
+            jobs[0]["callback"] = lambda p: bar.update(
+                p.generation, p.generations, f"{p.evaluations} evaluations, best fitness {p.best_fitness:.5g}"
+            )
         return [_one(jobs[0])]
     out: list[dict[str, Any]] = []
     if workers <= 1:
@@ -215,7 +229,13 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     w(f"  data      estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)\n")
     w(
         f"  settings  neurons {cfg.neurons}, max lag y {cfg.max_lag_y} / u {cfg.max_lag_u}, generations {cfg.generations}, "
-        f"population {cfg.population}, restarts {cfg.restarts}, selection {cfg.selection}\n\n"
+        f"population {cfg.population}, restarts {cfg.restarts}, selection {cfg.selection}"
+        + (
+            f", lag search with {cfg.lag_search_neurons} neurons for {cfg.lag_search_generations} generations"
+            if cfg.lag_search_neurons
+            else ""
+        )
+        + "\n\n"
     )
     header = f"{'run':>4} {'seed':>6} {'seconds':>8} {'evals':>7} {'fitness':>11} {'OSA est':>9} {'OSA val':>9} {'FR est':>9} {'FR val':>9}  lags"
     w(header + "\n")

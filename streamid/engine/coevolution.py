@@ -30,28 +30,23 @@ The run, as streamid implements it
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from threadpoolctl import threadpool_limits
 
 from streamid.engine import de, harmony
+from streamid.engine._blas import one_blas_thread
 from streamid.engine.config import CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.rbf import BatchEvaluator, activations, fit_weights
 from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
-from streamid.errors import ConfigError, DataError, ModelFormatError
+from streamid.engine.state import STATE_FORMAT, CoEAState
+from streamid.errors import ConfigError, DataError
 
 __all__ = ["CoEAState", "Coevolution", "Progress", "STATE_FORMAT"]
-
-STATE_FORMAT = "streamid.coea_state/1"
-
 
 class Progress(NamedTuple):
     """What one generation reports: its number (1-based count done), the best fitness, evaluations so far."""
@@ -60,139 +55,6 @@ class Progress(NamedTuple):
     generations: int
     best_fitness: float
     evaluations: int
-
-
-@dataclass(frozen=True, eq=False)
-class CoEAState:
-    """Exportable state of a coevolution: both populations, their fitness and the best pair.
-
-    Fitness values are in the output units of the data the run saw; a warm
-    start re-evaluates everything on its own data.
-    """
-
-    harmonies: NDArray[np.bool_]  # (P, D_H)
-    harmony_fitness: NDArray[np.float64]  # (P,)
-    params: NDArray[np.float64]  # (P, D_X)
-    param_fitness: NDArray[np.float64]  # (P,)
-    best_mask: NDArray[np.bool_]  # (D_H,)
-    best_params: NDArray[np.float64]  # (D_X,)
-    best_fitness: float
-    neurons: int
-    max_lag_y: int
-    max_lag_u: int
-    n_inputs: int
-    normalisation: Normalisation
-    generation: int = 0
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        P, D = np.shape(self.harmonies)
-        dx = (D + 1) * self.neurons
-        checks = [
-            (np.shape(self.harmony_fitness) == (P,), "harmony_fitness", (P,)),
-            (np.shape(self.params) == (P, dx), "params", (P, dx)),
-            (np.shape(self.param_fitness) == (P,), "param_fitness", (P,)),
-            (np.shape(self.best_mask) == (D,), "best_mask", (D,)),
-            (np.shape(self.best_params) == (dx,), "best_params", (dx,)),
-        ]
-        for ok, name, shape in checks:
-            if not ok:
-                raise ModelFormatError(f"CoEAState.{name} must have shape {shape}; got {np.shape(getattr(self, name))}")
-        if D != self.max_lag_y + self.n_inputs * self.max_lag_u:
-            raise ModelFormatError(
-                f"CoEAState has {D} candidate lags but max_lag_y + n_inputs * max_lag_u = "
-                f"{self.max_lag_y} + {self.n_inputs} * {self.max_lag_u}"
-            )
-        for name in ("harmony_fitness", "params", "param_fitness", "best_params"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise ModelFormatError(f"CoEAState.{name} must contain only finite numbers")
-        if not np.isfinite(self.best_fitness):
-            raise ModelFormatError(f"CoEAState.best_fitness must be finite; got {self.best_fitness!r}")
-
-    @property
-    def population(self) -> int:
-        return int(self.harmonies.shape[0])
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "format": STATE_FORMAT,
-            "neurons": self.neurons,
-            "max_lag_y": self.max_lag_y,
-            "max_lag_u": self.max_lag_u,
-            "n_inputs": self.n_inputs,
-            "generation": self.generation,
-            "normalisation": self.normalisation.to_dict(),
-            "harmonies": self.harmonies.astype(int).tolist(),
-            "harmony_fitness": self.harmony_fitness.tolist(),
-            "params": self.params.tolist(),
-            "param_fitness": self.param_fitness.tolist(),
-            "best_mask": self.best_mask.astype(int).tolist(),
-            "best_params": self.best_params.tolist(),
-            "best_fitness": self.best_fitness,
-            "meta": self.meta,
-        }
-
-    def to_json(self) -> str:
-        """JSON text, ``"format": "streamid.coea_state/1"``."""
-        return json.dumps(self.to_dict(), allow_nan=False)
-
-    @classmethod
-    def from_dict(cls, d: Any) -> CoEAState:
-        if not isinstance(d, dict) or d.get("format") != STATE_FORMAT:
-            got = d.get("format") if isinstance(d, dict) else type(d).__name__
-            raise ModelFormatError(f"a coevolution state must be a JSON object with format {STATE_FORMAT!r}; got {got!r}")
-        try:
-            return cls(
-                harmonies=np.array(d["harmonies"], dtype=np.int64).astype(bool),
-                harmony_fitness=np.array(d["harmony_fitness"], dtype=np.float64),
-                params=np.array(d["params"], dtype=np.float64),
-                param_fitness=np.array(d["param_fitness"], dtype=np.float64),
-                best_mask=np.array(d["best_mask"], dtype=np.int64).astype(bool),
-                best_params=np.array(d["best_params"], dtype=np.float64),
-                best_fitness=float(d["best_fitness"]),
-                neurons=int(d["neurons"]),
-                max_lag_y=int(d["max_lag_y"]),
-                max_lag_u=int(d["max_lag_u"]),
-                n_inputs=int(d["n_inputs"]),
-                normalisation=Normalisation.from_dict(d["normalisation"]),
-                generation=int(d.get("generation", 0)),
-                meta=dict(d.get("meta", {})),
-            )
-        except ModelFormatError:
-            raise
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ModelFormatError(f"coevolution state has a missing or malformed field: {type(exc).__name__}: {exc}") from None
-
-    @classmethod
-    def from_json(cls, text: str | bytes) -> CoEAState:
-        try:
-            d = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError) as exc:
-            raise ModelFormatError(f"a coevolution state must be JSON text; parsing failed: {exc}") from None
-        return cls.from_dict(d)
-
-    def save_npz(self, path: str | Path) -> None:
-        """Write as ``.npz`` (arrays + a JSON header; loads with ``allow_pickle=False``)."""
-        header = {k: v for k, v in self.to_dict().items() if k not in _ARRAYS}
-        np.savez(
-            path,
-            header=np.array(json.dumps(header)),
-            **{k: getattr(self, k) for k in _ARRAYS},
-        )
-
-    @classmethod
-    def load_npz(cls, path: str | Path) -> CoEAState:
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                d = json.loads(str(z["header"]))
-                for k in _ARRAYS:
-                    d[k] = z[k].tolist()
-        except (OSError, ValueError, KeyError) as exc:
-            raise ModelFormatError(f"{path}: not a streamid coevolution state .npz ({exc})") from None
-        return cls.from_dict(d)
-
-
-_ARRAYS = ("harmonies", "harmony_fitness", "params", "param_fitness", "best_mask", "best_params")
 
 
 class Coevolution:
@@ -214,6 +76,10 @@ class Coevolution:
         Names recorded in the model.
     window : dict, optional
         Metadata of the data window recorded in the model.
+    fixed_mask : ndarray of bool, optional
+        Search only centres and widths for these lags (one bit per candidate):
+        the lag population is this mask throughout (the second stage of a two-stage
+        run, see :mod:`streamid.engine.identify`). Not combinable with ``warm_start``.
     normalisation : Normalisation, optional
         Use this normalisation instead of the min/max of ``u``, ``y`` (e.g. the
         min/max of a larger estimation set this run sees a part of).
@@ -234,6 +100,7 @@ class Coevolution:
         rng: np.random.Generator | int | None = None,
         *,
         warm_start: CoEAState | None = None,
+        fixed_mask: NDArray[np.bool_] | None = None,
         input_names: tuple[str, ...] | None = None,
         output_name: str = "y",
         window: dict[str, Any] | None = None,
@@ -289,8 +156,16 @@ class Coevolution:
         self._frozen: NDArray[np.bool_] | None = None
         self._frozen_key = -1
         t0 = time.perf_counter()
-        with threadpool_limits(limits=1, user_api="blas"):
-            if warm_start is None:
+        with one_blas_thread():
+            if fixed_mask is not None:
+                if warm_start is not None:
+                    raise ConfigError("fixed_mask and warm_start cannot be combined (a warm start brings its own lags)")
+                mask = np.asarray(fixed_mask)
+                if mask.shape != (self.D,) or mask.dtype != np.bool_:
+                    raise ConfigError(f"fixed_mask must be a boolean array of shape ({self.D},); got {mask.dtype} {mask.shape}")
+                self.stop = 0
+                self._fixed_start(mask)
+            elif warm_start is None:
                 self._cold_start()
             else:
                 self._warm_start(warm_start)
@@ -323,6 +198,13 @@ class Coevolution:
         self.fx = self._evaluate(self.H[partner_h], self.X)
         self.fh = self._evaluate(self.H, self.X[partner_x])
         np.minimum.at(self.fh, partner_h, self.fx)
+
+    def _fixed_start(self, mask: NDArray[np.bool_]) -> None:
+        P = self.config.population
+        self.H = np.tile(mask, (P, 1))
+        self.X = self.rng.uniform(self.lo, self.hi, size=(P, self.DX))
+        self.fx = self._evaluate(self._best_masks(0), self.X, shared=True)
+        self.fh = np.full(P, float(self.fx.min()))
 
     def _warm_start(self, st: CoEAState) -> None:
         cfg = self.config
@@ -368,7 +250,7 @@ class Coevolution:
         if self.g >= self.generations:
             raise StopIteration
         t0 = time.perf_counter()
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             self._generation()
         self.seconds += time.perf_counter() - t0
         return Progress(self.g, self.generations, self.best_f, self.evaluations)
@@ -410,7 +292,7 @@ class Coevolution:
 
     def solve(self, callback: Callable[[Progress], object] | None = None) -> Coevolution:
         """Run the remaining generations; ``callback(progress)`` after each, a truthy return stops early."""
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             while self.g < self.generations:
                 t0 = time.perf_counter()
                 self._generation()
@@ -445,7 +327,7 @@ class Coevolution:
         cols = np.flatnonzero(mask)
         centres = x[: M * D].reshape(M, D)[:, cols]
         widths = x[M * D :]
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             phi = activations(self.R[:, cols], centres, widths)
             w = fit_weights(phi, self.target, self.config.ridge, self.config.weight_decay)
             mse = float(np.mean((phi @ w - self.target) ** 2)) * self.scale

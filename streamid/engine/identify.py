@@ -6,7 +6,8 @@ Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
   :class:`~streamid.engine.coevolution.Coevolution` on all the estimation data,
   the best pair ever evaluated, weights refitted. Runs in this process and
   reports every generation to the callback.
-* otherwise ``restarts`` independent runs (seeds drawn from ``rng``) in
+* otherwise ``restarts`` independent runs (seeds drawn from ``rng``; two-stage
+  when ``lag_search_neurons > 0``, see :class:`~streamid.engine.config.CoEAConfig`) in
   ``workers`` processes (spawned, never forked: the caller may hold a Zenoh
   session) or in this process. Each run offers candidates -- its best pair and
   every parameter vector of its final population paired with the best harmony
@@ -35,8 +36,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from threadpoolctl import threadpool_limits
 
+from streamid.engine._blas import one_blas_thread
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.config import DEFAULT, CoEAConfig
 from streamid.engine.model import Model, free_run
@@ -45,7 +46,7 @@ from streamid.engine.regressors import Normalisation, as_data
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError
 
-__all__ = ["Result", "RunSummary", "identify", "refit_weights"]
+__all__ = ["Result", "RunSummary", "free_run_r2", "identify", "identify_each", "refit_weights"]
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
     for j, reg in enumerate(model.regressors):
         src = yn if reg.signal == "y" else un[:, reg.index]
         r[:, j] = src[L - reg.lag : n - reg.lag]
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
         w = fit_weights(phi, yn[L:], ridge, weight_decay)
     if not np.all(np.isfinite(w)):
@@ -175,19 +176,28 @@ def _one_run(job: dict[str, Any]) -> dict[str, Any]:
     warm = CoEAState.from_json(job["warm_start"]) if job.get("warm_start") else None
     u, y, n_search = job["u"], job["y"], job["n_search"]
     t0 = time.perf_counter()
-    run = Coevolution(
-        u[:n_search],
-        y[:n_search],
-        cfg,
-        np.random.default_rng(job["seed"]),
-        warm_start=warm,
-        input_names=tuple(job["input_names"]),
-        output_name=job["output_name"],
-        window=job["window"],
-        normalisation=norm,
-    ).solve()
+    rng = np.random.default_rng(job["seed"])
+    common: dict[str, Any] = {
+        "input_names": tuple(job["input_names"]),
+        "output_name": job["output_name"],
+        "window": job["window"],
+        "normalisation": norm,
+    }
+    evaluations = 0
+    if cfg.lag_search_neurons and warm is None:
+        # Two-stage run: a small network's coevolution chooses the lags...
+        lag_cfg = cfg.replace(
+            neurons=cfg.lag_search_neurons, generations=cfg.lag_search_generations, harmony_stop=1.0
+        )
+        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **common).solve()
+        evaluations = lag_run.evaluations
+        # ...then DE trains the full network on those lags.
+        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, fixed_mask=lag_run.best_h, **common).solve()
+    else:
+        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve()
+    evaluations += run.evaluations
     best = run.best_model()
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         if cfg.selection == "fitness":
             model, score = best, -float(best.metrics["fitness"])
         else:
@@ -203,7 +213,7 @@ def _one_run(job: dict[str, Any]) -> dict[str, Any]:
         "model": model.to_json(indent=None),
         "state": run.state().to_json(),
         "history": list(run.history),
-        "evaluations": run.evaluations,
+        "evaluations": evaluations,
         "seconds": time.perf_counter() - t0,
         "fitness": float(run.best_f),
         "score": score,
@@ -281,7 +291,7 @@ def identify(
         )
     norm = Normalisation.fit(ua, ya)
 
-    if cfg.restarts == 1 and cfg.selection == "fitness":
+    if cfg.restarts == 1 and cfg.selection == "fitness" and not cfg.lag_search_neurons:
         # The paper's procedure: one run, the best pair ever evaluated (in this process, steppable).
         run = Coevolution(
             ua, ya, cfg, gen, warm_start=warm_start, input_names=names, output_name=output_name, window=win,
@@ -370,3 +380,36 @@ def identify(
         runs=runs,
         chosen=chosen,
     )
+
+
+def identify_each(
+    u: ArrayLike,
+    ys: ArrayLike,
+    config: CoEAConfig | None = None,
+    rng: np.random.Generator | int | None = None,
+    *,
+    output_names: tuple[str, ...] | None = None,
+    **kwargs: Any,
+) -> list[Result]:
+    """Several outputs: one model per output (each column of ``ys`` identified from ``u``).
+
+    Parameters
+    ----------
+    u : array_like, shape (N,) or (N, n_inputs)
+    ys : array_like, shape (N, n_outputs)
+    config, rng :
+        As :func:`identify`; the outputs use successive draws of one generator.
+    output_names : tuple of str, optional
+    **kwargs :
+        Passed to :func:`identify` (not ``output_name``).
+    """
+    ya = np.asarray(ys, dtype=np.float64)
+    if ya.ndim == 1:
+        ya = ya[:, None]
+    if ya.ndim != 2:
+        raise DataError(f"ys must have shape (N, n_outputs); got {ya.shape}")
+    names = output_names or tuple(f"y{i}" for i in range(ya.shape[1]))
+    if len(names) != ya.shape[1]:
+        raise ConfigError(f"{len(names)} output names given for {ya.shape[1]} outputs")
+    gen = _as_rng(rng)
+    return [identify(u, ya[:, i], config, gen, output_name=names[i], **kwargs) for i in range(ya.shape[1])]
