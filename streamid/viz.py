@@ -502,3 +502,63 @@ def _finite(v: Sequence[float] | np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(a), a, np.nan)
 
 
+
+
+def rerun_cli() -> str:
+    """Path of the ``rerun`` command that ships with rerun-sdk (beside the interpreter in a venv)."""
+    import shutil
+    import sys
+
+    beside = Path(sys.executable).parent / "rerun"
+    if beside.exists():
+        return str(beside)
+    found = shutil.which("rerun")
+    if found is None:
+        raise FileNotFoundError("the `rerun` command of rerun-sdk was not found beside Python or on PATH")
+    return found
+
+
+def screenshot(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, window_size: str = "1280x800",
+               timeout_s: float = 90.0) -> Path:
+    """Render ``rrd`` with the real Rerun viewer, headless, into ``png``.
+
+    The recording is first compacted with ``rerun rrd optimize`` (a daemon's
+    recording has thousands of small chunks; the viewer takes its shot after a
+    few frames, before those are all loaded) and then piped to the viewer's
+    standard input.  Without
+    a GPU the viewer needs a Vulkan software rasteriser: on Debian/Ubuntu
+    ``apt-get install mesa-vulkan-drivers``.
+
+    Raises
+    ------
+    RuntimeError
+        If the viewer fails or writes no picture (the message says why and what to install).
+    """
+    import subprocess
+
+    out = Path(png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.exists():
+        out.unlink()
+    import tempfile
+
+    cmd = [rerun_cli(), "--headless", "--screenshot-to", str(out), "--window-size", window_size,
+           "--bind", "127.0.0.1", "-"]
+    with tempfile.TemporaryFile() as compact:
+        try:
+            opt = subprocess.run([rerun_cli(), "rrd", "optimize", str(rrd)], stdout=compact,
+                                 stderr=subprocess.PIPE, text=False, timeout=timeout_s)
+            if opt.returncode != 0:
+                raise RuntimeError(f"`rerun rrd optimize {rrd}` failed: {opt.stderr.decode(errors='replace')[-500:]}")
+            compact.seek(0)
+            proc = subprocess.run(cmd, stdin=compact, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired as exc:
+            raise RuntimeError(f"the Rerun viewer did not finish the screenshot within {timeout_s:.0f} s") from exc
+    if proc.returncode != 0 or not out.exists() or out.stat().st_size == 0:
+        tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-5:]
+        raise RuntimeError(
+            "the Rerun viewer could not render the screenshot (exit code "
+            f"{proc.returncode}); without a GPU it needs `apt-get install mesa-vulkan-drivers`. Viewer said: "
+            + " | ".join(tail)
+        )
+    return out

@@ -2,8 +2,8 @@
 
 Starts the identification daemon on a free loopback port, replays two bundled
 logs onto Zenoh as if a dSPACE board and a sensor were live -- the real MR damper
-(velocity -> force, 200 Hz, accelerated and looped) and the simulated piezo
-micromanipulator (voltage -> deflection, 20 kHz, real time, looped) -- and
+(velocity -> force, 200 Hz) and the simulated piezo micromanipulator (voltage ->
+deflection, 20 kHz), both in real time and looped over the same 60 s -- and
 prints every model the daemon publishes as it arrives.  Ends with a summary
 table and the ``.rrd`` file of the diagnostics with the command that opens it
 in the Rerun viewer.  No router, viewer or configuration needed.
@@ -40,21 +40,25 @@ class DemoStream:
     log: str  # bundled log name
     rate: float  # replay speed (1.0 = real time)
     loops: int  # times the log is played
+    end_s: float  # play the first end_s seconds of the log on each pass
     window_s: float  # stream time
     update_every_s: float  # stream time
     neurons: int
     max_lag: int
     description: str
 
-    def wall_s(self, log_seconds: float) -> float:
-        return log_seconds * self.loops / self.rate
+    @property
+    def wall_s(self) -> float:
+        return self.end_s * self.loops / self.rate
 
 
+#: Both streams cover the same 60 s of stream time, so that the end of the recording
+#: (where the Rerun viewer's cursor follows) holds the newest update of each.
 DEMO_STREAMS: tuple[DemoStream, ...] = (
-    DemoStream("mr_damper", "mr_damper", rate=2.0, loops=6, window_s=4.0, update_every_s=2.0,
-               neurons=10, max_lag=10, description="real MR damper, 200 Hz, x2 speed"),
-    DemoStream("piezo", "piezo_sim_20khz", rate=1.0, loops=3, window_s=0.5, update_every_s=1.0,
-               neurons=10, max_lag=10, description="simulated piezo, 20 kHz, real time"),
+    DemoStream("mr_damper", "mr_damper", rate=1.0, loops=4, end_s=15.0, window_s=4.0, update_every_s=1.0,
+               neurons=10, max_lag=10, description="real MR damper, 200 Hz, first 15 s looped"),
+    DemoStream("piezo", "piezo_sim_20khz", rate=1.0, loops=3, end_s=20.0, window_s=0.5, update_every_s=1.0,
+               neurons=10, max_lag=10, description="simulated piezo, 20 kHz"),
 )
 
 
@@ -68,8 +72,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--out", default="streamid-demo", metavar="DIR",
                    help="where the .rrd, the daemon's config and its log go (default ./streamid-demo)")
     p.add_argument("--loops", type=int, default=None, metavar="N",
-                   help="play each log N times (default: 6 for the MR damper, 3 for the piezo: about a minute)")
+                   help="play each log N times (default: 4 x 15 s of the MR damper, 3 x 20 s of the piezo: a minute)")
     p.add_argument("--port", type=int, default=0, help="loopback TCP port of the daemon (default: a free one)")
+    p.add_argument("--screenshot", metavar="PNG", default=None,
+                   help="afterwards, render the .rrd with the real Rerun viewer (headless) into PNG "
+                        "(needs a GPU or `apt-get install mesa-vulkan-drivers`)")
     p.set_defaults(func=run)
 
 
@@ -129,7 +136,6 @@ def _line(t0: float, up: Any) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from streamid.client import ModelSubscriber, latest_status
-    from streamid.mcaplog import bundled_log, log_info
     from streamid.transport import ZenohSettings
 
     if args.loops is not None and args.loops < 1:
@@ -148,10 +154,7 @@ def run(args: argparse.Namespace) -> int:
     ep = f"tcp/127.0.0.1:{port}"
     py = [sys.executable, "-m", "streamid"]
 
-    durations = {}
-    for s in streams:
-        info = log_info(bundled_log(s.log))
-        durations[s.stream] = s.wall_s(info.duration_s)
+    durations = {s.stream: s.wall_s for s in streams}
     expected_s = max(durations.values())
     print(f"streamid demo: daemon on {ep}, diagnostics -> {rrd}")
     for s in streams:
@@ -189,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
             for s in streams:
                 replays.append(subprocess.Popen(
                     [*py, "replay", s.log, "--connect", ep, "--rate", str(s.rate), "--loop", str(s.loops),
-                     "--stream", s.stream],
+                     "--end", str(s.end_s), "--stream", s.stream],
                     stdout=subprocess.DEVNULL, stderr=open(out / f"replay-{s.stream}.log", "wb"),
                 ))
             deadline = time.monotonic() + 3 * expected_s + 60
@@ -221,6 +224,14 @@ def run(args: argparse.Namespace) -> int:
     print(_summary(streams, tallies, statuses))
     print(f"\ndiagnostics: {rrd}\nopen them:   rerun {rrd}")
     print(f"daemon log:  {out / 'daemon.log'}")
+    if args.screenshot:
+        from streamid.viz import screenshot
+
+        try:
+            print(f"screenshot:  {screenshot(rrd, args.screenshot)}")
+        except (OSError, RuntimeError) as exc:
+            print(f"screenshot failed: {exc}", file=sys.stderr)
+            return 1
     missing = [s.stream for s in streams if not tallies[s.stream].versions]
     if missing:
         print(f"no model was published for: {', '.join(missing)} (see {out / 'daemon.log'})", file=sys.stderr)
