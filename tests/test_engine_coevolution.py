@@ -179,3 +179,20 @@ def test_mr_damper_with_streamids_defaults() -> None:
     assert len(res.runs) == 4 and res.model.neurons == 30
     osa, fr, _ = prediction_r2(res.model, uv, yv)
     assert osa >= 0.996 and fr >= 0.97
+
+
+@pytest.mark.parametrize("block", [1, 3, 7])
+def test_result_does_not_depend_on_random_block_size(monkeypatch: pytest.MonkeyPatch, block: int) -> None:
+    """Uniforms drawn for blocks of generations: the same stream as one draw per generation."""
+    from streamid.engine import coevolution
+
+    u, y = narx(300, np.random.default_rng(6))
+    cfg = SMALL.replace(generations=17)
+    ref = Coevolution(u, y, cfg, 3).solve()
+    monkeypatch.setattr(coevolution, "_BLOCK", block)
+    run = Coevolution(u, y, cfg, 3)
+    assert run._trials.block == block
+    run.solve()
+    assert run.history == ref.history
+    np.testing.assert_array_equal(run.state().params, ref.state().params)
+    np.testing.assert_array_equal(run.state().harmonies, ref.state().harmonies)

@@ -183,3 +183,55 @@ def test_update_memory_equals_one_by_one() -> None:
                 m2[w], f2[w] = h, f
         assert sorted(f1.tolist()) == sorted(f2.tolist())
         assert sorted(map(tuple, m1.tolist())) == sorted(map(tuple, m2.tolist()))
+
+
+def test_trial_maker_block_plan_equals_generation_by_generation() -> None:
+    """A plan over a block of generations gives, row by row, the one-generation trials."""
+    rng = np.random.default_rng(6)
+    n, d, blocks = 7, 9, 5
+    lo = np.full(d, -1.0)
+    hi = np.full(d, 2.0)
+    uni = rng.random((blocks, de.TrialMaker.n_uniforms(n, d) + 3))  # extra columns are ignored
+    xs = [rng.uniform(-1, 2, (n, d)) for _ in range(blocks)]
+    block = de.TrialMaker(n, d, lo, hi, 0.7, 0.4, block=blocks)
+    assert block.plan(uni.copy()) == blocks
+    one = de.TrialMaker(n, d, lo, hi, 0.7, 0.4)
+    for k in range(blocks):
+        got = block.make(xs[k], k).copy()
+        ref = one(xs[k], uni[k, : de.TrialMaker.n_uniforms(n, d)].copy())
+        np.testing.assert_array_equal(got, ref)
+        # and by hand from the pure functions
+        keys = uni[k, : n * n].reshape(n, n).copy()
+        idx = de.donors_from_keys(keys)
+        take = de.crossover_mask(uni[k, n * n : n * (n + d)].reshape(n, d), uni[k, n * (n + d) : n * (n + d + 1)], 0.4)
+        np.testing.assert_array_equal(got, de.reflect(np.where(take, de.mutate(xs[k], idx, 0.7), xs[k]), lo, hi))
+    with pytest.raises(ValueError):
+        block.plan(rng.random((blocks + 1, de.TrialMaker.n_uniforms(n, d))))
+
+
+def test_improviser_block_equals_improvise_from_uniforms() -> None:
+    rng = np.random.default_rng(8)
+    hms, d, count, blocks = 6, 11, 9, 4
+    uni = rng.random((blocks, harmony.n_uniforms(count, d)))
+    hmcr = np.array([0.8, 0.85, 0.95, 1.0])
+    par = np.array([0.1, 0.4, 0.7, 0.9])
+    imp = harmony.Improviser(hms, d, count, block=blocks)
+    assert imp.plan(uni, hmcr, par) == blocks
+    for k in range(blocks):
+        memory = rng.random((hms, d)) < 0.5
+        best = rng.random(d) < 0.5
+        got = imp.make(memory, best, k).copy()
+        ref = harmony.improvise_from_uniforms(memory, best, hmcr[k], par[k], uni[k], count)
+        np.testing.assert_array_equal(got, ref)
+
+
+def test_update_memory_no_entry_leaves_memory_untouched() -> None:
+    memory = np.array([[1, 0], [0, 1]], dtype=bool)
+    fit = np.array([1.0, 2.0])
+    entered = harmony.update_memory(memory, fit, np.array([[1, 1], [0, 0]], dtype=bool), np.array([2.0, 3.0]))
+    assert entered == 0
+    assert memory.astype(int).tolist() == [[1, 0], [0, 1]] and fit.tolist() == [1.0, 2.0]
+    # a NaN newcomer never enters, a better one does
+    entered = harmony.update_memory(memory, fit, np.array([[1, 1], [0, 0]], dtype=bool), np.array([np.nan, 0.5]))
+    assert entered == 1
+    assert sorted(fit.tolist()) == [0.5, 1.0]

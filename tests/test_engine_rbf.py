@@ -116,3 +116,37 @@ def test_weight_decay_shrinks_weights() -> None:
     b_mse, b_w = BatchEvaluator(R, y, 6, 7, weight_decay=1e-2).evaluate(masks, centres, widths, return_weights=True)
     assert np.all(b_mse >= a_mse - 1e-12)
     assert np.all(np.abs(b_w).sum(axis=1) <= np.abs(a_w).sum(axis=1) + 1e-9)
+
+
+def test_batched_solve_and_its_singular_fallback() -> None:
+    from streamid.engine.rbf import _solve
+
+    rng = np.random.default_rng(11)
+    a = rng.standard_normal((4, 5, 5))
+    a = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(5)
+    b = rng.standard_normal((4, 5, 1))
+    np.testing.assert_allclose(_solve(a, b), np.linalg.solve(a, b), rtol=1e-10)
+    a[2] = 0.0  # exactly singular: the batch falls back to per-member least squares
+    a[2, 0, 0] = 1.0
+    z = _solve(a, b)
+    assert np.all(np.isfinite(z))
+    for i in (0, 1, 3):
+        np.testing.assert_allclose(z[i], np.linalg.solve(a[i], b[i]), rtol=1e-10)
+    np.testing.assert_allclose(z[2, :, 0], np.linalg.lstsq(a[2], b[2, :, 0], rcond=None)[0])
+
+
+def test_batched_activations_with_empty_and_full_masks() -> None:
+    """Packing edge cases: a member with no lag (all activations 1) and one with every lag."""
+    R, y, masks, centres, widths = _problem(3)
+    masks = masks.copy()
+    masks[0] = False
+    masks[1] = True
+    ev = BatchEvaluator(R, y, 6, 7)
+    for m in (masks, masks[:1]):  # several members, and only the empty one
+        p = m.shape[0]
+        phi = ev.activations_into(m, centres[:p], widths[:p]).copy()
+        for i in range(p):
+            cols = np.flatnonzero(m[i])
+            ref = activations(R[:, cols], centres[i][:, cols], widths[i])
+            np.testing.assert_allclose(phi[i].T, ref, rtol=1e-10, atol=1e-13)
+    np.testing.assert_array_equal(phi[0], 1.0)

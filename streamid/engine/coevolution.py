@@ -22,6 +22,13 @@ The run, as streamid implements it
   ``i`` is paired with newly improvised harmony ``i``, afterwards with the best
   harmony (``H`` stops evolving); the P pairs are evaluated at once; DE
   selection for ``X``, memory update for ``H``.
+* Randomness: the uniforms of up to ``_BLOCK`` (50) generations (at most 2 MiB
+  of them) are drawn in one call (row ``k``: generation ``g0 + k``'s DE
+  uniforms, then its improvisation's while the harmonies evolve; a block never
+  straddles the end of the harmony phase), and DE donors, crossover masks and
+  improvisation masks are prepared for the whole block at once. The stream is the same as one draw per
+  generation, so a run's result does not depend on the block size; only a run
+  stopped early leaves drawn-but-unused uniforms behind.
 * Credit: a harmony used as a partner by other evaluations keeps the best
   fitness any of them achieved (so the best harmony and the best pair agree).
 * Result: the best pair ever evaluated; :meth:`Coevolution.best_model`
@@ -47,6 +54,12 @@ from streamid.engine.state import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
 
 __all__ = ["CoEAState", "Coevolution", "Progress", "STATE_FORMAT"]
+
+#: Generations whose random numbers are drawn and turned into DE donors, crossover
+#: masks and improvisation masks at once (see :meth:`Coevolution._plan`), at most
+#: ``_BLOCK_VALUES`` uniforms (2 MiB) per block. Results do not depend on either.
+_BLOCK = 50
+_BLOCK_VALUES = 1 << 18
 
 class Progress(NamedTuple):
     """What one generation reports: its number (1-based count done), the best fitness, evaluations so far."""
@@ -150,9 +163,13 @@ class Coevolution:
         self.best_h = np.zeros(self.D, dtype=bool)
         self.best_x = np.zeros(self.DX)
         self.seconds = 0.0
-        self._trials = de.TrialMaker(P, self.DX, self.lo, self.hi, cfg.de_f, cfg.de_cr)
         self._n_de = de.TrialMaker.n_uniforms(P, self.DX)
         self._n_hs = harmony.n_uniforms(P, self.D)
+        block = max(1, min(_BLOCK, cfg.generations, _BLOCK_VALUES // (self._n_de + self._n_hs)))
+        self._trials = de.TrialMaker(P, self.DX, self.lo, self.hi, cfg.de_f, cfg.de_cr, block=block)
+        self._improviser = harmony.Improviser(P, self.D, P, block=block)
+        self._uni = np.empty(block * (self._n_de + self._n_hs))
+        self._k = self._planned = 0  # generation k of a planned block of `_planned`
         self._frozen: NDArray[np.bool_] | None = None
         self._frozen_key = -1
         t0 = time.perf_counter()
@@ -182,7 +199,7 @@ class Coevolution:
         c, s = self._split(x)
         f = self.evaluator.evaluate(masks, c, s, shared=shared) * self.scale  # type: ignore[operator]
         self.evaluations += masks.shape[0]
-        i = int(np.argmin(f))
+        i = int(f.argmin())
         if f[i] < self.best_f:
             self.best_f = float(f[i])
             self.best_h = masks[i].copy()
@@ -259,18 +276,43 @@ class Coevolution:
     def done(self) -> bool:
         return self.g >= self.generations
 
-    def _generation(self) -> None:
-        """One generation. Draws one block of uniforms: DE (donor keys, crossover,
-        ``j_rand``), then, while the harmonies evolve, the improvisation's."""
-        cfg, P = self.config, self.config.population
-        evolving = self.g < self.stop
-        n_de = self._n_de
-        uni = self.rng.random(n_de + (self._n_hs if evolving else 0))
-        trial = self._trials(self.X, uni[:n_de])
-        b = int(np.argmin(self.fh))
+    def _plan(self) -> None:
+        """Draw the uniforms of the next block of generations and prepare their operators.
+
+        A block holds up to ``_BLOCK`` generations (fewer when a generation needs
+        many uniforms, see ``_BLOCK_VALUES``) and never straddles the end of
+        the harmony phase. Row ``k`` of the block is generation ``g0 + k``'s
+        uniforms: DE (donor keys, crossover, ``j_rand``), then, while the
+        harmonies evolve, the improvisation's. The stream is therefore the same
+        as one ``rng.random`` call per generation; only an early stop leaves
+        drawn-but-unused rows behind.
+        """
+        cfg, g0 = self.config, self.g
+        evolving = g0 < self.stop
+        end = min(self.stop if evolving else self.generations, self.generations)
+        b = min(self._trials.block, end - g0)
+        per = self._n_de + (self._n_hs if evolving else 0)
+        uni = self.rng.random(out=self._uni[: b * per]).reshape(b, per)
+        self._trials.plan(uni)
         if evolving:
-            hmcr, par = harmony.schedule(self.g, self.generations, cfg.hmcr0, cfg.hmcrf, cfg.par0, cfg.parf)
-            masks = harmony.improvise_from_uniforms(self.H, self.H[b], hmcr, par, uni[n_de:], P)
+            frac = np.arange(g0, g0 + b) / self.generations  # harmony.schedule, vectorised
+            hmcr = cfg.hmcr0 + (cfg.hmcrf - cfg.hmcr0) * frac
+            par = cfg.par0 + (cfg.parf - cfg.par0) * frac
+            self._improviser.plan(uni[:, self._n_de :], hmcr, par)
+        self._k, self._planned = 0, b
+
+    def _generation(self) -> None:
+        """One generation: DE trials for every member of X, paired with new harmonies
+        (while they evolve) or the best harmony; evaluation; selection and memory update."""
+        if self._k >= self._planned:
+            self._plan()
+        k = self._k
+        self._k += 1
+        evolving = self.g < self.stop
+        trial = self._trials.make(self.X, k)
+        b = int(self.fh.argmin())
+        if evolving:
+            masks = self._improviser.make(self.H, self.H[b], k)
         else:
             masks = self._best_masks(b)
         f = self._evaluate(masks, trial, shared=not evolving)

@@ -1,6 +1,9 @@
 """Adaptive Binary Harmony Search with individual selection (paper section 3.2, eqs. 10-13).
 
 Pure functions; every random draw comes from the Generator passed in.
+:class:`Improviser` is the block form a run uses: the masks of a block of
+generations are prepared at once, and a generation's harmonies then cost one
+gather and two masked copies (same result as :func:`improvise_from_uniforms`).
 
 Choices left open by the paper, as streamid makes them
 ------------------------------------------------------
@@ -23,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["schedule", "improvise", "update_memory"]
+__all__ = ["Improviser", "improvise", "improvise_from_uniforms", "schedule", "update_memory"]
 
 
 def schedule(
@@ -93,6 +96,51 @@ def improvise_from_uniforms(
     return new
 
 
+class Improviser:
+    """Improvisation from blocks of uniforms, with preallocated buffers.
+
+    :meth:`plan` turns the uniforms of ``B`` generations (row ``k``: the layout of
+    :func:`improvise_from_uniforms`) and their HMCR/PAR into member indices,
+    consideration, random-bit and pitch-adjustment masks at once; :meth:`make`
+    then improvises generation ``k``'s harmonies from the memory and best harmony
+    of that moment with one gather and two masked copies. The result equals
+    :func:`improvise_from_uniforms` on the same uniforms; it is returned in a
+    buffer overwritten by the next call.
+    """
+
+    def __init__(self, hms: int, d: int, count: int, block: int = 1) -> None:
+        self.hms, self.d, self.count, self.block = hms, d, count, max(1, int(block))
+        self._t = np.empty((self.block, count), dtype=np.intp)
+        self._consider = np.empty((self.block, count, d), dtype=bool)
+        self._bits = np.empty((self.block, count, d), dtype=bool)
+        self._pitch = np.empty((self.block, count, d), dtype=bool)
+        self._new = np.empty((count, d), dtype=bool)
+
+    def plan(self, uniforms: NDArray[np.float64], hmcr: NDArray[np.float64], par: NDArray[np.float64]) -> int:
+        """Prepare ``B = uniforms.shape[0]`` generations; ``hmcr``, ``par`` of shape ``(B,)``. Returns ``B``."""
+        c, d, hms = self.count, self.d, self.hms
+        b = uniforms.shape[0]
+        if b > self.block:
+            raise ValueError(f"at most {self.block} generations per plan; got {b}")
+        np.minimum((uniforms[:, :c] * hms).astype(np.intp), hms - 1, out=self._t[:b])
+        u3 = uniforms[:, c : c * (3 * d + 1)].reshape(b, 3, c, d)
+        consider = self._consider[:b]
+        np.less(u3[:, 0], hmcr[:, None, None], out=consider)
+        np.less(u3[:, 1], 0.5, out=self._bits[:b])
+        pitch = self._pitch[:b]
+        np.less(u3[:, 2], par[:, None, None], out=pitch)
+        pitch &= consider
+        return b
+
+    def make(self, memory: NDArray[np.bool_], best: NDArray[np.bool_], k: int) -> NDArray[np.bool_]:
+        """Harmonies of generation ``k`` of the current plan."""
+        new = self._new
+        np.copyto(new, self._bits[k])
+        np.copyto(new, memory[self._t[k]], where=self._consider[k])
+        np.copyto(new, best, where=self._pitch[k])
+        return new
+
+
 def update_memory(
     memory: NDArray[np.bool_],
     fitness: NDArray[np.float64],
@@ -107,9 +155,11 @@ def update_memory(
         Number of newcomers that entered the memory.
     """
     hms = memory.shape[0]
+    if new_fitness.min() >= fitness.max():  # nobody beats the worst member (NaN: full path below)
+        return 0
     pool_f = np.concatenate([fitness, new_fitness])
-    order = np.argsort(pool_f, kind="stable")[:hms]  # stable: members already in memory win ties
-    entered = int(np.count_nonzero(order >= hms))
+    order = pool_f.argsort(kind="stable")[:hms]  # stable: members already in memory win ties
+    entered = int((order >= hms).sum())
     if entered:
         pool = np.concatenate([memory, new])
         memory[:] = pool[order]
