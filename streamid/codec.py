@@ -385,10 +385,22 @@ def decode(data: bytes) -> SampleBatch:
         raise CodecError(f"a batch payload must be bytes; got {type(data).__name__}")
     try:
         return _decode(data)
-    except CodecError:
+    except CodecError as exc:
+        hint = _not_a_batch_hint(data, str(exc))
+        if hint:
+            raise CodecError(f"{exc} ({hint})") from None
         raise
     except (ValueError, TypeError, IndexError, OverflowError, MemoryError, RecursionError) as exc:
         raise CodecError(f"malformed sample batch ({type(exc).__name__}: {exc})") from exc
+
+
+def _not_a_batch_hint(data: bytes, message: str) -> str:
+    """A hint when a payload fails early and does not even look like a batch (another schema on the key)."""
+    if not data or data.startswith(b"\x08\x01") or "wire format version" in message:
+        return ""
+    if data.lstrip()[:1] in (b"{", b"["):
+        return "the payload looks like JSON: samples keys carry protobuf streamid.SampleBatch messages"
+    return "the payload does not start with field 1 (version) = 1: is this a streamid.SampleBatch payload?"
 
 
 def _decode(buf: bytes) -> SampleBatch:

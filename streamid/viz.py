@@ -3,21 +3,38 @@
 :class:`Viz` owns its :class:`rerun.RecordingStream` (never the global one) and
 draws, per stream, under ``streams/<stream>/``:
 
-=============================  ===============================================================
-``validation/{measured,osa,free_run}``  the validation part of the newest window and its predictions
-``residual/{osa,free_run}``             measured minus prediction on the validation part
-``correlation/<test>/{value,band}``     the five residual correlation tests with their ±95 % band
-``fitness``                             best fitness per generation of the newest update
-``history/{r2_osa,r2_fr}``              validation R^2 of every update (at the window's end time)
-``history/{identification_s,latency_s}``  identification time, window close -> model published
-``hysteresis/{measured,simulated}``     the input-output plane (first input vs output), normalised
-``model``                               the selected lags and metrics (Markdown)
-``events``                              text log: model published, bad input, gaps, backlog
-=============================  ===============================================================
+``plot/validation/*``
+    the newest update: measured vs one-step-ahead and free-run predictions on
+    the validation part (a 2-D figure: lines, grid, ticks, legend)
+``plot/residual/*``
+    the newest update: measured minus predictions on the validation part
+``plot/fitness/*``
+    best fitness per generation on a log scale: the latest cold run, then the
+    newest update
+``hysteresis/*``
+    the input-output plane (first input vs output), measured and free run
+``correlation/<test>/{value,outside,band,band_low}``
+    the five residual correlation tests; values outside the ±95 % band again in red
+``history/{r2_osa,r2_fr,identification_s,latency_s}``
+    validation R², identification time and window-closed-to-published time of
+    every update (at the window's end)
+``model``, ``events``
+    the newest model (lags, R², share of lags inside each band; Markdown) and a
+    text log (model published, bad input, gaps, backlog)
+``validation/*``, ``residual/*``, ``fitness``
+    the validation part and residuals as scalars on the stream's clock, and the
+    raw best fitness per generation: data for other views and tools, not in the
+    layout
 
-Data are logged on the ``stream_time`` timeline (the samples' own clock:
-a duration, or a timestamp for Unix-epoch clocks).  A blueprint lays each
-stream out as a tab; the time panel follows the newest data.
+Data are logged on the ``stream_time`` timeline (the samples' own clock: a
+duration, or a timestamp for Unix-epoch clocks).  One recording has one time
+cursor for all its streams, whose clocks need not agree, so everything that
+shows "the newest update" is *latest-at* (bar charts, text, and 2-D figures
+laid out by :mod:`streamid.viz_plot`) and the time series (history) show their
+whole range: wherever the cursor stands, every stream's tab shows that
+stream's newest update at or before it.  The blueprint lays each stream out as
+a tab (in the order the streams were declared) and the time panel follows the
+newest data.  :func:`screenshot` renders an ``.rrd`` with the real viewer.
 
 Sinks: an ``.rrd`` file (footer written on :meth:`Viz.close`; continued in
 ``<stem>.001.rrd``... once it passes ``rrd_rotate_mb``, because a file sink keeps
@@ -42,13 +59,15 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from streamid.viz_plot import COL_FR, COL_MEASURED, COL_OSA, CANVAS, Figure, fitness_figure, plane_figure, validation_figures
+from streamid.viz_shot import render, rerun_cli
 from streamid.viz_types import (
+    TEST_LABELS as _TEST_LABELS,
     CorrelationCurve,
     UpdateReport,
     VizSettings,
@@ -57,14 +76,19 @@ from streamid.viz_types import (
     parse_rerun_url,
 )
 
-__all__ = ["VizSettings", "UpdateReport", "CorrelationCurve", "Viz", "parse_rerun_url"]
+__all__ = ["VizSettings", "UpdateReport", "CorrelationCurve", "Viz", "parse_rerun_url", "screenshot", "rerun_cli"]
 
 _log = logging.getLogger(__name__)
 
-_COL_MEASURED = (230, 230, 230)
-_COL_OSA = (66, 150, 250)
-_COL_FR = (250, 140, 40)
-_COL_BAND = (150, 150, 150, 70)
+_COL_MEASURED, _COL_OSA, _COL_FR = COL_MEASURED, COL_OSA, COL_FR
+_COL_BAND = (150, 150, 150, 50)
+_COL_OUTSIDE = (240, 60, 60)
+_COL_GRID = (58, 58, 58)
+_COL_FRAME = (110, 110, 110)
+_COL_MARK = (150, 150, 150)
+#: the figures' series keys (a key missing from an update's figure is cleared)
+_FIGURE_KEYS = {"validation": ("measured", "osa", "free_run"), "residual": ("osa", "free_run"),
+                "fitness": ("cold", "newest"), "plane": ("measured", "simulated")}
 _EPOCH_NS = 10**17  # clocks beyond ~1973 are Unix time: use a timestamp timeline
 _TIMELINE = "stream_time"
 
@@ -109,7 +133,8 @@ class Viz:
         self.settings = settings
         self._lock = threading.RLock()
         self._rid = settings.recording_id or f"streamid-{time.time_ns()}"
-        self._streams: dict[str, float | None] = {}
+        self._streams: dict[str, None] = {}  # declared streams, in order (an ordered set)
+        self._cold: dict[str, tuple[int, np.ndarray]] = {}  # latest cold run's (version, fitness) per stream
         self._time_kind: str | None = None
         self._warned: set[str] = set()
         self._closed = False
@@ -251,12 +276,12 @@ class Viz:
         return rr.TimeColumn(_TIMELINE, duration=t.astype("timedelta64[ns]"))
 
     # ------------------------------------------------------------- blueprint
-    def add_stream(self, stream: str, *, validation_span_s: float | None = None) -> None:
-        """Declare a stream (its tab in the blueprint and its series styles)."""
+    def add_stream(self, stream: str) -> None:
+        """Declare a stream: its tab in the blueprint (tabs in declaration order) and its series styles."""
         with self._lock:
-            if stream in self._streams and self._streams[stream] == validation_span_s:
+            if stream in self._streams:
                 return
-            self._streams[stream] = validation_span_s
+            self._streams[stream] = None
             for lk in self._links():
                 self._send_styles(lk.rec, stream)
                 self._send_blueprint_to(lk)
@@ -285,57 +310,57 @@ class Viz:
             self._warn_once("styles", f"rerun styles not sent ({exc})")
 
     def blueprint(self) -> rrb.Blueprint:
-        """The layout: one tab per stream."""
-        tabs = [self._stream_layout(s, span) for s, span in sorted(self._streams.items())]
+        """The layout: one tab per stream, in declaration order."""
+        tabs = [self._stream_layout(s) for s in self._streams]
         if not tabs:
             tabs = [rrb.TextLogView(origin="events", name="events")]
-        root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs)
+        root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs, active_tab=0)
         return rrb.Blueprint(
             root,
-            rrb.TimePanel(state="collapsed", play_state="following"),
+            rrb.TimePanel(state="collapsed", timeline=_TIMELINE, play_state="following"),
             rrb.BlueprintPanel(state="hidden"),
             rrb.SelectionPanel(state="hidden"),
             auto_views=False,
         )
 
-    def _stream_layout(self, stream: str, span_s: float | None) -> rrb.Container:
+    def _stream_layout(self, stream: str) -> rrb.Container:
         base = f"streams/{stream}"
-        ranges: list[Any] = []
-        if span_s is not None and span_s > 0:
-            start = rrb.TimeRangeBoundary.cursor_relative(seconds=-1.02 * span_s)
-            ranges = [rrb.VisibleTimeRange(_TIMELINE, start=start, end=rrb.TimeRangeBoundary.cursor_relative())]
-        legend = rrb.PlotLegend(corner="LeftTop", visible=True)
+        legend = rrb.PlotLegend(corner="LeftBottom", visible=True)
+        legend_top = rrb.PlotLegend(corner="RightTop", visible=True)
         no_legend = rrb.PlotLegend(visible=False)
         tests = ("ee", "ue", "e_eu", "u2_e", "u2_e2")
         corr = [
             rrb.BarChartView(origin=f"{base}/correlation/{t}", name=_TEST_LABELS[t], plot_legend=no_legend) for t in tests
         ]
+
+        def fig(path: str, kind: str, name: str) -> rrb.Spatial2DView:
+            w, h = CANVAS[kind]
+            return rrb.Spatial2DView(origin=f"{base}/{path}", name=name,
+                                     visual_bounds=rrb.VisualBounds2D(x_range=[0.0, w], y_range=[0.0, h]))
+
+        history = f"{base}/history"
         return rrb.Vertical(
             rrb.Horizontal(
-                rrb.TimeSeriesView(origin=f"{base}/validation", name=f"{stream}: validation part, measured vs predicted",
-                                   plot_legend=legend, time_ranges=ranges or None),
-                rrb.TimeSeriesView(origin=f"{base}/residual", name="residuals (validation)", plot_legend=legend,
-                                   time_ranges=ranges or None),
+                fig("plot/validation", "validation", f"{stream}: newest model on the validation part (held out)"),
+                fig("plot/residual", "residual", "residuals on the validation part"),
                 column_shares=[3, 2],
             ),
-            rrb.Horizontal(*corr, name="residual correlation tests (±95 %)"),
+            rrb.Horizontal(*corr, name="residual correlation tests (±95 % band; red: outside)"),
             rrb.Horizontal(
-                rrb.BarChartView(origin=f"{base}/fitness", name="fitness per generation",
-                                 plot_legend=no_legend),
-                rrb.TimeSeriesView(origin=f"{base}/history", contents=[f"{base}/history/r2_osa", f"{base}/history/r2_fr"],
-                                   name="R² across updates", plot_legend=legend),
-                rrb.TimeSeriesView(origin=f"{base}/history",
-                                   contents=[f"{base}/history/identification_s", f"{base}/history/latency_s"],
-                                   name="update time [s]", plot_legend=legend),
-                rrb.Spatial2DView(origin=f"{base}/hysteresis", name="input-output plane (normalised)"),
-                column_shares=[2, 2, 2, 2],
+                fig("plot/fitness", "fitness", "best fitness per generation"),
+                rrb.TimeSeriesView(origin=history, contents=[f"{history}/r2_osa", f"{history}/r2_fr"],
+                                   name="R² (validation) across updates", plot_legend=legend),
+                rrb.TimeSeriesView(origin=history, contents=[f"{history}/identification_s", f"{history}/latency_s"],
+                                   name="update time [s] across updates", plot_legend=legend_top),
+                fig("hysteresis", "plane", "input-output plane"),
+                column_shares=[1, 1, 1, 1],
             ),
             rrb.Horizontal(
-                rrb.TextDocumentView(origin=f"{base}/model", name="model"),
+                rrb.TextDocumentView(origin=f"{base}/model", name="newest model"),
                 rrb.TextLogView(origin=f"{base}/events", name="events"),
-                column_shares=[1, 2],
+                column_shares=[2, 3],
             ),
-            row_shares=[3, 2, 3, 2],
+            row_shares=[30, 19, 29, 22],
             name=stream,
         )
 
@@ -367,7 +392,7 @@ class Viz:
     def _draw(self, rec: rr.RecordingStream, r: UpdateReport) -> None:
         base = f"streams/{r.stream}"
         n = len(r.y_val)
-        if n:
+        if n:  # the validation part as scalars on the stream's clock (data; the layout shows the figures)
             step = max(1, -(-n // self.settings.max_points))  # decimate long windows for drawing
             t = r.val_t0_ns + np.arange(0, n, step, dtype=np.int64) * np.int64(r.period_ns)
             tcol = self._time_column(t)
@@ -377,22 +402,37 @@ class Viz:
             for name, v in (("osa", y - osa), ("free_run", y - fr)):
                 rec.send_columns(f"{base}/residual/{name}", indexes=[tcol], columns=rr.Scalars.columns(scalars=_finite(v)))
         self._set_time(rec, r.window_end_ns)
+        if n:
+            fit, res = validation_figures(r, self.settings.max_points)
+            self._log_figure(rec, f"{base}/plot/validation", fit, _FIGURE_KEYS["validation"])
+            self._log_figure(rec, f"{base}/plot/residual", res, _FIGURE_KEYS["residual"])
+            plane = plane_figure(r, self.settings.max_points)
+            if plane is not None:
+                self._log_figure(rec, f"{base}/hysteresis", plane, _FIGURE_KEYS["plane"])
         for c in r.correlations:
             lags = np.asarray(c.lags, dtype=np.float64)
+            vals = _finite(c.values)
             w = np.ones_like(lags)
+            outside = np.where(np.abs(vals) > c.band, vals, 0.0)
             rec.log(f"{base}/correlation/{c.name}/band", rr.BarChart(np.full(lags.size, c.band), abscissa=lags, widths=w, color=_COL_BAND))
             rec.log(f"{base}/correlation/{c.name}/band_low", rr.BarChart(np.full(lags.size, -c.band), abscissa=lags, widths=w, color=_COL_BAND))
-            rec.log(f"{base}/correlation/{c.name}/value", rr.BarChart(_finite(c.values), abscissa=lags, widths=0.35 * w, color=_COL_OSA))
+            rec.log(f"{base}/correlation/{c.name}/value", rr.BarChart(vals, abscissa=lags, widths=0.4 * w, color=_COL_OSA))
+            rec.log(f"{base}/correlation/{c.name}/outside", rr.BarChart(outside, abscissa=lags, widths=0.4 * w, color=_COL_OUTSIDE))
         if len(r.fitness):
-            rec.log(f"{base}/fitness", rr.BarChart(_finite(r.fitness), color=(120, 200, 120)))
+            f = _finite(r.fitness)
+            rec.log(f"{base}/fitness", rr.BarChart(f, color=(120, 200, 120)))
+            with self._lock:
+                if not r.warm:
+                    self._cold[r.stream] = (r.version, f)
+                cold = self._cold.get(r.stream)
+            self._log_figure(rec, f"{base}/plot/fitness", fitness_figure((r.version, r.warm, f), cold),
+                             _FIGURE_KEYS["fitness"])
         for name, v in (("r2_osa", r.metrics.get("r2_osa_val")), ("r2_fr", r.metrics.get("r2_fr_val"))):
             if v is not None and math.isfinite(v):
                 rec.log(f"{base}/history/{name}", rr.Scalars(max(v, -1.0)))
         rec.log(f"{base}/history/identification_s", rr.Scalars(r.identification_s))
         if r.latency_s is not None:
             rec.log(f"{base}/history/latency_s", rr.Scalars(r.latency_s))
-        if n and len(r.u_val) == n:
-            self._draw_plane(rec, base, r)
         rec.log(f"{base}/model", rr.TextDocument(model_markdown(r), media_type="text/markdown"))
         verdict = "published" if r.accepted else "REJECTED"
         level = "INFO" if r.accepted else "WARN"
@@ -406,45 +446,27 @@ class Viz:
             ),
         )
 
-    def _draw_plane(self, rec: rr.RecordingStream, base: str, r: UpdateReport) -> None:
-        step = max(1, -(-len(r.u_val) // self.settings.max_points))
-        u = np.asarray(r.u_val, dtype=np.float64)[::step]
-        ys = [np.asarray(r.y_val, dtype=np.float64)[::step], np.asarray(r.fr_val, dtype=np.float64)[::step]]
-        ok = np.isfinite(ys[1])
-        ulo, uhi = float(u.min()), float(u.max())
-        yall = np.concatenate([ys[0], ys[1][ok]])
-        ylo, yhi = float(yall.min()), float(yall.max())
-        if not (uhi > ulo and yhi > ylo):
-            return
-        sx, sy = 200.0, 150.0
-
-        def xy(yv: np.ndarray, mask: np.ndarray) -> np.ndarray:
-            x = (u[mask] - ulo) / (uhi - ulo) * 2 - 1
-            yy = (yv[mask] - ylo) / (yhi - ylo) * 2 - 1
-            return np.column_stack([x * sx, -yy * sy])
-
-        allm = np.ones(u.size, dtype=bool)
-        rec.log(f"{base}/hysteresis/measured", rr.LineStrips2D([xy(ys[0], allm)], colors=[_COL_MEASURED], radii=0.6))
-        rec.log(f"{base}/hysteresis/simulated", rr.LineStrips2D([xy(ys[1], ok)], colors=[_COL_FR], radii=0.6))
-        rec.log(
-            f"{base}/hysteresis/legend",
-            rr.Points2D([[-sx + 40, -sy - 30], [sx - 40, -sy - 30]], radii=0.1, colors=[_COL_MEASURED, _COL_FR],
-                        labels=["measured", "free run"], show_labels=True),
-        )
-        rec.log(
-            f"{base}/hysteresis/frame",
-            rr.Boxes2D(mins=[[-sx, -sy]], sizes=[[2 * sx, 2 * sy]], colors=[(90, 90, 90)], radii=0.4),
-        )
-        rec.log(
-            f"{base}/hysteresis/axes",
-            rr.Points2D(
-                [[0, sy + 22], [-sx - 50, 0], [-sx + 20, sy + 22], [sx - 20, sy + 22], [-sx - 50, sy - 10], [-sx - 50, -sy + 10]],
-                radii=0.1,
-                colors=[(200, 200, 200)],
-                labels=[r.input_name, r.output_name, f"{ulo:.3g}", f"{uhi:.3g}", f"{ylo:.3g}", f"{yhi:.3g}"],
-                show_labels=True,
-            ),
-        )
+    @staticmethod
+    def _log_figure(rec: rr.RecordingStream, path: str, fig: Figure, keys: Sequence[str]) -> None:
+        """Draw a :class:`~streamid.viz_plot.Figure` under ``path``; series of ``keys`` it lacks are cleared."""
+        thin = rr.Radius.ui_points(0.5)
+        rec.log(f"{path}/grid", rr.LineStrips2D(list(fig.grid), colors=[_COL_GRID], radii=thin, draw_order=1.0))
+        x0, y0, x1, y1 = fig.frame
+        rec.log(f"{path}/frame", rr.Boxes2D(mins=[[x0, y0]], sizes=[[x1 - x0, y1 - y0]], colors=[_COL_FRAME],
+                                             radii=thin, draw_order=2.0))
+        rec.log(f"{path}/marks", rr.LineStrips2D(list(fig.marks), colors=[_COL_MARK], radii=rr.Radius.ui_points(0.75),
+                                                  draw_order=3.0))
+        drawn = set()
+        for i, (key, color, width, strips) in enumerate(fig.lines):
+            drawn.add(key)
+            rec.log(f"{path}/{key}", rr.LineStrips2D(list(strips), colors=[color], radii=rr.Radius.ui_points(width / 2),
+                                                      draw_order=10.0 + i))
+        for key in keys:
+            if key not in drawn:
+                rec.log(f"{path}/{key}", rr.Clear(recursive=False))
+        lab = fig.labels
+        rec.log(f"{path}/labels", rr.Points2D([[la.x, la.y] for la in lab], radii=0.0, colors=[la.color for la in lab],
+                                               labels=[la.text for la in lab], show_labels=True, draw_order=30.0))
 
     # ---------------------------------------------------------------- shutdown
     def flush(self, timeout_s: float = 1.0) -> None:
@@ -481,13 +503,6 @@ class Viz:
                 _log.warning("rerun sinks did not close within %.1f s", timeout_s)
 
 
-_TEST_LABELS = {
-    "ee": "φ_ξξ(τ)",
-    "ue": "φ_uξ(τ)",
-    "e_eu": "φ_ξ(ξu)(τ)",
-    "u2_e": "φ_(u²)'ξ(τ)",
-    "u2_e2": "φ_(u²)'ξ²(τ)",
-}
 
 
 def _quiet_disconnect(rec: rr.RecordingStream) -> None:
@@ -502,63 +517,16 @@ def _finite(v: Sequence[float] | np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(a), a, np.nan)
 
 
+def screenshot(
+    rrd: str | os.PathLike[str],
+    png: str | os.PathLike[str],
+    *,
+    window_size: str = "1280x800",
+    timeout_s: float = 90.0,
+    settle_s: float = 4.0,
+) -> Path:
+    """Render ``rrd`` with the real Rerun viewer, headless, into ``png`` (see :func:`streamid.viz_shot.render`)."""
+    from rerun.experimental import ViewerClient
 
-
-def rerun_cli() -> str:
-    """Path of the ``rerun`` command that ships with rerun-sdk (beside the interpreter in a venv)."""
-    import shutil
-    import sys
-
-    beside = Path(sys.executable).parent / "rerun"
-    if beside.exists():
-        return str(beside)
-    found = shutil.which("rerun")
-    if found is None:
-        raise FileNotFoundError("the `rerun` command of rerun-sdk was not found beside Python or on PATH")
-    return found
-
-
-def screenshot(rrd: str | os.PathLike[str], png: str | os.PathLike[str], *, window_size: str = "1280x800",
-               timeout_s: float = 90.0) -> Path:
-    """Render ``rrd`` with the real Rerun viewer, headless, into ``png``.
-
-    The recording is first compacted with ``rerun rrd optimize`` (a daemon's
-    recording has thousands of small chunks; the viewer takes its shot after a
-    few frames, before those are all loaded) and then piped to the viewer's
-    standard input.  Without
-    a GPU the viewer needs a Vulkan software rasteriser: on Debian/Ubuntu
-    ``apt-get install mesa-vulkan-drivers``.
-
-    Raises
-    ------
-    RuntimeError
-        If the viewer fails or writes no picture (the message says why and what to install).
-    """
-    import subprocess
-
-    out = Path(png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if out.exists():
-        out.unlink()
-    import tempfile
-
-    cmd = [rerun_cli(), "--headless", "--screenshot-to", str(out), "--window-size", window_size,
-           "--bind", "127.0.0.1", "-"]
-    with tempfile.TemporaryFile() as compact:
-        try:
-            opt = subprocess.run([rerun_cli(), "rrd", "optimize", str(rrd)], stdout=compact,
-                                 stderr=subprocess.PIPE, text=False, timeout=timeout_s)
-            if opt.returncode != 0:
-                raise RuntimeError(f"`rerun rrd optimize {rrd}` failed: {opt.stderr.decode(errors='replace')[-500:]}")
-            compact.seek(0)
-            proc = subprocess.run(cmd, stdin=compact, capture_output=True, text=True, timeout=timeout_s)
-        except subprocess.TimeoutExpired as exc:
-            raise RuntimeError(f"the Rerun viewer did not finish the screenshot within {timeout_s:.0f} s") from exc
-    if proc.returncode != 0 or not out.exists() or out.stat().st_size == 0:
-        tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-5:]
-        raise RuntimeError(
-            "the Rerun viewer could not render the screenshot (exit code "
-            f"{proc.returncode}); without a GPU it needs `apt-get install mesa-vulkan-drivers`. Viewer said: "
-            + " | ".join(tail)
-        )
-    return out
+    return render(rrd, png, connect=ViewerClient.connect, window_size=window_size, timeout_s=timeout_s,
+                  settle_s=settle_s)

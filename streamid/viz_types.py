@@ -16,7 +16,25 @@ import numpy as np
 
 from streamid.errors import ConfigError
 
-__all__ = ["VizSettings", "UpdateReport", "CorrelationCurve", "parse_rerun_url", "model_markdown", "fmt_metric"]
+__all__ = [
+    "VizSettings",
+    "UpdateReport",
+    "CorrelationCurve",
+    "parse_rerun_url",
+    "model_markdown",
+    "fmt_metric",
+    "TEST_LABELS",
+]
+
+#: The five residual correlation tests (Billings & Voon), by the engine's short names.
+TEST_LABELS = {
+    "ee": "φ_ξξ(τ)",
+    "ue": "φ_uξ(τ)",
+    "e_eu": "φ_ξ(ξu)(τ)",
+    "u2_e": "φ_(u²)'ξ(τ)",
+    "u2_e2": "φ_(u²)'ξ²(τ)",
+}
+_TEST_SHORT = {"ee": "ξξ", "ue": "uξ", "e_eu": "ξ(ξu)", "u2_e": "(u²)'ξ", "u2_e2": "(u²)'ξ²"}
 
 
 def parse_rerun_url(url: str) -> tuple[str, int]:
@@ -148,6 +166,7 @@ def fmt_metric(v: float | None) -> str:
 
 
 def model_markdown(r: UpdateReport) -> str:
+    """The newest model as Markdown: version, R², lags, and the share of lags inside each test's band."""
     lags = r.lags
     parts = [f"{r.output_name}(t−{', '.join(str(x) for x in lags.get('y', [])) or '·'})"]
     names = r.input_names or (r.input_name,)
@@ -155,17 +174,22 @@ def model_markdown(r: UpdateReport) -> str:
         nm = names[i] if i < len(names) else f"u{i}"
         parts.append(f"{nm}(t−{', '.join(str(x) for x in lu) or '·'})")
     m = r.metrics
-    fit = ""
-    if len(r.fitness):
-        fit = f" · best fitness (OSA MSE) {float(r.fitness[0]):.4g} → {float(r.fitness[-1]):.4g}"
-    return "\n".join(
-        [
-            f"**{r.stream}** v{r.version} · {'warm' if r.warm else 'cold'} · G={r.generations} · "
-            f"{r.identification_s:.2f} s{fit}{'' if r.accepted else ' · **rejected**'}",
-            "",
-            f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
-            f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})",
-            "",
-            "lags: " + " · ".join(parts),
-        ]
-    )
+    inside = []
+    for c in r.correlations:
+        v = np.abs(np.asarray(c.values, dtype=np.float64))
+        if v.size:
+            share = float(np.mean(v <= c.band))
+            mark = "**" if share < 0.95 else ""
+            inside.append(f"{_TEST_SHORT.get(c.name, c.name)} {mark}{share:.0%}{mark}")
+    lines = [
+        f"**{r.stream} v{r.version}** · {'warm' if r.warm else 'cold'} · G={r.generations} · "
+        f"{r.identification_s:.2f} s{'' if r.accepted else ' · **rejected**'}",
+        "",
+        f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
+        f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})",
+        "",
+        "lags: " + " · ".join(parts),
+    ]
+    if inside:
+        lines += ["", "inside ±95 %: " + " · ".join(inside)]
+    return "\n".join(lines)

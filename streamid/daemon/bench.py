@@ -12,6 +12,9 @@
 * **MR damper at max speed**: the real MR damper log put back to back; the
   published models' free-run validation R^2 against an offline cold run with
   the same settings on the same windows.
+* **load** (issue 6): eight 2 kHz streams plus the 20 kHz piezo log into one
+  ``streamid daemon`` process for 2 minutes (:mod:`streamid.daemon.load`):
+  samples lost, resident memory after warm-up, updates per stream.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np
 from streamid.benchkit import BenchOptions, Measurement
 from streamid.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
+from streamid.daemon.load import load_run, summary
 from streamid.daemon.service import Daemon
 from streamid.daemon.window import WindowBuffer
 from streamid.daemon.worker import identify_window
@@ -186,82 +190,6 @@ def realtime_run(seconds: float = 30.0, seed: int = 0, warm_generations: int = 3
     }
 
 
-def _multi_publish_main(ep: str, streams: int, rate_hz: float, seconds: float, batch: int, seed: int) -> None:
-    """Publisher process body: ``streams`` streams at ``rate_hz`` in real time (piezo physics, decimated)."""
-    from streamid.sim import get_device
-    from streamid.transport import Bus
-
-    dev = get_device("piezo")
-    step = max(1, round(1e9 / rate_hz / dev.period_ns))
-    period = dev.period_ns * step
-    sigs = []
-    for k in range(streams):
-        _, u, y = dev.simulate_seconds(min(seconds, 10.0), seed=seed + k)
-        sigs.append((u[::step].copy(), y[::step].copy()))
-    n = len(sigs[0][1]) // batch * batch
-    names = [f"load{k}" for k in range(streams)]
-    sent = dict.fromkeys(names, 0)
-    with Bus(ZenohSettings(connect=(ep,))) as bus:
-        pubs = [bus.publisher(f"streamid/{s}/samples", block=True) for s in names]
-        for p in pubs:
-            p.wait_for_subscribers(20.0)
-        t0 = time.perf_counter()
-        total = int(seconds * 1e9 / period) // batch
-        for j in range(total):
-            due = t0 + (j + 1) * batch * period / 1e9
-            now = time.perf_counter()
-            if due > now:
-                time.sleep(due - now)
-            i0 = (j * batch) % n
-            for name, pub, (u, y) in zip(names, pubs, sigs, strict=True):
-                b = SampleBatch(name, j, j * batch * period, period, None, {dev.input_name: u[i0 : i0 + batch]},
-                                {dev.output_name: y[i0 : i0 + batch]})
-                pub.put(encode(b))
-                sent[name] += batch
-        time.sleep(0.3)
-    print(json.dumps({"sent": sent, "seconds": time.perf_counter() - t0}), flush=True)
-
-
-def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, seed: int = 0,
-             workers: int = 2) -> dict[str, Any]:
-    """``streams`` streams at ``rate_hz`` plus the 20 kHz piezo log, all in real time, one daemon.
-
-    Reports per stream samples published vs ingested, versions and coalesced
-    windows, and the daemon's resident memory over the run.
-    """
-    ep = _free_endpoint()
-    cfg = DaemonConfig(defaults=StreamConfig(window_s=0.5, update_every_s=1.0, seed=seed), workers=workers)
-    daemon = Daemon(cfg, ZenohSettings(listen=(ep,))).start()
-    rss: list[tuple[float, float]] = []
-    try:
-        code = (f"from streamid.daemon.bench import _multi_publish_main; "
-                f"_multi_publish_main({ep!r}, {streams}, {rate_hz}, {seconds}, 100, {seed})")
-        multi = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
-        piezo = _replayer(ep, seconds)
-        t0 = time.monotonic()
-        while (multi.poll() is None or piezo.poll() is None) and time.monotonic() - t0 < seconds + 90:
-            time.sleep(1.0)
-            rss.append((time.monotonic() - t0, _rss_mb()))
-        mout, _ = multi.communicate(timeout=30)
-        pout, _ = piezo.communicate(timeout=30)
-        time.sleep(1.0)
-        status = {name: rt.status() for name, rt in daemon.streams.items()}
-    finally:
-        daemon.stop()
-    sent = json.loads(mout.strip().splitlines()[-1])["sent"]
-    sent["piezo"] = json.loads(pout.strip().splitlines()[-1])["samples"]
-    warm = [m for t, m in rss if t > 30.0]
-    return {
-        "per_stream": {
-            n: {"sent": sent.get(n), "ingested": st["samples_in"], "versions": st["version"],
-                "windows": st["windows"], "bad_total": st["bad_total"], "degraded": st["degraded"]}
-            for n, st in status.items()
-        },
-        "rss_mb": rss,
-        "rss_after_warmup_min_max": (min(warm), max(warm)) if warm else None,
-    }
-
-
 def _windows(device: str, seconds: float, cfg: StreamConfig, seed: int) -> list[Any]:
     from streamid.sim import get_device
 
@@ -366,6 +294,19 @@ def bench(options: BenchOptions) -> Iterable[Measurement]:
     yield Measurement(SECTION, f"piezo warm G={cw['warm_generations']}", "update time", "s", tuple(cw["warm_s"]))
     yield Measurement(SECTION, f"piezo cold G={cw['cold_generations']}", "R2 FR val", "", tuple(cw["cold_r2_fr_val"]))
     yield Measurement(SECTION, f"piezo warm G={cw['warm_generations']}", "R2 FR val", "", tuple(cw["warm_r2_fr_val"]))
+    secs = 20.0 if options.quick else 120.0
+    lr = load_run(secs, seed=options.seed)
+    ls = summary(lr, min(30.0, secs / 4))
+    case = f"load: 8 x 2 kHz + piezo 20 kHz, {secs:g} s"
+    yield Measurement(SECTION, case, "samples lost", "count", (float(ls["samples_lost"]),),
+                      f"of {ls['samples_sent']} sent, publisher max late {ls['publisher_max_late_s']:.3f} s")
+    lo, hi = ls["rss_after_warmup_mb"]
+    yield Measurement(SECTION, case, "daemon RSS after warm-up", "MB", (lo, hi),
+                      f"spread {100 * ls['rss_spread']:.1f} %, peak (VmHWM) {ls['hwm_mb']:.1f} MB")
+    yield Measurement(SECTION, case, "models per stream", "count", tuple(float(v) for v in ls["versions"].values()),
+                      f"one window per second; coalesced {sorted(set(ls['coalesced'].values()))}")
+    yield Measurement(SECTION, case, "longest time without a model", "s",
+                      tuple(ls["longest_without_model_s"].values()), "per stream, after warm-up")
     if not options.quick:
         mr = mr_damper_max_speed(options.seed)
         yield Measurement(SECTION, "MR damper log, max speed", "R2 FR val online", "", tuple(mr["online_r2_fr_val"]),
@@ -393,8 +334,9 @@ def _main(argv: list[str]) -> int:
     elif what == "mr":
         print(json.dumps(mr_damper_max_speed()))
     elif what == "load":
-        r = load_run(float(argv[1]) if len(argv) > 1 else 120.0)
-        print(json.dumps({k: v for k, v in r.items() if k != "rss_mb"}, indent=1))
+        secs = float(argv[1]) if len(argv) > 1 else 120.0
+        r = load_run(secs)
+        print(json.dumps({**summary(r, min(30.0, secs / 4)), "smaps": r["smaps"]}, indent=1))
         print("rss_mb:", [round(m, 1) for _, m in r["rss_mb"][:: max(1, len(r["rss_mb"]) // 24)]])
     return 0
 

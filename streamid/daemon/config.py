@@ -9,6 +9,7 @@ A configuration file is optional: every setting has an embedded default, so
     max_streams = 64
     status_every_s = 1.0
     workers = 1
+    retain_memory = true      # keep freed working memory for reuse: flat RSS (glibc)
 
     [defaults]                # per-stream settings applied to every stream
     window_s = 10.0
@@ -115,6 +116,11 @@ class StreamConfig:
                 raise ConfigError(f"{name} must be an integer >= 1; got {getattr(self, name)!r}")
         if self.cold_after_failures < 1:
             raise ConfigError(f"cold_after_failures must be an integer >= 1; got {self.cold_after_failures!r}")
+        if self.seed < 0:  # numpy seeds are non-negative: every update would fail
+            raise ConfigError(f"seed must be an integer >= 0; got {self.seed!r}")
+        for name in ("min_r2_osa", "min_r2_fr"):  # R^2 never exceeds 1: no model could ever be published
+            if not getattr(self, name) <= 1.0:
+                raise ConfigError(f"{name} must be a number <= 1 (R^2 never exceeds 1); got {getattr(self, name)!r}")
 
     def window_params(self) -> WindowParams:
         """The window geometry of this stream."""
@@ -168,6 +174,11 @@ class DaemonConfig:
         Period of the status messages.
     workers
         Identification worker threads.
+    retain_memory
+        Let the C allocator keep and reuse freed working memory (one arena,
+        fixed thresholds; see :mod:`streamid.daemon.memory`), so the resident
+        set stays flat instead of swinging with every identification.
+        Process-wide; applied at start.
     defaults
         Settings of every stream.
     overrides
@@ -179,6 +190,7 @@ class DaemonConfig:
     max_streams: int = 64
     status_every_s: float = 1.0
     workers: int = 1
+    retain_memory: bool = True
     defaults: StreamConfig = field(default_factory=StreamConfig)
     overrides: tuple[tuple[str, StreamConfig], ...] = ()
 
@@ -239,6 +251,7 @@ _DAEMON_KEYS: dict[str, tuple[str, str]] = {
     "max_streams": ("int", "an integer in [1, 100000]"),
     "status_every_s": ("float", "a number of seconds in [0.01, 3600]"),
     "workers": ("int", "an integer in [1, 64]"),
+    "retain_memory": ("bool", "true or false"),
 }
 _TOP_KEYS = ("daemon", "defaults", "streams")
 

@@ -173,6 +173,7 @@ class StreamRuntime:
                 "batches_in": c.get("batches_in", 0),
                 "bad": c["bad"],
                 "bad_total": c["bad_total"],
+                "last_bad": c.get("last_bad") or None,
                 "windows": {
                     "closed": c.get("windows_closed", 0),
                     "emitted": c.get("windows_emitted", 0),

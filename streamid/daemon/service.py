@@ -26,12 +26,14 @@ import threading
 import time
 import traceback
 from collections import Counter, deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from streamid.codec import decode
 from streamid.daemon.config import DaemonConfig
 from streamid.daemon.messages import encode_json
+from streamid.daemon.memory import retain_freed_memory
 from streamid.daemon.runtime import StreamRuntime
 from streamid.daemon.state import StateStore
 from streamid.daemon.worker import Outcome, Stopped, identify_window
@@ -60,6 +62,10 @@ class Daemon:
         Where models and populations are saved (None: nowhere).
     identify
         False: ingest and window only, never identify (ingestion benchmarks).
+    on_generation
+        Called by the workers after every generation as ``(stream, progress)``;
+        an exception it raises fails that identification like an engine error
+        (progress reporting, and the fault-injection tests).
     """
 
     def __init__(
@@ -70,6 +76,7 @@ class Daemon:
         viz: Any | None = None,
         state_dir: str | Path | None = None,
         identify: bool = True,
+        on_generation: Callable[[str, Any], None] | None = None,
     ) -> None:
         self.config = config
         self.zenoh = zenoh
@@ -77,6 +84,7 @@ class Daemon:
         self.store = StateStore(state_dir) if state_dir is not None else None
         self.bus: Bus | None = None
         self.identify = identify
+        self.on_generation = on_generation
         self._streams: dict[str, StreamRuntime] = {}
         self._streams_lock = threading.Lock()
         self._stop = threading.Event()
@@ -89,12 +97,13 @@ class Daemon:
         self._global: Counter[str] = Counter()
         self._warned: set[str] = set()
         self._started_ns = 0
-        self._viz_spans: dict[str, float] = {}
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Daemon:
         """Open the Zenoh session, restore saved streams, subscribe and start the threads."""
         self._started_ns = time.time_ns()
+        if self.config.retain_memory:  # before any thread of ours allocates (see streamid.daemon.memory)
+            retain_freed_memory()
         names = list(self.config.streams)
         if self.store is not None:
             for s in self.store.streams():
@@ -118,6 +127,8 @@ class Daemon:
             self._spawn(self._worker_loop, f"streamid-worker-{i}")
         self._spawn(self._housekeeping_loop, "streamid-housekeeping")
         if self.viz is not None:
+            for s in names:  # one tab per stream, in the configured order
+                self.viz.add_stream(s)
             self.viz.log_event(None, f"daemon started: streams {names or '(discovering)'}")
         _log.info("daemon started; streams %s; discovery %s", names, "on" if self.config.discover else "off")
         return self
@@ -320,6 +331,7 @@ class Daemon:
                 warm_signature=rt.signature,
                 force_cold=rt.force_cold,
                 stop=self._stop,
+                on_generation=self.on_generation,
             )
         except Stopped:
             raise
@@ -347,10 +359,7 @@ class Daemon:
     def _draw(self, rt: StreamRuntime, window: Any, out: Outcome, version: int, latency_s: float | None) -> None:
         from streamid.daemon.report import update_report  # viz types only when drawing
 
-        span = window.n * window.period_ns * rt.cfg.validation_fraction / 1e9
-        if self._viz_spans.get(rt.name) != span:
-            self._viz_spans[rt.name] = span
-            self.viz.add_stream(rt.name, validation_span_s=span)
+        self.viz.add_stream(rt.name)  # idempotent: a discovered stream gets its tab at its first update
         if out.summary is None:
             self.viz.log_event(rt.name, f"window {window.number} {out.kind}: {out.reason}", level="WARN",
                                t_ns=window.t_end_ns)

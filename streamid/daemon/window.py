@@ -17,14 +17,17 @@ column holds it.  Faults are detected on that grid and never used across:
 * a forward jump in time (publisher stopped, batches lost) is a *gap*: the
   window restarts after it, no stale window spans it;
 * a batch entirely before the expected position is a *duplicate* (its sequence
-  number was seen recently) or *out of order*, and is dropped; a partial overlap
-  is trimmed;
+  number was seen recently at that very time, however long ago it was in the
+  ring) or *out of order*, and is dropped; a partial overlap is trimmed;
 * a jump back further than the ring holds is a *restart* of the publisher's
   clock: the stream restarts from it;
 * a different ``period_ns`` or a different set of signal names resets the
   stream (a new *epoch*: warm starts across it are meaningless);
 * non-finite values, values beyond ``max_abs_value``, bad periods and batches
-  with non-increasing explicit timestamps are refused and counted.
+  with non-increasing explicit timestamps are refused and counted;
+* a period that differs from the one another live source (u vs y) still sends
+  is refused (``period_mismatch``) until every live source agrees on it, so u
+  and y on different sample clocks never make the stream reset back and forth.
 
 Nothing here raises on bad data: every refusal increments a counter in
 :attr:`WindowBuffer.counters` and appends a bounded event.
@@ -54,6 +57,7 @@ __all__ = ["DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "BatchLike", "Event", "Window", 
 _RECENT_SEQS = 64
 _RESTART = -1
 _EVENTS_MAX = 256
+_LIVE_BATCHES = 64  # a source that sent nothing in this many batches no longer vetoes a period change
 
 
 class WindowBuffer:
@@ -101,7 +105,10 @@ class WindowBuffer:
         self._coalesced_since = 0
         self._src_expect: dict[str, int] = {}
         self._src_seq: dict[str, int] = {}
-        self._src_recent: dict[str, deque[int]] = {}
+        self._src_recent: dict[str, deque[tuple[int, int]]] = {}  # (seq, first grid index) of recent batches
+        self._src_live: dict[str, int] = {}  # source -> batches_in at its last batch on the current period
+        self._src_vote: dict[str, int] = {}  # source -> the other period it sends
+        self._last_bad: dict[str, object] = {}
         self._pending: Window | None = None
         self._last_t_ns: int | None = None
 
@@ -145,6 +152,7 @@ class WindowBuffer:
             out["inputs"] = list(self._inputs)
             out["outputs"] = list(self._outputs)
             out["last_t_ns"] = self._last_t_ns
+            out["last_bad"] = dict(self._last_bad)
             return out
 
     def drain_events(self) -> list[Event]:
@@ -181,7 +189,25 @@ class WindowBuffer:
 
     def _bad_locked(self, kind: str, message: str) -> None:
         self._bad[kind] += 1
+        self._last_bad = {"kind": kind, "message": message or kind, "unix_ns": time.time_ns()}
         self._event(f"bad.{kind}", message or kind)
+
+    def _period_conflict(self, source: str, period: int, seq: int) -> bool:
+        """Whether another live source still sends the current period (then the batch is refused)."""
+        now = self._counts["batches_in"]
+        self._src_vote[source] = period
+        others = sorted(
+            s for s, at in self._src_live.items()
+            if s != source and now - at <= _LIVE_BATCHES and self._src_vote.get(s) != period
+        )
+        if not others:
+            return False
+        self._bad_locked(
+            "period_mismatch",
+            f"{source} batch seq {seq} has period_ns={period} but {', '.join(others)} batches have period_ns="
+            f"{self._period}; u and y must share one sample clock (refused until every source agrees)",
+        )
+        return True
 
     def _complete(self) -> int:
         return min(self._heads) if self._heads else 0
@@ -192,6 +218,7 @@ class WindowBuffer:
         names: list[str] = []
         arrays: list[np.ndarray] = []
         layout_changed = False
+        changes: list[str] = []
         for part, fixed, attr in ((b_in, self._fixed_in, "_inputs"), (b_out, self._fixed_out, "_outputs")):
             if not part:
                 continue
@@ -206,8 +233,7 @@ class WindowBuffer:
                 current = getattr(self, attr)
                 if set(chosen) != set(current):
                     if current:
-                        self._resets["schema"] += 1
-                        self._event("reset.schema", f"signals changed from {list(current)} to {list(chosen)}")
+                        changes.append(f"{list(current)} to {list(chosen)}")
                     setattr(self, attr, chosen)
                     layout_changed = True
                 else:
@@ -215,6 +241,9 @@ class WindowBuffer:
             for s in chosen:
                 names.append(s)
                 arrays.append(part[s])
+        if changes:  # one reset per batch, however many of its signal sets changed
+            self._resets["schema"] += 1
+            self._event("reset.schema", f"signals changed from {' and '.join(changes)}")
         if layout_changed:
             self._realloc()
         return names, arrays
@@ -299,14 +328,21 @@ class WindowBuffer:
                         "magnitude", f"signal {s!r} reaches {max(abs(hi), abs(lo)):.3g}, beyond max_abs_value={lim:g}"
                     )
                 return 0
+        if period != self._period and self._period is not None and self._period_conflict(source, period, batch.seq):
+            return 0
         if period != self._period:
             if self._period is not None:
                 self._event("reset.period", f"sample period changed from {self._period} ns to {period} ns")
                 self._resets["period"] += 1
             self._period = period
+            # the sources that asked for this period are live on it; the others stopped
+            self._src_live = {s: at for s, at in self._src_live.items() if self._src_vote.get(s) == period}
+            self._src_vote.clear()
             self._realloc()
         elif not self._heads:
             self._realloc()
+        self._src_live[source] = self._counts["batches_in"]
+        self._src_vote.pop(source, None)
         t0 = int(batch.t0_ns)
         if self._anchor is None:
             self._anchor = t0 if batch.t_ns is None else int(batch.t_ns[0])
@@ -349,21 +385,24 @@ class WindowBuffer:
     ) -> int:
         exp = self._src_expect.get(source)
         recent = self._src_recent.get(source)
+        k_first = k0
         if exp is not None and first:
             last = self._src_seq.get(source)
-            if last is not None and seq != last + 1 and seq not in recent:  # type: ignore[operator]
+            if last is not None and seq != last + 1 and all(q != seq for q, _ in recent or ()):
                 self._counts["seq_jumps"] += 1
             if k0 > exp:
                 self._counts["gaps"] += 1
                 self._counts["gap_samples"] += k0 - exp
                 self._event("gap", f"{source}: {k0 - exp} samples missing before batch seq {seq}")
             elif k0 < exp:
+                if recent is not None and (seq, k0) in recent:  # the same batch again, however old
+                    self._bad_locked("duplicate", f"{source}: batch seq {seq} was already received")
+                    return 0
                 if k0 + n <= exp - self._cap:
                     self._full_reset("restart", f"{source}: time went back {exp - k0} samples (publisher restarted?)")
                     return _RESTART
                 if k0 + n <= exp:
-                    kind = "duplicate" if recent is not None and seq in recent else "out_of_order"
-                    self._bad_locked(kind, f"{source}: batch seq {seq} lies before the expected position")
+                    self._bad_locked("out_of_order", f"{source}: batch seq {seq} lies before the expected position")
                     return 0
                 else:
                     self._counts["overlap_samples"] += exp - k0
@@ -378,7 +417,7 @@ class WindowBuffer:
         if recent is None:
             recent = self._src_recent[source] = deque(maxlen=_RECENT_SEQS)
         if first:
-            recent.append(seq)
+            recent.append((seq, k_first))
         return self._write(k0, off, n, names, arrays)
 
     def _write(self, a: int, off: int, n: int, names: list[str], arrays: list[np.ndarray]) -> int:

@@ -10,6 +10,10 @@ failed identification: those are outcomes (``dropped``, ``failed``,
 ``rejected``), counted by the service, which keeps the previous model.
 
 It stops between two generations when ``stop`` is set (SIGINT/SIGTERM).
+``on_generation(stream, progress)``, when given, is called after every
+generation with the engine's :class:`~streamid.engine.coevolution.Progress`;
+an exception it raises aborts that identification exactly as an engine error
+would (the fault-injection tests use it to make real identifications fail).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import threading
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,6 +34,11 @@ from streamid.engine import CoEAState, Coevolution, Model
 from streamid.errors import StreamidError
 
 __all__ = ["Outcome", "Stopped", "identify_window", "signature_of", "rng_for"]
+
+
+#: Smallest range (max - min) of a signal over a window part: the correlation tests use fourth powers of
+#: the signals, which underflow float64 below about 1e-77; below this the window is dropped, not identified.
+MIN_SPAN = 1e-60
 
 
 class Stopped(Exception):
@@ -103,6 +113,7 @@ def identify_window(
     warm_signature: dict[str, Any] | None = None,
     force_cold: bool = False,
     stop: threading.Event | None = None,
+    on_generation: Callable[[str, Any], None] | None = None,
 ) -> Outcome:
     """Identify ``window``; ``version`` is the version the model would get.
 
@@ -144,17 +155,18 @@ def identify_window(
             **common,
         )
     u_est, y_est, u_val, y_val = u[:n_est], y[:n_est], u[n_est:], y[n_est:]
-    for name, a in [(f"input {s!r}", u_est[:, i]) for i, s in enumerate(window.input_names)] + [
-        (f"output {out_name!r}", y_est)
+    for name, part, a in [(f"input {s!r}", "estimation", u_est[:, i]) for i, s in enumerate(window.input_names)] + [
+        (f"output {out_name!r}", "estimation", y_est), (f"output {out_name!r}", "validation", y_val)
     ]:
-        if not a.max() > a.min():
-            return Outcome(
-                "dropped",
-                f"{name} is constant over the estimation part ({a[0]:g}): zero range, no normalisation "
-                "possible; waiting for a window with excitation",
-                "constant_signal",
-                **common,
-            )
+        span = float(a.max() - a.min())
+        if not span > 0.0:
+            why = f"{name} is constant over the {part} part ({a[0]:g}): zero range"
+        elif not span >= MIN_SPAN:  # fourth powers (correlation tests) would underflow float64
+            why = f"{name} spans only {span:.3g} over the {part} part, less than {MIN_SPAN:g}: too small for float64"
+        else:
+            continue
+        return Outcome("dropped", f"{why}, no normalisation possible; waiting for a window with excitation",
+                       "constant_signal", **common)
     sig = signature_of(window, cfg, out_name)
     warm = warm_state is not None and not force_cold and warm_signature == sig
     engine_cfg = cfg.coea_config(cold=not warm)
@@ -169,9 +181,11 @@ def identify_window(
     except StreamidError as exc:
         return Outcome("failed", f"identification could not start: {exc}", "engine_error", signature=sig, **common)
     try:
-        for _ in co:
+        for progress in co:
             if stop is not None and stop.is_set():
                 raise Stopped
+            if on_generation is not None:
+                on_generation(window.stream, progress)
         model = co.best_model()
         state = co.state()
     except Stopped:

@@ -1,0 +1,77 @@
+"""Flat resident memory: let the C allocator keep and reuse the identifications' working memory.
+
+Why.  Every identification builds its working buffers afresh and frees them at
+its end: for a 0.5 s window of the 20 kHz piezo stream (7,000 estimation
+samples) the engine's batched population evaluation alone takes ~40 MB (feature
+table P x (D + 2) x n and activations P x (M + 1) x n, measured with
+``tracemalloc``: Python-level memory is otherwise flat at ~12 MB, nothing
+leaks).  With glibc's defaults each worker thread gets its own malloc arena and
+the mmap/trim thresholds adapt to the allocation history, so after an update
+those pages are sometimes returned to the kernel and sometimes kept -- in one or
+two arenas, depending on which worker ran the big stream last.  The resident
+set of the 8 x 2 kHz + 20 kHz load therefore jumped between ~90, ~135 and
+~175 MB from one second to the next although nothing grew.
+
+What.  :func:`retain_freed_memory` (glibc only; a no-op elsewhere) sets, with
+``mallopt``:
+
+* ``M_ARENA_MAX = 1``: every thread allocates from the main arena, so the
+  working memory freed by one worker is what the next identification reuses,
+  whichever worker runs it (Zenoh's and Python's small allocations go through
+  glibc's per-thread caches first; ingestion speed was measured unchanged);
+* ``M_MMAP_THRESHOLD = 64 MiB`` and ``M_TRIM_THRESHOLD = 1 GiB`` (which also
+  turn the adaptive thresholds off): buffers below 64 MiB come from the heap
+  and freed heap memory is kept for reuse instead of being unmapped and faulted
+  in again at the next update.
+
+The resident set then sits at the high-water mark of the working memory
+(measured flat within 1 % over 2 minutes of that load, see
+``docs/reliability.md``).  Buffers above 64 MiB (windows of ~100k samples)
+are still mapped and unmapped per update.  The settings are process-wide:
+:class:`~streamid.daemon.service.Daemon` applies them at start unless
+``[daemon] retain_memory = false``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import platform
+
+__all__ = ["retain_freed_memory", "MMAP_THRESHOLD", "TRIM_THRESHOLD"]
+
+_log = logging.getLogger(__name__)
+
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+_M_ARENA_MAX = -8
+#: allocations below this come from the heap (and are reused once freed)
+MMAP_THRESHOLD = 64 << 20
+#: free heap memory kept before any is returned to the kernel
+TRIM_THRESHOLD = 1 << 30
+
+
+def retain_freed_memory() -> bool:
+    """Make glibc keep and reuse freed working memory (one arena, fixed thresholds).
+
+    Returns
+    -------
+    bool
+        Whether the settings were applied (False on other C libraries, or if
+        ``mallopt`` refused one of them).
+    """
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    ok = all(
+        mallopt(param, value) == 1
+        for param, value in ((_M_ARENA_MAX, 1), (_M_MMAP_THRESHOLD, MMAP_THRESHOLD), (_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
+    )
+    if not ok:
+        _log.info("mallopt refused a setting: resident memory may swing with each identification")
+    return ok
