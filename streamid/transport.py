@@ -390,6 +390,22 @@ class Bus:
         self._keep(qbl)
         return _Handle(qbl)
 
+    def wait_connected(self, timeout_s: float) -> bool:
+        """Wait until this session has a link to at least one peer or router.
+
+        A session that connects to an endpoint opens at once and links in the
+        background; anything published before the link is up is not seen here.
+        Returns whether a link exists (``False`` after ``timeout_s``).
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            info = self._session.info
+            if list(info.peers_zid()) or list(info.routers_zid()):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+
     def get(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
         """Query ``key_expr``; return the successful replies as ``(key, payload)``.
 

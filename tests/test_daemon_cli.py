@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import threading
 import sys
 import time
 from pathlib import Path
@@ -68,6 +69,12 @@ def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
     watch = subprocess.Popen([*STREAMID, "watch", "--connect", ep, "--stream", "mr_damper", "--count", "2",
                               "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
+        # watch says so once its subscription is declared: replay only then, or it may first see v2+
+        ready: list[str] = []
+        reader = threading.Thread(target=lambda: ready.append(watch.stderr.readline()), daemon=True)
+        reader.start()
+        reader.join(timeout=30)
+        assert ready and "waiting for models" in ready[0], ready
         replay(ep)
         last = wait_version(ep, 3)
         assert last >= 3

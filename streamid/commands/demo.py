@@ -136,7 +136,7 @@ def _line(t0: float, up: Any) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from streamid.client import ModelSubscriber, latest_status
-    from streamid.transport import ZenohSettings
+    from streamid.transport import Bus, ZenohSettings
 
     if args.loops is not None and args.loops < 1:
         raise ConfigError(f"--loops must be a whole number >= 1, got {args.loops}")
@@ -188,7 +188,8 @@ def run(args: argparse.Namespace) -> int:
     statuses: dict[str, Any] = {}
     try:
         _wait_listening(port, daemon, 30.0)
-        with ModelSubscriber(client, "*", on_update, fetch_latest=False):
+        with Bus(client) as bus, ModelSubscriber(bus, "*", on_update, fetch_latest=False):
+            bus.wait_connected(10.0)  # so that no early model is published before we listen
             for s in streams:
                 replays.append(subprocess.Popen(
                     [*py, "replay", s.log, "--connect", ep, "--rate", str(s.rate), "--loop", str(s.loops),
@@ -203,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
             while time.monotonic() < settle:
                 time.sleep(0.25)
             for s in streams:
-                statuses[s.stream] = latest_status(client, s.stream, timeout_s=2.0)
+                statuses[s.stream] = latest_status(bus, s.stream, timeout_s=2.0)
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
     finally:

@@ -102,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with Bus(settings_from_args(args)) as bus:
+            if not bus.wait_connected(5.0):
+                print("streamid watch: no daemon or router reachable yet; still trying", file=sys.stderr, flush=True)
             skey = f"{PREFIX}/*/status" if args.stream == "*" else status_key(args.stream)
             bus.subscribe(skey, on_status)
             with ModelSubscriber(bus, args.stream, on_update) as sub:
