@@ -37,3 +37,16 @@ def test_every_command_in_the_table_exists() -> None:
     assert named, "no commands found in the README's table"
     assert named <= set(sub.choices), f"README names commands that do not exist: {named - set(sub.choices)}"
     assert set(sub.choices) <= named, f"commands missing from the README: {set(sub.choices) - named}"
+
+
+def test_configuration_example_is_accepted_by_the_daemon() -> None:
+    import tomllib
+
+    from streamid.daemon.config import config_from_mapping
+
+    text = README.read_text(encoding="utf-8")
+    start = text.index("## Configuration")
+    m = re.search(r"```toml\n(.*?)```", text[start:], re.S)
+    assert m, "no toml block in the Configuration section"
+    cfg = config_from_mapping(tomllib.loads(m.group(1)), "README.md")
+    assert cfg is not None
