@@ -4,35 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 from streamid.errors import ConfigError
 from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags, settings_from_args
+from streamid.signals import stop_on_signals
 
-__all__ = ["register_record", "register_simulate", "run_record", "run_simulate", "stop_on_signals"]
-
-
-@contextmanager
-def stop_on_signals(event: threading.Event) -> Iterator[None]:
-    """Set ``event`` on SIGINT/SIGTERM while inside the block (main thread only)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {}
-
-    def _handler(signum: int, frame: object) -> None:
-        event.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        previous[sig] = signal.signal(sig, _handler)
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
+__all__ = ["register_record", "register_simulate", "run_record", "run_simulate"]
 
 
 def register_record(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 from streamid.errors import ConfigError
 from streamid.mcaplog import bundled_log, bundled_logs
 from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags, settings_from_args
+from streamid.signals import stop_on_signals
 
 __all__ = ["register", "run", "resolve_log"]
 
@@ -24,26 +22,6 @@ def resolve_log(name: str) -> Path:
     if not path.exists() and stem in bundled_logs():
         return bundled_log(stem)
     return path
-
-
-@contextmanager
-def stop_on_signals(event: threading.Event) -> Iterator[None]:
-    """Set ``event`` on SIGINT/SIGTERM while inside the block (main thread only)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {}
-
-    def _handler(signum: int, frame: object) -> None:
-        event.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        previous[sig] = signal.signal(sig, _handler)
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

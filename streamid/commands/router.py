@@ -17,10 +17,10 @@ control (``examples/zenoh/router.json5``).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 
+from streamid.signals import stop_on_signals
 from streamid.transport import DEFAULT_ENDPOINT, Bus, add_connection_flags, settings_from_args
 
 
@@ -39,9 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    with Bus(settings):
+    with stop_on_signals(stop), Bus(settings):
         where = ", ".join(settings.listen) or "the --zenoh-config file's endpoints"
         print(f"streamid router: {settings.mode or 'configured'} mode, listening on {where}; Ctrl-C stops",
               file=sys.stderr, flush=True)
