@@ -116,20 +116,29 @@ def test_rrd_file_holds_every_diagnostic_and_verifies(tmp_path: Path) -> None:
 
 
 def _blueprint_rows(rrd: Path) -> dict[str, dict[str, object]]:
-    """The newest blueprint of ``rrd``: entity path -> {component: value}."""
+    """The fullest blueprint of ``rrd``: entity path -> {component: value}.
+
+    The daemon sends a new blueprint when a stream is added, each in its own
+    store with a random id, so ``RrdReader.blueprints()`` does not list them in
+    sending order; the newest one is the one laying out the most containers and views.
+    """
     from rerun.chunk import RrdReader
 
     reader = RrdReader(rrd)
-    out: dict[str, dict[str, object]] = {}
-    for c in reader.stream(store=reader.blueprints()[-1]).to_chunks():
-        rb = c.to_record_batch()
-        for name in rb.schema.names:
-            if ":" in name:
-                col = [v for v in rb.column(name).to_pylist() if v is not None]
-                if col:  # a batch of one value is that value
-                    v = col[-1]
-                    out.setdefault(c.entity_path, {})[name] = v[0] if isinstance(v, list) and len(v) == 1 else v
-    return out
+    best: dict[str, dict[str, object]] = {}
+    for store in reader.blueprints():
+        out: dict[str, dict[str, object]] = {}
+        for c in reader.stream(store=store).to_chunks():
+            rb = c.to_record_batch()
+            for name in rb.schema.names:
+                if ":" in name:
+                    col = [v for v in rb.column(name).to_pylist() if v is not None]
+                    if col:  # a batch of one value is that value
+                        v = col[-1]
+                        out.setdefault(c.entity_path, {})[name] = v[0] if isinstance(v, list) and len(v) == 1 else v
+        if len(out) > len(best):
+            best = out
+    return best
 
 
 def test_blueprint_shows_each_streams_newest_update_wherever_the_cursor_is(tmp_path: Path) -> None:
