@@ -1,5 +1,3 @@
-import sys
+from streamid.cli import console_main
 
-from streamid.cli import main
-
-sys.exit(main())
+console_main()

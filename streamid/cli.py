@@ -11,6 +11,7 @@ data flows one way, and those packages depend on streamid, not the reverse.
 from __future__ import annotations
 
 import argparse
+import os
 import importlib
 import sys
 from collections.abc import Sequence
@@ -72,3 +73,27 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+def console_main() -> None:
+    """Entry point of the ``streamid`` command and of ``python -m streamid``.
+
+    Runs :func:`main`, flushes standard output and error, and leaves with
+    ``os._exit``: by then every command has closed its Zenoh sessions and
+    flushed its files, and skipping interpreter finalisation avoids a race in
+    which a Zenoh runtime thread, still releasing a Python callback, tries to
+    take the GIL while the interpreter is being torn down (the process then
+    aborts with "FATAL: exception not rethrown", seen once in CI).
+    """
+    try:
+        rc = main()
+    except SystemExit as exc:  # argparse --help / usage errors
+        rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+        if exc.code is not None and not isinstance(exc.code, int):
+            print(exc.code, file=sys.stderr)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(rc)
