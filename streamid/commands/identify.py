@@ -30,6 +30,7 @@ from streamid.dataset import Dataset, load_dataset
 from streamid.engine.config import DEFAULT, PAPER, SELECTIONS, CoEAConfig
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
+from streamid.engine.parallel import EvalHelper
 from streamid.engine.validation import validate
 from streamid.errors import ConfigError
 
@@ -114,7 +115,7 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         raise ConfigError(f"{exc} (check the command-line options)") from None
 
 
-def _one(job: dict[str, Any]) -> dict[str, Any]:
+def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One identification + validation (also a worker process's body); JSON-able result."""
     ds: Dataset = job["dataset"]
     cfg = CoEAConfig.from_dict(job["config"])
@@ -127,6 +128,7 @@ def _one(job: dict[str, Any]) -> dict[str, Any]:
         input_names=ds.input_names,
         output_name=ds.output_name,
         window=ds.window(),
+        helper=helper,
     )
     rep = validate(res.model, ds.u_est, ds.y_est, ds.u_val, ds.y_val)
     model = res.model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
@@ -169,20 +171,28 @@ class _Bar:
 
 
 def identify_runs(
-    ds: Dataset, cfg: CoEAConfig, seeds: list[int], workers: int, bar: _Bar | None = None
+    ds: Dataset,
+    cfg: CoEAConfig,
+    seeds: list[int],
+    workers: int,
+    bar: _Bar | None = None,
+    helper: EvalHelper | None = None,
 ) -> list[dict[str, Any]]:
-    """Run one identification per seed (over ``workers`` processes when several) and validate each."""
+    """Run one identification per seed (over ``workers`` processes when several) and validate each.
+
+    ``helper`` (an :class:`EvalHelper`) is used by the runs made in this process.
+    """
     jobs = [{"dataset": ds, "config": cfg.to_dict(), "seed": s} for s in seeds]
     if len(jobs) == 1:
         if bar is not None:
             jobs[0]["callback"] = lambda p: bar.update(
                 p.generation, p.generations, f"{p.evaluations} evaluations, best fitness {p.best_fitness:.5g}"
             )
-        return [_one(jobs[0])]
+        return [_one(jobs[0], helper)]
     out: list[dict[str, Any]] = []
     if workers <= 1:
         for j in jobs:
-            out.append(_one(j))
+            out.append(_one(j, helper))
             if bar is not None:
                 bar.update(len(out), len(jobs), f"run {len(out)}/{len(jobs)}")
         return out
@@ -267,16 +277,25 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     cfg = _config(args)
-    ds = load_dataset(
-        args.data, list(args.input), args.output, est=args.est, est_fraction=args.est_fraction, stream=args.stream
-    )
-    show = args.progress == "always" or (args.progress == "auto" and sys.stderr.isatty())
-    bar = _Bar(sys.stderr, show, "identify")
-    seeds = list(range(args.seed, args.seed + args.runs))
+    # The runs go to a pool of `--workers` processes when there are several; otherwise (one run
+    # of one coevolution, or --workers 1) they are made here, and with a second process
+    # allowed an EvalHelper evaluates half of every batch (started now, while the data load).
+    in_process = (args.runs == 1 and (cfg.restarts == 1 or cfg.workers <= 1)) or args.workers <= 1
+    helper = EvalHelper(wait=False) if (args.workers >= 2 and in_process and EvalHelper.supported()) else None
     try:
-        runs = identify_runs(ds, cfg, seeds, args.workers, bar)
+        ds = load_dataset(
+            args.data, list(args.input), args.output, est=args.est, est_fraction=args.est_fraction, stream=args.stream
+        )
+        show = args.progress == "always" or (args.progress == "auto" and sys.stderr.isatty())
+        bar = _Bar(sys.stderr, show, "identify")
+        seeds = list(range(args.seed, args.seed + args.runs))
+        try:
+            runs = identify_runs(ds, cfg, seeds, args.workers, bar, helper)
+        finally:
+            bar.close()
     finally:
-        bar.close()
+        if helper is not None:
+            helper.close()
     best = _best_index(runs, cfg)
     wall = time.perf_counter() - t0
     _print_report(sys.stdout, ds, cfg, runs, best, wall)

@@ -28,6 +28,7 @@ import numpy as np
 
 from streamid.engine.config import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.identify import identify
+from streamid.engine.parallel import EvalHelper
 from streamid.engine.validation import prediction_r2
 
 __all__ = [
@@ -80,6 +81,7 @@ def reactor_lags_ok(lags: dict[str, Any]) -> bool:
 
 
 def _case(cfg: CoEAConfig, seed: int, data: tuple[np.ndarray, ...], **kw: Any) -> dict[str, Any]:
+    """One identification (``kw`` to :func:`identify`) timed, validated on the held-out data."""
     ue, ye, uv, yv = data
     t0 = time.perf_counter()
     res = identify(ue, ye, cfg, seed, **kw)
@@ -99,9 +101,12 @@ def _case(cfg: CoEAConfig, seed: int, data: tuple[np.ndarray, ...], **kw: Any) -
     }
 
 
-def reactor_case(seed: int) -> dict[str, Any]:
-    """The paper's reactor identification (one run, G=400, M=10, L=10) on simulated 480 + 480 samples."""
-    out = _case(REACTOR_CONFIG, seed, reactor_data(seed))
+def reactor_case(seed: int, helper: EvalHelper | None = None) -> dict[str, Any]:
+    """The paper's reactor identification (one run, G=400, M=10, L=10) on simulated 480 + 480 samples.
+
+    With ``helper`` (a started :class:`~streamid.engine.parallel.EvalHelper`) the run uses both cores.
+    """
+    out = _case(REACTOR_CONFIG, seed, reactor_data(seed), helper=helper)
     out["lags_ok"] = reactor_lags_ok(out["lags"])
     return out
 
@@ -111,22 +116,24 @@ def mr_damper_case(seed: int, config: CoEAConfig | None = None) -> dict[str, Any
     return _case(DEFAULT if config is None else config, seed, mr_damper_data())
 
 
-def mr_damper_paper_case(seed: int) -> dict[str, Any]:
+def mr_damper_paper_case(seed: int, helper: EvalHelper | None = None) -> dict[str, Any]:
     """The paper's settings (one run, G=200, M=10) on the real MR damper."""
-    return _case(MR_PAPER_CONFIG, seed, mr_damper_data())
+    return _case(MR_PAPER_CONFIG, seed, mr_damper_data(), helper=helper)
 
 
-def piezo_case(seed: int) -> dict[str, Any]:
+def piezo_case(seed: int, helper: EvalHelper | None = None) -> dict[str, Any]:
     """The paper's settings (one run, G=100, M=13) on the real piezo actuator log."""
-    return _case(PIEZO_CONFIG, seed, piezo_data())
+    return _case(PIEZO_CONFIG, seed, piezo_data(), helper=helper)
 
 
-def scaling_case(n_est: int, neurons: int, seed: int = 0, generations: int = 100) -> dict[str, Any]:
+def scaling_case(
+    n_est: int, neurons: int, seed: int = 0, generations: int = 100, helper: EvalHelper | None = None
+) -> dict[str, Any]:
     """Seconds of one paper-style run (P=20, L=10) on ``n_est`` reactor samples with ``neurons`` neurons."""
     cfg = PAPER.replace(neurons=neurons, generations=generations)
     ue, ye, _, _ = reactor_data(seed, n_est, 10)
     t0 = time.perf_counter()
-    res = identify(ue, ye, cfg, seed)
+    res = identify(ue, ye, cfg, seed, helper=helper)
     seconds = time.perf_counter() - t0
     return {
         "n_est": n_est,
@@ -146,30 +153,48 @@ def _rows(section: str, case: str, results: list[dict[str, Any]], metrics: Itera
 
 
 def bench(options: Any) -> Iterator[Any]:
-    """``streamid bench`` provider: the engine's figures (medians over ``options.repeat`` seeds)."""
+    """``streamid bench`` provider: the engine's figures (medians over ``options.repeat`` seeds).
+
+    One-run cases are measured twice where it matters: in one process (one core)
+    and with an :class:`~streamid.engine.parallel.EvalHelper` started beforehand
+    (both cores; a daemon or ``streamid identify`` keeps one for all its runs).
+    """
+    helper = EvalHelper() if EvalHelper.supported() else None
+    try:
+        yield from _bench(options, helper)
+    finally:
+        if helper is not None:
+            helper.close()
+
+
+def _bench(options: Any, helper: EvalHelper | None) -> Iterator[Any]:
     from streamid.benchkit import Measurement
 
     n = 2 if options.quick else max(1, options.repeat)
     seeds = [options.seed + i for i in range(n)]
-    rea = [reactor_case(s) for s in seeds]
-    yield from _rows(
-        "engine",
-        "reactor G=400 M=10 (paper)",
-        rea,
-        [
-            ("seconds", "s", "whole identification, 8,040 evaluations; target <= 0.10 median"),
-            ("fr_val", "R2", "free run, validation; target >= 0.9999 each"),
-            ("osa_val", "R2", "one step ahead, validation"),
-        ],
-    )
-    yield Measurement(
-        "engine", "reactor G=400 M=10 (paper)", "lags y1,u1,u2(,y2)", "fraction",
-        (float(np.mean([r["lags_ok"] for r in rea])),), "target >= 0.8",
-    )
-    mrp = [mr_damper_paper_case(s) for s in seeds]
+    variants = [("one core", None)] + ([("two cores, helper", helper)] if helper is not None else [])
+    for label, h in variants:
+        rea = [reactor_case(s, h) for s in seeds]
+        case = f"reactor G=400 M=10 (paper), {label}"
+        yield from _rows(
+            "engine",
+            case,
+            rea,
+            [
+                ("seconds", "s", "whole identification, 8,040 evaluations; target <= 0.10 median"),
+                ("fr_val", "R2", "free run, validation; target >= 0.9999 each"),
+                ("osa_val", "R2", "one step ahead, validation"),
+            ],
+        )
+        yield Measurement(
+            "engine", case, "lags y1,u1,u2(,y2)", "fraction",
+            (float(np.mean([r["lags_ok"] for r in rea])),), "target >= 0.8",
+        )
+    mrp = [mr_damper_paper_case(s, helper) for s in seeds]
     yield from _rows(
         "engine", "MR damper, paper G=200 M=10", mrp,
-        [("fr_val", "R2", "free run, validation (paper's best of 30: 0.9591)"), ("osa_val", "R2", ""), ("seconds", "s", "one run")],
+        [("fr_val", "R2", "free run, validation (paper's best of 30: 0.9591)"), ("osa_val", "R2", ""),
+         ("seconds", "s", "one run, two cores (helper)" if helper is not None else "one run")],
     )
     mrd = [mr_damper_case(s) for s in seeds]
     yield from _rows(
@@ -180,16 +205,19 @@ def bench(options: Any) -> Iterator[Any]:
             ("seconds", "s", f"wall, {DEFAULT.restarts} runs on {DEFAULT.workers} processes; target <= 3"),
         ],
     )
-    pz = [piezo_case(s) for s in seeds]
+    pz = [piezo_case(s, helper) for s in seeds]
     yield from _rows(
         "engine", "piezo G=100 M=13 (paper)", pz,
-        [("fr_val", "R2", "target >= 0.9997 each"), ("osa_val", "R2", ""), ("seconds", "s", "one run")],
+        [("fr_val", "R2", "target >= 0.9997 each"), ("osa_val", "R2", ""),
+         ("seconds", "s", "one run, two cores (helper)" if helper is not None else "one run")],
     )
     sizes = (480, 2000) if options.quick else (480, 2000, 10000)
     for n_est in sizes:
         for m in (10, 20, 40):
-            reps = [scaling_case(n_est, m, s, generations=20 if options.quick else 100) for s in seeds[: max(1, min(3, n))]]
+            reps = [scaling_case(n_est, m, s, generations=20 if options.quick else 100, helper=helper)
+                    for s in seeds[: max(1, min(3, n))]]
             yield from _rows(
                 "engine", f"scaling N={n_est} M={m}", reps,
-                [("seconds", "s", f"one run, G={reps[0]['generations']}, P=20"), ("us_per_evaluation", "us", "")],
+                [("seconds", "s", f"one run, G={reps[0]['generations']}, P=20"
+                  + (", two cores (helper)" if helper is not None else "")), ("us_per_evaluation", "us", "")],
             )

@@ -48,6 +48,7 @@ from streamid.engine import de, harmony
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.config import CoEAConfig
 from streamid.engine.model import Model
+from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.rbf import BatchEvaluator, activations, fit_weights
 from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
 from streamid.engine.state import STATE_FORMAT, CoEAState
@@ -96,6 +97,9 @@ class Coevolution:
     normalisation : Normalisation, optional
         Use this normalisation instead of the min/max of ``u``, ``y`` (e.g. the
         min/max of a larger estimation set this run sees a part of).
+    helper : EvalHelper, optional
+        Evaluate half of every batch in this helper process (the second core,
+        see :mod:`streamid.engine.parallel`); the result is the same without it.
 
     Raises
     ------
@@ -118,6 +122,7 @@ class Coevolution:
         output_name: str = "y",
         window: dict[str, Any] | None = None,
         normalisation: Normalisation | None = None,
+        helper: EvalHelper | None = None,
     ) -> None:
         cfg = CoEAConfig() if config is None else config
         if not isinstance(cfg, CoEAConfig):
@@ -152,6 +157,9 @@ class Coevolution:
         self.DX = (self.D + 1) * M
         self.scale = self.norm.y_half_range**2  # normalised MSE -> output units
         self.evaluator = BatchEvaluator(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay)
+        self._batch: BatchEvaluator | HelperBinding = self.evaluator
+        if helper is not None:
+            self._batch = helper.bind(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay, self.evaluator)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
@@ -197,7 +205,7 @@ class Coevolution:
         self, masks: NDArray[np.bool_], x: NDArray[np.float64], shared: bool | None = None
     ) -> NDArray[np.float64]:
         c, s = self._split(x)
-        f = self.evaluator.evaluate(masks, c, s, shared=shared) * self.scale  # type: ignore[operator]
+        f = self._batch.evaluate(masks, c, s, shared=shared) * self.scale  # type: ignore[operator]
         self.evaluations += masks.shape[0]
         i = int(f.argmin())
         if f[i] < self.best_f:

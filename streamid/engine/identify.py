@@ -41,6 +41,7 @@ from streamid.engine._blas import one_blas_thread
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.config import DEFAULT, CoEAConfig
 from streamid.engine.model import Model, free_run
+from streamid.engine.parallel import EvalHelper
 from streamid.engine.rbf import activations, fit_weights
 from streamid.engine.regressors import Normalisation, as_data
 from streamid.engine.validation import r2
@@ -169,7 +170,7 @@ def free_run_r2(
     return out
 
 
-def _one_run(job: dict[str, Any]) -> dict[str, Any]:
+def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
     norm = Normalisation.from_dict(job["normalisation"])
@@ -182,6 +183,7 @@ def _one_run(job: dict[str, Any]) -> dict[str, Any]:
         "output_name": job["output_name"],
         "window": job["window"],
         "normalisation": norm,
+        "helper": helper,
     }
     evaluations = 0
     if cfg.lag_search_neurons and warm is None:
@@ -232,6 +234,7 @@ def identify(
     output_name: str = "y",
     window: dict[str, Any] | None = None,
     executor: Executor | None = None,
+    helper: EvalHelper | None = None,
 ) -> Result:
     """Identify an RBF-NARX model of ``y`` from ``u`` (one output).
 
@@ -256,6 +259,10 @@ def identify(
     executor : concurrent.futures.Executor, optional
         Run the restarts on this executor (e.g. a long-lived process pool)
         instead of creating one when ``config.workers > 1``.
+    helper : EvalHelper, optional
+        A started :class:`~streamid.engine.parallel.EvalHelper`: runs made in this
+        process evaluate half of every population batch in it (the second core).
+        The result is the same with or without it.
 
     Returns
     -------
@@ -295,7 +302,7 @@ def identify(
         # The paper's procedure: one run, the best pair ever evaluated (in this process, steppable).
         run = Coevolution(
             ua, ya, cfg, gen, warm_start=warm_start, input_names=names, output_name=output_name, window=win,
-            normalisation=norm,
+            normalisation=norm, helper=helper,
         ).solve(callback)
         model = run.best_model()
         summary = RunSummary(None, float(run.best_f), run.evaluations, run.seconds, -float(model.metrics["fitness"]), model.lags)
@@ -341,7 +348,7 @@ def identify(
     workers = min(cfg.workers, cfg.restarts)
     if executor is None and workers <= 1:
         for job in jobs:
-            outs.append(_one_run(job))
+            outs.append(_one_run(job, helper))
             report()
     else:
         own = executor is None

@@ -58,6 +58,8 @@ ill-conditioned the design is.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -225,6 +227,7 @@ class BatchEvaluator:
         self._v = np.empty((P, 1, M + 1))  # [-1, w]: the residual is v @ [y; Phi]
         self._v[:, 0, 0] = -1.0
         self._res = np.empty((P, 1, n))
+        self._view_cache: dict[int, tuple[NDArray[Any], ...]] = {}
         self._shared_key: bytes | None = None
         self._shared_feat = np.empty((0, n))
         self._shared_cols = np.empty(0, dtype=np.intp)
@@ -271,10 +274,9 @@ class BatchEvaluator:
         if p > self.capacity:
             raise ValueError(f"at most {self.capacity} members per call; got {p}")
         n, D, M = self.n, self.D, self.M
-        a2 = self._a2[:p]
+        a2, a2_3, phi = self._views(p)[16:]
         np.multiply(widths, widths, out=a2)
         np.divide(_LOG2E, a2, out=a2)  # a2 = log2(e) / sigma^2
-        phi = self._ext[:p, 1:, :]
         if shared is None:
             shared = p == 1 or not np.any(masks[1:] != masks[0])
         if shared:
@@ -307,10 +309,23 @@ class BatchEvaluator:
         cs = cext[:, :, :k]
         np.vecdot(cs, cs, out=cext[:, :, k + 1])
         coef = self._coef[: p * M * K].reshape(p, M, K)
-        np.multiply(cext, a2[:, :, None], out=coef)
+        np.multiply(cext, a2_3, out=coef)
         np.matmul(coef, feat, out=phi)
         np.exp2(phi, out=phi)
         return phi
+
+    def _views(self, p: int) -> tuple[NDArray[Any], ...]:
+        """The buffers' views for a batch of ``p`` members (made once per ``p``: slicing costs ~0.2 us each)."""
+        views = self._view_cache.get(p)
+        if views is None:
+            ext, gb, v, res = self._ext[:p], self._gb[:p], self._v[:p], self._res[:p]
+            views = (
+                ext, gb, gb[:, 1:, :], gb[:, 0, :], gb[:, 0, :, None], self._s[:p], self._diag_g[:p],
+                self._active[:p], self._gs[:p], self._diag_gs[:p], v, v[:, 0, 1:], res, res[:, 0, :],
+                self._s[:p, :, None], self._s[:p, None, :], self._a2[:p], self._a2[:p, :, None], ext[:, 1:, :],
+            )
+            self._view_cache[p] = views
+        return views
 
     def evaluate(
         self,
@@ -338,33 +353,25 @@ class BatchEvaluator:
         mse : ndarray, shape (p,)
         weights : ndarray, shape (p, M), only with ``return_weights``
         """
-        p, M = masks.shape[0], self.M
+        p = masks.shape[0]
         phi = self.activations_into(masks, centres, widths, shared)
-        ext = self._ext[:p]
-        gb = self._gb[:p]
+        ext, gb, gbt, sb, sb3, s, dg, active, gs, dgs, v, w, res, r0, s_col, s_row = self._views(p)[:16]
         np.matmul(ext, phi.transpose(0, 2, 1), out=gb)  # row 0: b = Phi y; rows 1..M: G = Phi Phi^T
-        s = self._s[:p]
-        dg = self._diag_g[:p]  # diag(G) = ||phi_m||^2
-        np.add(dg, _TINY, out=s)
+        np.add(dg, _TINY, out=s)  # diag(G) = ||phi_m||^2
         np.sqrt(s, out=s)
-        active = np.greater(dg, MIN_NORM**2, out=self._active[:p])
+        np.greater(dg, MIN_NORM**2, out=active)
         np.divide(active, s, out=s)  # inactive neuron: s = 0, so z_m = 0 and w_m = 0
-        gs = self._gs[:p]
-        np.multiply(s[:, :, None], s[:, None, :], out=gs)
-        gs *= gb[:, 1:, :]  # S G S
-        gb[:, 0, :] *= s  # S b
-        dgs = self._diag_gs[:p]
+        np.multiply(s_col, s_row, out=gs)
+        gs *= gbt  # S G S
+        sb *= s  # S b
         dgs += self.ridge
         if self.decay:
             dgs += self.decay * s * s
-        bs = gb[:, 0, :, None]  # S b
-        z = _solve(gs, bs)
-        v = self._v[:p]
-        np.multiply(z[:, :, 0], s, out=v[:, 0, 1:])  # w = S z
-        res = self._res[:p]
+        z = _solve(gs, sb3)
+        np.multiply(z[:, :, 0], s, out=w)  # w = S z
         np.matmul(v, ext, out=res)  # w^T Phi - y
-        mse = np.vecdot(res[:, 0, :], res[:, 0, :])  # a new array: callers may keep it
+        mse = np.vecdot(r0, r0)  # a new array: callers may keep it
         mse /= self.n
         if return_weights:
-            return mse, v[:, 0, 1:].copy()
+            return mse, w.copy()
         return mse

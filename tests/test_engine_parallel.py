@@ -1,0 +1,141 @@
+"""The evaluation helper process (streamid.engine.parallel): exact, never stalls, cleans up.
+
+A real helper process is started (``python -m streamid.engine._evalhelper``) and
+shares memory with the test; nothing is mocked.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from streamid.engine import CoEAConfig, Coevolution, EvalHelper, identify
+from streamid.engine.benchmarks import reactor_data
+from streamid.engine.rbf import BatchEvaluator
+from streamid.errors import StreamidError
+
+pytestmark = pytest.mark.skipif(not EvalHelper.supported(), reason="the helper needs POSIX on x86-64")
+
+CFG = CoEAConfig(neurons=10, generations=40, max_lag_y=4, max_lag_u=4)
+
+
+@pytest.fixture(scope="module")
+def helper():
+    with EvalHelper() as h:
+        yield h
+
+
+@pytest.fixture(scope="module")
+def data():
+    ue, ye, _, _ = reactor_data(3, 300, 10)
+    return ue, ye
+
+
+def _same_run(a: Coevolution, b: Coevolution) -> None:
+    assert a.history == b.history
+    for name in ("X", "H", "fx", "fh", "best_x", "best_h"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert a.best_f == b.best_f and a.evaluations == b.evaluations
+
+
+def test_a_run_with_the_helper_is_bitwise_the_run_without(helper, data):
+    ue, ye = data
+    before = helper.stats.offloaded + helper.stats.missed
+    for seed in (0, 1):
+        alone = Coevolution(ue, ye, CFG, np.random.default_rng(seed)).solve()
+        both = Coevolution(ue, ye, CFG, np.random.default_rng(seed), helper=helper).solve()
+        _same_run(alone, both)
+    assert helper.stats.offloaded + helper.stats.missed > before  # batches were offered to the helper
+
+
+def test_the_helper_computes_exactly_what_the_local_evaluator_computes(helper, data):
+    ue, ye = data
+    run = Coevolution(ue, ye, CFG, np.random.default_rng(5), helper=helper)
+    local = BatchEvaluator(run.R, run.target, CFG.neurons, CFG.population, CFG.ridge, CFG.weight_decay)
+    binding = run._batch
+    rng = np.random.default_rng(9)
+    c, w = run._split(run.X[:10])
+    per_member = rng.random((10, run.D)) < 0.4
+    per_member[:, 0] = True
+    for masks, shared in ((per_member, False), (np.broadcast_to(run.H[0], (10, run.D)), True)):
+        got = binding.remote(masks, c, w, shared=shared, timeout_s=30.0)
+        want = local.evaluate(masks, c, w, shared=shared)
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(Exception, match="1 to 10 members"):
+        binding.remote(run.H, *run._split(run.X))
+
+
+def test_a_stopped_helper_costs_nothing_but_time(helper, data):
+    ue, ye = data
+    alone = Coevolution(ue, ye, CFG, np.random.default_rng(2)).solve()
+    run = Coevolution(ue, ye, CFG, np.random.default_rng(2), helper=helper)
+    c, w = run._split(run.X[:2])
+    run._batch.remote(run.H[:2], c, w, timeout_s=30.0)  # the helper holds this run's data
+    missed = helper.stats.missed
+    os.kill(helper.pid, signal.SIGSTOP)
+    try:
+        run.solve()
+    finally:
+        os.kill(helper.pid, signal.SIGCONT)
+    _same_run(alone, run)
+    assert helper.stats.missed > missed  # it was offered batches, missed them, the caller did them
+
+
+def test_identify_with_a_helper_gives_the_same_model(helper, data):
+    ue, ye = data
+    a = identify(ue, ye, CFG, 4)
+    b = identify(ue, ye, CFG, 4, helper=helper)
+    assert a.model.to_json() == b.model.to_json()
+
+
+def test_close_ends_the_process_and_removes_its_files():
+    h = EvalHelper()
+    ue, ye, _, _ = reactor_data(1, 200, 10)
+    Coevolution(ue, ye, CFG.replace(generations=5), 0, helper=h).solve()
+    folder = os.path.dirname(h._ctl_path)
+    assert os.path.isdir(folder)
+    h.close()
+    assert h._proc.poll() is not None
+    assert not os.path.exists(folder)
+    with pytest.raises(StreamidError, match="closed"):
+        h.bind(np.zeros((30, 2)), np.zeros(30), 2, 20, 1e-10, 0.0, BatchEvaluator(np.zeros((30, 2)), np.zeros(30), 2, 20))
+    h.close()  # twice is fine
+
+
+def test_the_helper_goes_away_with_a_killed_owner():
+    code = (
+        "import os, sys\n"
+        "from streamid.engine import EvalHelper\n"
+        "h = EvalHelper()\n"
+        "print(h.pid, os.path.dirname(h._ctl_path), flush=True)\n"
+        "sys.stdin.read()\n"
+    )
+    owner = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        pid_s, folder = owner.stdout.readline().split()
+        pid = int(pid_s)
+        assert os.path.isdir(folder)
+        owner.kill()
+        owner.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and (_alive(pid) or os.path.exists(folder)):
+            time.sleep(0.05)
+        assert not _alive(pid), "the helper outlived its owner"
+        assert not os.path.exists(folder), "the helper left its shared files behind"
+    finally:
+        if owner.poll() is None:
+            owner.kill()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
