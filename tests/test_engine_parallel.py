@@ -139,3 +139,37 @@ def _alive(pid: int) -> bool:
             return fh.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_uniforms_drawn_ahead_by_the_helper_are_the_generators_next_numbers(helper, data):
+    ue, ye = data
+    run = Coevolution(ue, ye, CFG, np.random.default_rng(6), helper=helper)
+    binding = run._batch
+    c, w = run._split(run.X[:2])
+    binding.remote(run.H[:2], c, w, timeout_s=30.0)  # bound
+    rng = np.random.default_rng(123)
+    twin = np.random.default_rng(123)
+    for count in (5000, 20000):
+        binding.request_uniforms(rng, count)
+        deadline = time.monotonic() + 30
+        got = None
+        while got is None and time.monotonic() < deadline:
+            time.sleep(0.002)
+            d = binding._draw
+            got = binding.take_uniforms(rng, count)
+            if got is None:
+                binding._draw = d  # not ready yet: keep the request
+        assert got is not None, "the helper did not draw ahead within 30 s"
+        np.testing.assert_array_equal(got, twin.random(count))
+        assert rng.random() == twin.random()  # and the generator went on exactly past them
+    # Someone drew from the generator after the request: the block is refused, nothing is skipped.
+    binding.request_uniforms(rng, 1000)
+    time.sleep(0.2)
+    rng.random()
+    twin.random()
+    assert binding.take_uniforms(rng, 1000) is None
+    assert rng.random() == twin.random()
+    # Only PCG64 (numpy's default) is drawn ahead.
+    other = np.random.Generator(np.random.Philox(1))
+    binding.request_uniforms(other, 100)
+    assert binding._draw is None

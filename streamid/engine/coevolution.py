@@ -157,9 +157,6 @@ class Coevolution:
         self.DX = (self.D + 1) * M
         self.scale = self.norm.y_half_range**2  # normalised MSE -> output units
         self.evaluator = BatchEvaluator(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay)
-        self._batch: BatchEvaluator | HelperBinding = self.evaluator
-        if helper is not None:
-            self._batch = helper.bind(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay, self.evaluator)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
@@ -177,6 +174,10 @@ class Coevolution:
         self._trials = de.TrialMaker(P, self.DX, self.lo, self.hi, cfg.de_f, cfg.de_cr, block=block)
         self._improviser = harmony.Improviser(P, self.D, P, block=block)
         self._uni = np.empty(block * (self._n_de + self._n_hs))
+        self._batch: BatchEvaluator | HelperBinding = self.evaluator  # or half of each batch in a helper
+        if helper is not None:
+            self._batch = helper.bind(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay, self.evaluator,
+                                      uniforms=self._uni.shape[0])
         self._k = self._planned = 0  # generation k of a planned block of `_planned`
         self._frozen: NDArray[np.bool_] | None = None
         self._frozen_key = -1
@@ -293,21 +294,35 @@ class Coevolution:
         uniforms: DE (donor keys, crossover, ``j_rand``), then, while the
         harmonies evolve, the improvisation's. The stream is therefore the same
         as one ``rng.random`` call per generation; only an early stop leaves
-        drawn-but-unused rows behind.
+        drawn-but-unused rows behind. With a helper process, the helper draws
+        the next block from a copy of the generator's state while the caller
+        works, and the caller's generator is advanced past it (the same numbers;
+        if anything else drew from the generator meanwhile, the caller draws).
         """
         cfg, g0 = self.config, self.g
+        b, per = self._block(g0)
         evolving = g0 < self.stop
-        end = min(self.stop if evolving else self.generations, self.generations)
-        b = min(self._trials.block, end - g0)
-        per = self._n_de + (self._n_hs if evolving else 0)
-        uni = self.rng.random(out=self._uni[: b * per]).reshape(b, per)
+        helper = self._batch if isinstance(self._batch, HelperBinding) else None
+        uni = None if helper is None else helper.take_uniforms(self.rng, b * per)  # drawn ahead, same numbers
+        if uni is None:
+            uni = self.rng.random(out=self._uni[: b * per])
+        uni = uni.reshape(b, per)
         self._trials.plan(uni)
         if evolving:
             frac = np.arange(g0, g0 + b) / self.generations  # harmony.schedule, vectorised
             hmcr = cfg.hmcr0 + (cfg.hmcrf - cfg.hmcr0) * frac
             par = cfg.par0 + (cfg.parf - cfg.par0) * frac
             self._improviser.plan(uni[:, self._n_de :], hmcr, par)
+        if helper is not None and g0 + b < self.generations:  # the helper draws the next block meanwhile
+            nb, nper = self._block(g0 + b)
+            helper.request_uniforms(self.rng, nb * nper)
         self._k, self._planned = 0, b
+
+    def _block(self, g0: int) -> tuple[int, int]:
+        """Generations in the block starting at ``g0`` and uniforms per generation."""
+        evolving = g0 < self.stop
+        end = min(self.stop if evolving else self.generations, self.generations)
+        return min(self._trials.block, end - g0), self._n_de + (self._n_hs if evolving else 0)
 
     def _generation(self) -> None:
         """One generation: DE trials for every member of X, paired with new harmonies

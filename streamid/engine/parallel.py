@@ -66,15 +66,19 @@ __all__ = ["EvalHelper", "HelperBinding"]
 # Control words (int64 slots of the control file).
 _QUIT, _PID, _BIND_SEQ, _BIND_ACK, _JOB_SEQ, _JOB_BIND, _JOB_N, _JOB_SHARED = range(8)
 _STARTED, _DONE, _SLEEPING, _N, _D, _M, _CAP, _ERRORS = range(8, 16)
+_UNIFORMS, _DRAW_SEQ, _DRAW_N, _DRAW_READY = range(16, 20)
+_DRAW_STATE = 20  # 4 words: PCG64 state (low, high), increment (low, high)
 _CONTROL_BYTES = 4096
 _FLOATS_AT = 512  # float64 slots: ridge, weight decay
 _PATH_AT, _PATH_MAX = 1024, 2048
 _ALIGN = 64
+_DRAW_CHUNK = 8192  # uniforms the helper draws between two looks for a batch (~18 us)
 
 
-def _layout(n: int, d: int, m: int, cap: int) -> dict[str, tuple[int, tuple[int, ...], Any]]:
+def _layout(n: int, d: int, m: int, cap: int, uniforms: int) -> dict[str, tuple[int, tuple[int, ...], Any]]:
     """Offsets, shapes and dtypes of one binding's data file (the same on both sides)."""
     parts = [
+        ("uniforms", (uniforms,), np.float64),
         ("R", (n, d), np.float64),
         ("target", (n,), np.float64),
         ("masks", (cap, d), np.bool_),
@@ -108,6 +112,7 @@ class _Stats:
     offloaded: int = 0
     missed: int = 0
     local: int = 0
+    predrawn: int = 0
 
 
 class EvalHelper:
@@ -150,6 +155,7 @@ class EvalHelper:
         self._lock = threading.Lock()
         self._bind_seq = 0
         self._job_seq = 0
+        self._draw_seq = 0
         self._data: tuple[str, mmap.mmap] | None = None
         self.stats = _Stats()
         rfd, self._wake = os.pipe()
@@ -215,19 +221,21 @@ class EvalHelper:
         ridge: float,
         weight_decay: float,
         local: BatchEvaluator,
+        uniforms: int = 0,
     ) -> HelperBinding:
         """Give the helper one run's data; the returned binding evaluates like ``local``, in two processes.
 
         ``local`` must be the caller's :class:`BatchEvaluator` on the same data
         (capacity >= ``capacity``); it evaluates the caller's half and any half
-        the helper misses.
+        the helper misses. ``uniforms``: the largest block of uniforms the run
+        will ask the helper to draw ahead (:meth:`HelperBinding.request_uniforms`).
         """
         if self._closed:
             raise StreamidError("this EvalHelper is closed")
         R = np.ascontiguousarray(regressors, dtype=np.float64)
         n, d = R.shape
         cap = max(1, capacity - (capacity + 1) // 2)
-        lay = _layout(n, d, int(neurons), cap)
+        lay = _layout(n, d, int(neurons), cap, max(0, int(uniforms)))
         with self._lock:
             path = os.path.join(self._dir, f"data-{self._bind_seq + 1}")
             with open(path, "wb") as f:
@@ -241,7 +249,7 @@ class EvalHelper:
             if old is not None:
                 _unlink(old[0])
             ctl = self._ctl
-            ctl[_N], ctl[_D], ctl[_M], ctl[_CAP] = n, d, int(neurons), cap
+            ctl[_N], ctl[_D], ctl[_M], ctl[_CAP], ctl[_UNIFORMS] = n, d, int(neurons), cap, max(0, int(uniforms))
             self._fctl[0], self._fctl[1] = float(ridge), float(weight_decay)
             raw = path.encode()
             if len(raw) >= _PATH_MAX - _PATH_AT:
@@ -313,6 +321,7 @@ class HelperBinding:
         self._v = views
         self._misses = 0
         self._skip = 0
+        self._draw: tuple[int, int, tuple[int, int]] | None = None  # (request, count, PCG64 state basis)
 
     def remote(
         self,
@@ -350,6 +359,45 @@ class HelperBinding:
                 raise StreamidError(f"the evaluation helper (pid {h.pid}) did not answer within {timeout_s:g} s")
             time.sleep(0.0002)
         return np.array(v["out"][:p])
+
+    def request_uniforms(self, rng: np.random.Generator, count: int) -> None:
+        """Ask the helper to draw, in its idle time, the next ``count`` uniforms ``rng.random`` would give.
+
+        Only for ``numpy.random.PCG64`` generators (the default); the helper
+        starts from a copy of the generator's current state. Take them with
+        :meth:`take_uniforms`.
+        """
+        self._draw = None
+        bg = rng.bit_generator
+        if type(bg) is not np.random.PCG64 or not 0 < count <= self._v["uniforms"].shape[0] or not self._usable():
+            return
+        st = bg.state["state"]
+        basis = (int(st["state"]), int(st["inc"]))
+        words = np.array([w & 0xFFFFFFFFFFFFFFFF for w in (basis[0], basis[0] >> 64, basis[1], basis[1] >> 64)],
+                         dtype=np.uint64).view(np.int64)
+        h, ctl = self.helper, self.helper._ctl
+        ctl[_DRAW_STATE : _DRAW_STATE + 4] = words
+        ctl[_DRAW_N] = count
+        h._draw_seq += 1
+        ctl[_DRAW_SEQ] = h._draw_seq  # after the state and count
+        self._draw = (h._draw_seq, count, basis)
+
+    def take_uniforms(self, rng: np.random.Generator, count: int) -> NDArray[np.float64] | None:
+        """The block asked for with :meth:`request_uniforms`, if it is exactly ``rng``'s next ``count``
+        uniforms and ready; ``rng`` is then advanced past them. Otherwise None (draw them yourself).
+
+        The returned array is the shared buffer: use it before the next request.
+        """
+        d, self._draw = self._draw, None
+        if d is None or d[1] != count or self.helper._ctl[_DRAW_READY] != d[0] or not self._usable():
+            return None
+        bg = rng.bit_generator
+        st = bg.state["state"]
+        if type(bg) is not np.random.PCG64 or (int(st["state"]), int(st["inc"])) != d[2]:
+            return None  # someone drew from rng since the request
+        bg.advance(count)
+        self.helper.stats.predrawn += 1
+        return self._v["uniforms"][:count]
 
     def _usable(self) -> bool:
         h = self.helper
@@ -446,6 +494,8 @@ def _serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
     v: dict[str, NDArray[Any]] = {}
     cap = 0
     active_until = 0.0
+    drawn = drawing = int(ctl[_DRAW_SEQ])
+    gen, want, pos = np.random.default_rng(0), 0, 0
     ctl[_PID] = os.getpid()
     with one_blas_thread():
         while not ctl[_QUIT]:
@@ -454,8 +504,8 @@ def _serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
                 bound, ev = b, None
                 try:
                     raw = bytes(cmm[_PATH_AT:_PATH_MAX]).split(b"\0", 1)[0].decode()
-                    n, d, m, cap = (int(ctl[i]) for i in (_N, _D, _M, _CAP))
-                    lay = _layout(n, d, m, cap)
+                    n, d, m, cap, nu = (int(ctl[i]) for i in (_N, _D, _M, _CAP, _UNIFORMS))
+                    lay = _layout(n, d, m, cap, nu)
                     with open(raw, "r+b") as f:
                         dmm = mmap.mmap(f.fileno(), max(lay["_size"][0], 1))
                     v = _views(dmm, lay)
@@ -478,6 +528,30 @@ def _serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
                             ctl[_DONE] = s  # after the results
                         except Exception:  # inputs torn by a batch the caller already took back
                             ctl[_ERRORS] += 1
+                active_until = time.perf_counter() + spin_s
+                continue
+            r = int(ctl[_DRAW_SEQ])
+            if ev is not None and r != drawn:
+                if r != drawing:  # a new request: start from the caller's generator state
+                    w = ctl[_DRAW_STATE : _DRAW_STATE + 4].view(np.uint64)
+                    want = int(ctl[_DRAW_N])
+                    bitgen = np.random.PCG64()
+                    bitgen.state = {
+                        "bit_generator": "PCG64",
+                        "state": {"state": int(w[0]) | int(w[1]) << 64, "inc": int(w[2]) | int(w[3]) << 64},
+                        "has_uint32": 0,
+                        "uinteger": 0,
+                    }
+                    gen, drawing, pos = np.random.Generator(bitgen), r, 0
+                    if not 0 < want <= v["uniforms"].shape[0]:
+                        drawn = r
+                        continue
+                stop = min(want, pos + _DRAW_CHUNK)  # in chunks: a batch never waits long for us
+                gen.random(out=v["uniforms"][pos:stop])
+                pos = stop
+                if pos == want and int(ctl[_DRAW_SEQ]) == r:
+                    ctl[_DRAW_READY] = r  # after the numbers
+                    drawn = r
                 active_until = time.perf_counter() + spin_s
                 continue
             if time.perf_counter() < active_until:
