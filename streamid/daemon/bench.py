@@ -9,9 +9,11 @@
   resident memory over the run.
 * **cold vs warm**: time and validation R^2 of a cold run (G=400) and of warm
   updates (G=30) on consecutive windows of a stationary system (the piezo).
-* **MR damper at max speed**: the real MR damper log put back to back; the
-  published models' free-run validation R^2 against an offline cold run with
-  the same settings on the same windows.
+* **MR damper at max speed** (:mod:`streamid.daemon.bench_mr`): the real MR
+  damper log put back to back, every window identified (bounded queue of
+  pending windows); the published models' free-run validation R^2 against
+  offline cold ``identify`` runs (several seeds) with the same settings on the
+  same windows, and whether they match (defined there).
 * **load** (issue 6): eight 2 kHz streams plus the 20 kHz piezo log into one
   ``streamid daemon`` process for 2 minutes (:mod:`streamid.daemon.load`):
   samples lost, resident memory after warm-up, updates per stream.
@@ -32,6 +34,7 @@ import numpy as np
 
 from streamid.benchkit import BenchOptions, Measurement
 from streamid.codec import SampleBatch, encode
+from streamid.daemon.bench_mr import mr_damper_max_speed
 from streamid.daemon.config import DaemonConfig, StreamConfig
 from streamid.daemon.load import load_run, summary
 from streamid.daemon.service import Daemon
@@ -228,48 +231,6 @@ def cold_vs_warm(seed: int = 0, updates: int = 4, quick: bool = False) -> dict[s
             "cold_generations": cfg.cold_generations, "warm_generations": cfg.warm_generations}
 
 
-def mr_damper_max_speed(seed: int = 0) -> dict[str, Any]:
-    """The real MR damper log at max speed: published FR R^2 vs an offline cold run on the same windows."""
-    from replay.player import ReplayConfig, replay_log  # bench only: replay depends on streamid
-
-    from streamid.client import ModelSubscriber
-    from streamid.mcaplog import bundled_log, read_log_arrays
-
-    ep = _free_endpoint()
-    scfg = StreamConfig(window_s=4.0, update_every_s=2.0, seed=seed, max_lag_y=4, max_lag_u=4, neurons=8)
-    daemon = Daemon(DaemonConfig(defaults=scfg), ZenohSettings(listen=(ep,))).start()
-    got: list[Any] = []
-    try:
-        connect = ZenohSettings(connect=(ep,))
-        with ModelSubscriber(connect, "mr_damper", got.append, fetch_latest=False):
-            replay_log(bundled_log("mr_damper.mcap"), connect, ReplayConfig(max_speed=True))
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                rt = daemon.streams.get("mr_damper")
-                if rt is not None and not rt.busy and not rt.buffer.has_pending and rt.version:
-                    break
-                time.sleep(0.05)
-            time.sleep(0.3)
-    finally:
-        daemon.stop()
-    from streamid.engine.identify import identify
-    from streamid.engine.validation import validate
-
-    log = read_log_arrays(bundled_log("mr_damper.mcap"))
-    online, offline = [], []
-    for up in got:
-        w = up.window
-        i0 = int(np.searchsorted(log.t_ns, w["t0_ns"]))
-        u = log.inputs["velocity_cm_s"][i0 : i0 + w["n_samples"]]
-        y = log.outputs["force_N"][i0 : i0 + w["n_samples"]]
-        ne = w["n_estimation"]
-        res = identify(u[:ne], y[:ne], scfg.coea_config(cold=True), np.random.default_rng([seed, up.version]))
-        rep = validate(res.model, u[:ne], y[:ne], u[ne:], y[ne:])
-        online.append(up.metrics["r2_fr_val"])
-        offline.append(rep.fr_val)
-    return {"online_r2_fr_val": online, "offline_r2_fr_val": offline, "updates": len(got)}
-
-
 def bench(options: BenchOptions) -> Iterable[Measurement]:
     """The daemon section of ``streamid bench``."""
     reps = 1 if options.quick else max(1, min(options.repeat, 3))
@@ -308,15 +269,20 @@ def bench(options: BenchOptions) -> Iterable[Measurement]:
     yield Measurement(SECTION, case, "longest time without a model", "s",
                       tuple(ls["longest_without_model_s"].values()), "per stream, after warm-up")
     if not options.quick:
-        mr = mr_damper_max_speed(options.seed)
-        yield Measurement(SECTION, "MR damper log, max speed", "R2 FR val online", "", tuple(mr["online_r2_fr_val"]),
-                          f"{mr['updates']} published models")
-        yield Measurement(SECTION, "MR damper log, same windows, offline identify (cold)", "R2 FR val", "",
-                          tuple(mr["offline_r2_fr_val"]), "streamid.engine.identify + validate, G=400")
+        for sel in ("fitness", "fr_est"):
+            mr = mr_damper_max_speed(options.seed, selection=sel)
+            case = f"MR damper log, max speed, selection {sel}"
+            yield Measurement(SECTION, case, "R2 FR val online", "", tuple(mr["online_r2_fr_val"]),
+                              f"{mr['models']} models for {mr['windows_closed']} windows (cold, then warm G=30)")
+            yield Measurement(SECTION, case, "R2 FR val offline", "", tuple(mr["offline_median_r2_fr_val"]),
+                              f"identify cold G=400, median of {mr['seeds']} seeds per window")
+            yield Measurement(SECTION, case, "online - offline median", "", tuple(mr["diff"]),
+                              f"mean rank {mr['mean_rank']:.2f} (0.5: same); "
+                              f"{'matches' if mr['matches'] else 'does NOT match'} (streamid.daemon.bench_mr)")
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m streamid.daemon.bench soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``mr`` | ``load SECONDS``."""
+    """``python -m streamid.daemon.bench soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``mr [SELECTION]`` | ``load SECONDS``."""
     what = argv[0] if argv else "soak"
     if what == "soak":
         r = realtime_run(float(argv[1]) if len(argv) > 1 else 300.0, rrd=argv[2] if len(argv) > 2 else None)
@@ -332,7 +298,7 @@ def _main(argv: list[str]) -> int:
     elif what == "coldwarm":
         print(json.dumps(cold_vs_warm()))
     elif what == "mr":
-        print(json.dumps(mr_damper_max_speed()))
+        print(json.dumps(mr_damper_max_speed(selection=argv[1] if len(argv) > 1 else "fitness")))
     elif what == "load":
         secs = float(argv[1]) if len(argv) > 1 else 120.0
         r = load_run(secs)

@@ -14,6 +14,7 @@ A configuration file is optional: every setting has an embedded default, so
     [defaults]                # per-stream settings applied to every stream
     window_s = 10.0
     update_every_s = 1.0
+    max_pending_windows = 1   # closed windows that may wait for identification (more: none skipped)
 
     [streams.bench1]          # overrides for one stream
     window_s = 0.5
@@ -45,6 +46,8 @@ from streamid.keys import STREAM_NAME_RULE, is_valid_stream_name
 
 __all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping"]
 
+#: How the daemon may choose the published model of a run (``engine.selection``).
+DAEMON_SELECTIONS = ("fitness", "fr_est")
 # Fields of CoEAConfig the daemon sets itself (generations: cold/warm; restarts: warm starts need one run).
 _ENGINE_RESERVED = ("generations", "restarts", "workers", "neurons", "max_lag_y", "max_lag_u", "population")
 
@@ -79,6 +82,13 @@ class StreamConfig:
         Samples of larger magnitude are refused as absurd.
     cold_after_failures
         After this many failed updates in a row the next run starts cold.
+    max_pending_windows
+        How many closed windows may wait while an identification runs (1 to
+        1000).  1 (default): a newer window replaces the waiting one, the right
+        choice for a live stream.  More: e.g. a log replayed at max speed gets
+        every window identified, in order, up to this many behind; beyond it
+        the oldest waiting is dropped (coalesced).  Memory bound: this many
+        times ``window_samples * (inputs + outputs) * 8`` bytes per stream.
     engine
         Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs.
     """
@@ -102,11 +112,17 @@ class StreamConfig:
     min_r2_fr: float = -1.0
     max_abs_value: float = 1e12
     cold_after_failures: int = 3
+    max_pending_windows: int = 1
     engine: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         self.window_params()  # geometry and names checked once, here
-        self.coea_config(cold=True)
+        sel = self.coea_config(cold=True).selection
+        if sel not in DAEMON_SELECTIONS:
+            raise ConfigError(
+                f"engine.selection must be one of {list(DAEMON_SELECTIONS)} in the daemon (one run per update: "
+                f"'fitness' = lowest one-step-ahead error, 'fr_est' = best free run on the estimation part); got {sel!r}"
+            )
         if not 0.05 <= self.validation_fraction <= 0.9:
             raise ConfigError(f"validation_fraction must be a number in [0.05, 0.9]; got {self.validation_fraction!r}")
         if self.output is not None and self.outputs is not None and self.output not in self.outputs:
@@ -132,6 +148,7 @@ class StreamConfig:
             inputs=self.inputs,
             outputs=self.outputs,
             max_abs_value=self.max_abs_value,
+            max_pending_windows=self.max_pending_windows,
         )
 
     def coea_config(self, *, cold: bool) -> CoEAConfig:
@@ -243,6 +260,7 @@ _STREAM_KEYS: dict[str, tuple[str, str]] = {
     "min_r2_fr": ("float", "a number <= 1"),
     "max_abs_value": ("float", "a number > 0"),
     "cold_after_failures": ("int", "an integer >= 1"),
+    "max_pending_windows": ("int", "an integer in [1, 1000]"),
     "engine": ("table", "a table of CoEAConfig fields"),
 }
 _DAEMON_KEYS: dict[str, tuple[str, str]] = {

@@ -4,12 +4,14 @@ Threads (no processes: Zenoh is not fork-safe, and nothing is pickled):
 
 * **Zenoh's callback threads** run the receiving path only: split the key,
   :func:`streamid.codec.decode`, :meth:`WindowBuffer.append`.  A closed window
-  becomes the stream's single pending window and wakes a worker.
+  joins the stream's bounded queue of pending windows and wakes a worker.
 * **Worker threads** (``daemon.workers``, default 1) take pending windows,
-  one stream at a time each, run :func:`~streamid.daemon.worker.identify_window`,
-  save the state, publish the model and draw it in Rerun.  A stream whose
-  identification is still running keeps at most one newer pending window
-  (coalesced), so the backlog is bounded by construction.
+  oldest first, one stream at a time each (round robin between streams), run
+  :func:`~streamid.daemon.worker.identify_window`, save the state, publish the
+  model and only then draw it in Rerun.  A stream whose identification is still
+  running keeps at most ``max_pending_windows`` (default 1) newer windows; a
+  window closing beyond that drops the oldest (coalesced), so the backlog is
+  bounded by construction (:mod:`streamid.daemon.pending`).
 * **One housekeeping thread** declares the per-stream publishers and
   queryables, publishes status every ``status_every_s`` and forwards the
   buffers' events (gaps, resets, bad input) to the Rerun event log.

@@ -70,9 +70,8 @@ def summarise(
     L = model.max_lag
     with np.errstate(over="ignore", invalid="ignore"):
         osa_e = model.predict_osa(u_est, y_est)
-        fr_e = model.simulate(u_est, y_est[:L])
         osa_v = model.predict_osa(u_val, y_val)
-        fr_v = model.simulate(u_val, y_val[:L])
+        fr_e, fr_v = model.simulate_many([(u_est, y_est[:L]), (u_val, y_val[:L])])  # one recursion for both
     metrics = {
         "r2_osa_est": _r2(y_est[L:], osa_e[L:]),
         "r2_fr_est": _r2(y_est[L:], fr_e[L:]),

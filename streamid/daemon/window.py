@@ -4,10 +4,12 @@ One :class:`WindowBuffer` per stream receives sample batches (combined
 ``samples`` batches, or separate ``u`` and ``y`` batches that are aligned by
 time) and keeps the newest samples in a preallocated ring, one row per signal.
 Every ``hop`` new complete samples a window of the newest ``window`` samples
-*closes*: it is copied out and left as the single *pending* window, which the
-identification worker takes when it is free.  A window that closes while the
+*closes*: it is copied out into the stream's bounded queue of *pending* windows
+(:mod:`streamid.daemon.pending`), which the identification worker empties when
+it is free.  With the default bound of one, a window that closes while the
 previous one is still pending replaces it (counted as coalesced), so a slow
-identification never builds a queue and memory stays flat on an endless stream.
+identification never builds a queue; with ``max_pending_windows = N`` up to N
+wait, the oldest dropped first.  Memory stays flat on an endless stream.
 
 Time is integer nanoseconds.  Every sample gets an integer index
 ``k = round((t_ns - anchor_ns) / period_ns)`` on the stream's sample grid; u and
@@ -42,6 +44,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from streamid.daemon.pending import PendingWindows, cut_block, due_windows
 from streamid.daemon.window_types import (
     DEFAULT_HOP_S,
     DEFAULT_WINDOW_S,
@@ -50,6 +53,7 @@ from streamid.daemon.window_types import (
     Window,
     WindowParams,
     estimate_period,
+    grid_runs,
 )
 
 __all__ = ["DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "BatchLike", "Event", "Window", "WindowBuffer", "WindowParams"]
@@ -102,21 +106,20 @@ class WindowBuffer:
         self._next_close = 0
         self._epoch = 0
         self._number = 0
-        self._coalesced_since = 0
         self._src_expect: dict[str, int] = {}
         self._src_seq: dict[str, int] = {}
         self._src_recent: dict[str, deque[tuple[int, int]]] = {}  # (seq, first grid index) of recent batches
         self._src_live: dict[str, int] = {}  # source -> batches_in at its last batch on the current period
         self._src_vote: dict[str, int] = {}  # source -> the other period it sends
         self._last_bad: dict[str, object] = {}
-        self._pending: Window | None = None
+        self._queue = PendingWindows(params.max_pending_windows)
         self._last_t_ns: int | None = None
 
     # ------------------------------------------------------------------ public
     @property
     def has_pending(self) -> bool:
         """Whether a closed window waits to be taken."""
-        return self._pending is not None
+        return bool(self._queue)
 
     @property
     def period_ns(self) -> int | None:
@@ -129,12 +132,9 @@ class WindowBuffer:
         return self._w, self._h, self._cap
 
     def take(self) -> Window | None:
-        """Remove and return the pending window (None if there is none)."""
+        """Remove and return the oldest pending window (None if there is none)."""
         with self._lock:
-            w, self._pending = self._pending, None
-            if w is not None:
-                self._coalesced_since = 0
-            return w
+            return self._queue.pop()
 
     def counters(self) -> dict[str, object]:
         """A snapshot of the counters (JSON-ready)."""
@@ -148,7 +148,13 @@ class WindowBuffer:
             out["window_samples"] = self._w
             out["hop_samples"] = self._h
             out["buffered_samples"] = self._complete() - self._start if self._heads else 0
-            out["pending"] = self._pending is not None
+            out["pending"] = bool(self._queue)
+            out["pending_windows"] = len(self._queue)
+            out["pending_bytes"] = self._queue.nbytes
+            out["pending_windows_peak"] = self._queue.peak
+            out["pending_bytes_peak"] = self._queue.peak_bytes
+            out["max_pending_windows"] = self._queue.limit
+            out["pending_bytes_max"] = self._queue.limit * self._w * len(self._rows) * 8
             out["inputs"] = list(self._inputs)
             out["outputs"] = list(self._outputs)
             out["last_t_ns"] = self._last_t_ns
@@ -256,7 +262,7 @@ class WindowBuffer:
         self._src_expect.clear()
         self._src_seq.clear()
         self._src_recent.clear()
-        self._pending = None
+        self._counts["windows_discarded"] += self._queue.clear()  # they belong to the old epoch
         if self._period is None:
             self._ring = np.empty((0, 0))
             self._heads = []
@@ -369,16 +375,10 @@ class WindowBuffer:
         return written
 
     def _runs(self, t_ns: np.ndarray, period: int, seq: int) -> list[tuple[int, int, int]] | None:
-        idx = (t_ns - self._anchor + period // 2) // period
-        d = np.diff(idx)
-        if d.size == 0 or (d == 1).all():
-            return [(int(idx[0]), 0, len(idx))]
-        if (d <= 0).any():
+        runs = grid_runs(t_ns, self._anchor, period)  # type: ignore[arg-type]
+        if runs is None:
             self._bad_locked("nonmonotonic", f"batch seq {seq}: explicit t_ns not strictly increasing on the sample grid")
-            return None
-        cuts = np.flatnonzero(d != 1) + 1
-        bounds = [0, *cuts.tolist(), len(idx)]
-        return [(int(idx[a]), a, b - a) for a, b in zip(bounds[:-1], bounds[1:])]
+        return runs
 
     def _accept_run(
         self, source: str, seq: int, k0: int, off: int, n: int, names: list[str], arrays: list[np.ndarray], *, first: bool
@@ -481,35 +481,30 @@ class WindowBuffer:
             return False
         if len(self._rows) != len(self._inputs) + len(self._outputs):
             return False
-        steps = (complete - self._next_close) // self._h
-        end = self._next_close + steps * self._h
-        self._next_close = end + self._h
-        self._counts["windows_closed"] += steps + 1
-        coalesced = steps + (1 if self._pending is not None else 0)
-        self._counts["windows_coalesced"] += coalesced
-        self._coalesced_since += coalesced
-        w, cap = self._w, self._cap
-        s0 = (end - w) % cap
-        if s0 + w <= cap:
-            block = self._ring[:, s0 : s0 + w]
-        else:
-            block = np.concatenate((self._ring[:, s0:], self._ring[:, : s0 + w - cap]), axis=1)
+        n, keep = due_windows(self._next_close, complete, self._h, self._w, self._start, self._queue.limit)
+        self._next_close += n * self._h
+        closed0 = self._counts["windows_closed"]
+        self._counts["windows_closed"] += n
+        coalesced = n - len(keep)
         n_in = len(self._inputs)
-        self._number += 1
-        self._pending = Window(
-            stream=self.stream,
-            number=self._number,
-            epoch=self._epoch,
-            t0_ns=self._anchor + (end - w) * self._period,  # type: ignore[operator]
-            period_ns=self._period,  # type: ignore[arg-type]
-            input_names=self._inputs,
-            output_names=self._outputs,
-            u=block[:n_in].T.copy(),
-            y=block[n_in:].T.copy(),
-            closed_monotonic_ns=time.monotonic_ns(),
-            closed_unix_ns=time.time_ns(),
-            coalesced_before=self._coalesced_since,
-        )
-        self._counts["windows_emitted"] += 1
-        return True
-
+        for i, end in keep:
+            block = cut_block(self._ring, end, self._w)
+            self._number += 1
+            window = Window(
+                stream=self.stream,
+                number=self._number,
+                epoch=self._epoch,
+                t0_ns=self._anchor + (end - self._w) * self._period,  # type: ignore[operator]
+                period_ns=self._period,  # type: ignore[arg-type]
+                input_names=self._inputs,
+                output_names=self._outputs,
+                u=block[:n_in].T.copy(),
+                y=block[n_in:].T.copy(),
+                closed_monotonic_ns=time.monotonic_ns(),
+                closed_unix_ns=time.time_ns(),
+                coalesced_before=0,  # set when taken (see PendingWindows.pop)
+            )
+            coalesced += self._queue.push(closed0 + i + 1, window)
+            self._counts["windows_emitted"] += 1
+        self._counts["windows_coalesced"] += coalesced
+        return bool(keep)

@@ -14,11 +14,16 @@ import numpy as np
 
 from streamid.errors import ConfigError
 
-__all__ = ["DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "BatchLike", "Event", "Window", "WindowParams", "estimate_period"]
+__all__ = [
+    "DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "MAX_PENDING_WINDOWS", "BatchLike", "Event", "Window", "WindowParams",
+    "estimate_period", "grid_runs",
+]
 
 #: Window length and hop used when neither seconds nor samples are given.
 DEFAULT_WINDOW_S = 10.0
 DEFAULT_HOP_S = 1.0
+#: Largest accepted ``max_pending_windows``: a hard bound, whatever the configuration.
+MAX_PENDING_WINDOWS = 1000
 
 
 class BatchLike(Protocol):
@@ -58,6 +63,10 @@ class WindowParams:
     align_slack_samples
         How far one column (e.g. u on its own key) may run ahead of another
         before the lagging one is declared unaligned.  ``None``: max(window, hop).
+    max_pending_windows
+        How many closed windows may wait for identification (1 to
+        :data:`~streamid.daemon.pending.MAX_PENDING_WINDOWS`); a window closing
+        with that many waiting drops the oldest.  See :mod:`streamid.daemon.pending`.
     """
 
     window_s: float | None = None
@@ -69,6 +78,7 @@ class WindowParams:
     max_abs_value: float = 1e12
     max_window_samples: int = 4_000_000
     align_slack_samples: int | None = None
+    max_pending_windows: int = 1
 
     def __post_init__(self) -> None:
         if self.window_s is None and self.window_samples is None:
@@ -89,6 +99,9 @@ class WindowParams:
             isinstance(self.align_slack_samples, int) and self.align_slack_samples >= 1
         ):
             raise ConfigError(f"align_slack_samples must be an integer >= 1; got {self.align_slack_samples!r}")
+        v = self.max_pending_windows
+        if not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_PENDING_WINDOWS):
+            raise ConfigError(f"max_pending_windows must be an integer in [1, {MAX_PENDING_WINDOWS}]; got {v!r}")
         if not (isinstance(self.max_abs_value, (int, float)) and self.max_abs_value > 0):
             raise ConfigError(f"max_abs_value must be a number > 0; got {self.max_abs_value!r}")
         for name in ("inputs", "outputs"):
@@ -120,6 +133,22 @@ def estimate_period(t_ns: np.ndarray) -> int:
     kc = k - k.mean()
     den = float(kc @ kc)
     return int(round(float(kc @ (t_ns - t_ns[0]).astype(np.float64)) / den)) if den > 0 else int(p0)
+
+
+def grid_runs(t_ns: np.ndarray, anchor: int, period: int) -> list[tuple[int, int, int]] | None:
+    """Explicit time stamps as runs ``(first grid index, offset in the batch, length)`` of consecutive samples.
+
+    None if they are not strictly increasing on the grid ``anchor + k * period``.
+    """
+    idx = (t_ns - anchor + period // 2) // period
+    d = np.diff(idx)
+    if d.size == 0 or (d == 1).all():
+        return [(int(idx[0]), 0, len(idx))]
+    if (d <= 0).any():
+        return None
+    cuts = np.flatnonzero(d != 1) + 1
+    bounds = [0, *cuts.tolist(), len(idx)]
+    return [(int(idx[a]), a, b - a) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 @dataclass(frozen=True, eq=False)

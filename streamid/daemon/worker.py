@@ -5,7 +5,12 @@ and the stream's settings: it splits the window (the newest
 ``validation_fraction`` is held out), runs the coevolution generation by
 generation -- cold, or warm-started from the previous final populations, which
 the engine re-evaluates on the new data -- checks the model on the validation
-part, and returns an :class:`Outcome`.  It never raises for bad data or a
+part, and returns an :class:`Outcome`.  The model is the run's best pair (lowest
+one-step-ahead error, the paper's choice) or, with the engine setting
+``selection = "fr_est"``, the one of the best pair and the final population
+with the highest free-run R^2 on the estimation part (as
+:func:`~streamid.engine.identify.identify` chooses; validation data are never
+looked at).  It never raises for bad data or a
 failed identification: those are outcomes (``dropped``, ``failed``,
 ``rejected``), counted by the service, which keeps the previous model.
 
@@ -31,6 +36,7 @@ from streamid.daemon.config import StreamConfig
 from streamid.daemon.validate import ValidationSummary, summarise
 from streamid.daemon.window import Window
 from streamid.engine import CoEAState, Coevolution, Model
+from streamid.engine.identify import free_run_r2
 from streamid.errors import StreamidError
 
 __all__ = ["Outcome", "Stopped", "identify_window", "signature_of", "rng_for"]
@@ -187,6 +193,11 @@ def identify_window(
             if on_generation is not None:
                 on_generation(window.stream, progress)
         model = co.best_model()
+        if engine_cfg.selection == "fr_est":  # choose by free run on the estimation part, as identify() does
+            cands = [model, *co.population_models()]
+            scores = free_run_r2(cands, u_est, y_est)
+            k = int(np.argmax(scores))
+            model = cands[k].with_metrics(selection="fr_est", selection_score=float(scores[k]))
         state = co.state()
     except Stopped:
         raise

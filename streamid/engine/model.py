@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,8 +64,8 @@ def free_run(
         Shared by all networks; ``L = max lag``.
     centres : ndarray, shape (C, M, k)
     widths, weights : ndarray, shape (C, M)
-    un : ndarray, shape (N, n_inputs)
-        Normalised inputs.
+    un : ndarray, shape (N, n_inputs) or (C, N, n_inputs)
+        Normalised inputs: the same for every network, or one sequence per network.
     yn_init : ndarray, shape (C, L)
         Normalised initial outputs (the first ``L`` samples).
 
@@ -73,32 +73,77 @@ def free_run(
     -------
     ndarray, shape (C, N)
         The first ``L`` columns are ``yn_init``; then each network's recursive prediction.
+
+    Notes
+    -----
+    The recursion is inherently sequential, so its cost is the per-step
+    overhead of numpy calls: the input terms of every step are computed at
+    once beforehand, and each step then takes a fixed handful of calls on
+    preallocated buffers, whatever ``C`` (all networks advance together).
     """
     C, M, _ = centres.shape
-    n = un.shape[0]
+    if un.ndim == 2:
+        un = un[None]
+    n = un.shape[1]
     L = max((r.lag for r in regressors), default=0)
     a = 1.0 / (2.0 * widths**2)  # (C, M)
     yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
     lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
-    # Squared distances contributed by the input regressors, for every step at once.
-    du = np.zeros((C, n, M))
+    # Scaled squared distances contributed by the input regressors, every step at once, time-major.
+    du = np.zeros((n, C, M))
     for j, reg in enumerate(regressors):
         if reg.signal == "u":
-            col = np.zeros(n)
-            col[reg.lag :] = un[: n - reg.lag, reg.index]
-            du += (col[None, :, None] - centres[:, None, :, j]) ** 2
-    du *= a[:, None, :]
-    cy = np.ascontiguousarray(centres[:, :, yj])  # (C, M, ky)
-    y = np.empty((C, n))
-    y[:, :L] = yn_init[:, :L]
+            col = np.zeros((n, un.shape[0]))
+            col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
+            du += (col[:, :, None] - centres[None, :, :, j]) ** 2
+    du *= a[None]
+    ndu = np.negative(du, out=du).reshape(n, C * M)
+    y = np.empty((n, C))
+    y[:L] = yn_init[:, :L].T
+    if lags.size == 0:  # no output terms: nothing recursive
+        np.exp(ndu[L:], out=ndu[L:])
+        y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
+        return np.ascontiguousarray(y.T)
+    # Step t gathers y(t - lag_k) of network c for every neuron m from the flat slice y[t - L : t]:
+    # position (L - lag_k) * C + c of that slice, repeated for the M neurons (order c, m, k).
+    rel = ((L - lags)[None, None, :] * C + np.arange(C)[:, None, None]).repeat(M, axis=1).reshape(-1)
+    cy = np.ascontiguousarray(centres[:, :, yj]).reshape(-1)
+    af = np.ascontiguousarray(a).reshape(-1)
+    ones = np.ones(lags.size)
+    yf = y.reshape(-1)
+    diff = np.empty(cy.size)
+    diff2 = diff.reshape(C * M, lags.size)
+    d = np.empty(C * M)
+    sub, mul, dot, exp = np.subtract, np.multiply, np.dot, np.exp
+    if C == 1:
+        w0 = np.ascontiguousarray(weights[0])
+        for t in range(L, n):
+            sub(yf[t - L : t][rel], cy, out=diff)
+            mul(diff, diff, out=diff)
+            dot(diff2, ones, out=d)
+            mul(d, af, out=d)
+            sub(ndu[t], d, out=d)  # -(du + a * sum_k (y(t - lag_k) - c_k)^2)
+            exp(d, out=d)
+            yf[t] = dot(d, w0)
+        return np.ascontiguousarray(y.T)
+    if C <= 64:  # block-diagonal weights: one matrix-vector product gives every network's output
+        wmat = np.zeros((C, C * M))
+        for c in range(C):
+            wmat[c, c * M : (c + 1) * M] = weights[c]
+    wts = np.ascontiguousarray(weights)
+    dm = d.reshape(C, M)
     for t in range(L, n):
-        if lags.size:
-            diff = y[:, t - lags][:, None, :] - cy  # (C, M, ky)
-            d = du[:, t, :] + np.einsum("cmk,cmk->cm", diff, diff) * a
+        sub(yf[(t - L) * C : t * C][rel], cy, out=diff)
+        mul(diff, diff, out=diff)
+        dot(diff2, ones, out=d)
+        mul(d, af, out=d)
+        sub(ndu[t], d, out=d)
+        exp(d, out=d)
+        if C <= 64:
+            dot(wmat, d, out=y[t])
         else:
-            d = du[:, t, :]
-        y[:, t] = np.einsum("cm,cm->c", np.exp(-d), weights)
-    return y
+            np.einsum("cm,cm->c", dm, wts, out=y[t])
+    return np.ascontiguousarray(y.T)
 
 
 @dataclass(frozen=True, eq=False)
@@ -244,30 +289,61 @@ class Model:
         ndarray, shape (N,)
             First ``max_lag`` values from ``y_init``, then the simulated outputs.
         """
+        return self.simulate_many([(u, y_init)])[0]
+
+    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
+        """Several free runs of this model at once, e.g. on the estimation and the validation data.
+
+        Equal to ``[self.simulate(u, y_init) for u, y_init in runs]`` (to rounding), in one
+        recursion over the longest input: the runs advance together, so two runs cost
+        about as much as the longer one alone.
+
+        Parameters
+        ----------
+        runs : sequence of (u, y_init)
+            As for :meth:`simulate`.
+
+        Returns
+        -------
+        list of ndarray
+            One array per run, shaped like its ``u``'s first axis.
+        """
         L = self.max_lag
-        try:
-            yi = np.asarray(y_init, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            raise DataError(f"y_init must be an array of numbers; got {y_init!r}") from None
-        if yi.size < L:
-            raise DataError(f"y_init must hold at least max_lag = {L} samples; got {yi.size}")
-        try:
-            n_u = int(np.shape(u)[0])
-        except (IndexError, TypeError):
-            raise DataError(f"u must have shape (N,) or (N, n_inputs); got {u!r}") from None
-        ua, _ = self._check(u, np.zeros(n_u))
-        check_finite("y_init", yi[:L])
-        yn0 = self.normalisation.y(yi[:L])
+        parts: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+        for u, y_init in runs:
+            try:
+                yi = np.asarray(y_init, dtype=np.float64).reshape(-1)
+            except (TypeError, ValueError):
+                raise DataError(f"y_init must be an array of numbers; got {y_init!r}") from None
+            if yi.size < L:
+                raise DataError(f"y_init must hold at least max_lag = {L} samples; got {yi.size}")
+            try:
+                n_u = int(np.shape(u)[0])
+            except (IndexError, TypeError):
+                raise DataError(f"u must have shape (N,) or (N, n_inputs); got {u!r}") from None
+            ua, _ = self._check(u, np.zeros(n_u))
+            check_finite("y_init", yi[:L])
+            parts.append((ua, yi[:L]))
+        if not parts:
+            return []
+        n = max(ua.shape[0] for ua, _ in parts)
+        un = np.zeros((len(parts), n, self.n_inputs))  # shorter runs padded (their tails are discarded)
+        for c, (ua, _) in enumerate(parts):
+            un[c, : ua.shape[0]] = self.normalisation.u(ua)
+        C = len(parts)
         yn = free_run(
             self.regressors,
-            self.centres[None],
-            self.widths[None],
-            self.weights[None],
-            self.normalisation.u(ua),
-            yn0[None],
-        )[0]
-        out = self.normalisation.y_inverse(yn)
-        out[:L] = yi[:L]
+            np.broadcast_to(self.centres, (C, *self.centres.shape)),
+            np.broadcast_to(self.widths, (C, self.neurons)),
+            np.broadcast_to(self.weights, (C, self.neurons)),
+            un,
+            np.stack([self.normalisation.y(yi) for _, yi in parts]),
+        )
+        out = []
+        for c, (ua, yi) in enumerate(parts):
+            sim = self.normalisation.y_inverse(yn[c, : ua.shape[0]])
+            sim[:L] = yi
+            out.append(sim)
         return out
 
     # ------------------------------------------------------------------ file format

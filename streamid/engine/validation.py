@@ -252,12 +252,13 @@ def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, floa
 
 
 def _predictions(
-    model: Model, u: ArrayLike, y: ArrayLike
+    model: Model, u: ArrayLike, y: ArrayLike, fr: NDArray[np.float64] | None = None
 ) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
     L = model.max_lag
     osa = model.predict_osa(ua, ya)
-    fr = model.simulate(ua, ya[:L])
+    if fr is None:
+        fr = model.simulate(ua, ya[:L])
     return r2(ya[L:], osa[L:]), r2(ya[L:], fr[L:]), ya[L:] - osa[L:], osa, fr
 
 
@@ -285,11 +286,12 @@ def validate(
     ValidationReport
         Also carries the four prediction arrays in ``predictions``.
     """
-    ue, ye = as_data(u_est, y_est)
-    uv, yv = as_data(u_val, y_val)
     L = model.max_lag
-    osa_e, fr_e, res_e, p_osa_e, p_fr_e = _predictions(model, ue, ye)
-    osa_v, fr_v, res_v, p_osa_v, p_fr_v = _predictions(model, uv, yv)
+    ue, ye = as_data(u_est, y_est, min_samples=L + 2)
+    uv, yv = as_data(u_val, y_val, min_samples=L + 2)
+    p_fr_e, p_fr_v = model.simulate_many([(ue, ye[:L]), (uv, yv[:L])])  # both free runs in one recursion
+    osa_e, fr_e, res_e, p_osa_e, _ = _predictions(model, ue, ye, fr=p_fr_e)
+    osa_v, fr_v, res_v, p_osa_v, _ = _predictions(model, uv, yv, fr=p_fr_v)
     return ValidationReport(
         osa_est=osa_e,
         osa_val=osa_v,
