@@ -9,6 +9,7 @@ A configuration file is optional: every setting has an embedded default, so
     max_streams = 64
     status_every_s = 1.0
     workers = 1
+    helper = true             # one evaluation helper process per worker (the second core, idle CPU only)
     retain_memory = true      # keep freed working memory for reuse: flat RSS (glibc)
 
     [defaults]                # per-stream settings applied to every stream
@@ -191,6 +192,11 @@ class DaemonConfig:
         Period of the status messages.
     workers
         Identification worker threads.
+    helper
+        Give every worker an :class:`~streamid.engine.parallel.EvalHelper`: a
+        process that evaluates half of each population batch on an otherwise
+        idle core (same results; a warm piezo update ~1.5x faster). Ignored
+        where the helper is not supported.
     retain_memory
         Let the C allocator keep and reuse freed working memory (one arena,
         fixed thresholds; see :mod:`streamid.daemon.memory`), so the resident
@@ -207,6 +213,7 @@ class DaemonConfig:
     max_streams: int = 64
     status_every_s: float = 1.0
     workers: int = 1
+    helper: bool = True
     retain_memory: bool = True
     defaults: StreamConfig = field(default_factory=StreamConfig)
     overrides: tuple[tuple[str, StreamConfig], ...] = ()
@@ -269,6 +276,7 @@ _DAEMON_KEYS: dict[str, tuple[str, str]] = {
     "max_streams": ("int", "an integer in [1, 100000]"),
     "status_every_s": ("float", "a number of seconds in [0.01, 3600]"),
     "workers": ("int", "an integer in [1, 64]"),
+    "helper": ("bool", "true or false"),
     "retain_memory": ("bool", "true or false"),
 }
 _TOP_KEYS = ("daemon", "defaults", "streams")

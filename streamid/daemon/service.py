@@ -1,6 +1,6 @@
 """The identification daemon: Zenoh in, windows, warm-started CoEA, models out.
 
-Threads (no processes: Zenoh is not fork-safe, and nothing is pickled):
+Threads (no forked processes: Zenoh is not fork-safe, and nothing is pickled):
 
 * **Zenoh's callback threads** run the receiving path only: split the key,
   :func:`streamid.codec.decode`, :meth:`WindowBuffer.append`.  A closed window
@@ -8,7 +8,12 @@ Threads (no processes: Zenoh is not fork-safe, and nothing is pickled):
 * **Worker threads** (``daemon.workers``, default 1) take pending windows,
   oldest first, one stream at a time each (round robin between streams), run
   :func:`~streamid.daemon.worker.identify_window`, save the state, publish the
-  model and only then draw it in Rerun.  A stream whose identification is still
+  model and only then draw it in Rerun.  Each worker owns an
+  :class:`~streamid.engine.parallel.EvalHelper` (``daemon.helper``): a fresh
+  ``python -m`` process, started before the Zenoh session, sharing memory with
+  the worker, that evaluates half of every population batch on otherwise idle
+  CPU (SCHED_IDLE: it never takes a core from ingestion).  A helper that fails
+  to start is reported once and the worker goes on alone.  A stream whose identification is still
   running keeps at most ``max_pending_windows`` (default 1) newer windows; a
   window closing beyond that drops the oldest (coalesced), so the backlog is
   bounded by construction (:mod:`streamid.daemon.pending`).
@@ -39,7 +44,8 @@ from streamid.daemon.memory import retain_freed_memory
 from streamid.daemon.runtime import StreamRuntime
 from streamid.daemon.state import StateStore
 from streamid.daemon.worker import Outcome, Stopped, identify_window
-from streamid.errors import CodecError, ModelFormatError
+from streamid.engine.parallel import EvalHelper
+from streamid.errors import CodecError, ModelFormatError, StreamidError
 from streamid.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
 from streamid.transport import Bus, ZenohSettings
 
@@ -94,6 +100,7 @@ class Daemon:
         self._ready: deque[str] = deque()
         self._ready_set: set[str] = set()
         self._threads: list[threading.Thread] = []
+        self._helpers: list[EvalHelper | None] = []
         self._subs: list[Any] = []
         self._pubs: dict[str, Any] = {}
         self._global: Counter[str] = Counter()
@@ -113,6 +120,8 @@ class Daemon:
                     names.append(s)
         for s in names:
             self._ensure(s)
+        n_workers = self.config.workers if self.identify else 0
+        self._helpers = [self._start_helper() for _ in range(n_workers)]  # before Zenoh's threads exist
         self.bus = Bus(self.zenoh)
         try:
             if self.config.discover:
@@ -124,9 +133,10 @@ class Daemon:
                 self._declare(self._streams[s])
         except Exception:
             self.bus.close()
+            self._close_helpers()
             raise
-        for i in range(self.config.workers if self.identify else 0):
-            self._spawn(self._worker_loop, f"streamid-worker-{i}")
+        for i in range(n_workers):
+            self._spawn(lambda i=i: self._worker_loop(self._helpers[i]), f"streamid-worker-{i}")
         self._spawn(self._housekeeping_loop, "streamid-housekeeping")
         if self.viz is not None:
             for s in names:  # one tab per stream, in the configured order
@@ -134,6 +144,21 @@ class Daemon:
             self.viz.log_event(None, f"daemon started: streams {names or '(discovering)'}")
         _log.info("daemon started; streams %s; discovery %s", names, "on" if self.config.discover else "off")
         return self
+
+    def _start_helper(self) -> EvalHelper | None:
+        if not (self.config.helper and EvalHelper.supported()):
+            return None
+        try:
+            return EvalHelper(wait=False)  # the first batches go alone until it runs (~0.15 s)
+        except (StreamidError, OSError) as exc:
+            _log.warning("no evaluation helper (identification uses one core): %s", exc)
+            return None
+
+    def _close_helpers(self) -> None:
+        for h in self._helpers:
+            if h is not None:
+                h.close()
+        self._helpers = []
 
     def _spawn(self, target: Any, name: str) -> None:
         t = threading.Thread(target=target, name=name, daemon=True)
@@ -165,6 +190,8 @@ class Daemon:
         alive = [t.name for t in self._threads if t.is_alive()]
         if alive:
             _log.warning("threads still running at shutdown: %s", alive)
+        else:
+            self._close_helpers()  # (a worker still running keeps its helper; the process exit ends both)
         self._save_all()
         if self.viz is not None:
             self.viz.log_event(None, "daemon stopped")
@@ -303,13 +330,13 @@ class Daemon:
                 self._sched.wait(left)
             return None
 
-    def _worker_loop(self) -> None:
+    def _worker_loop(self, helper: EvalHelper | None = None) -> None:
         while not self._stop.is_set():
             rt = self._next()
             if rt is None:
                 continue
             try:
-                self._process(rt)
+                self._process(rt, helper)
             except Stopped:
                 return
             except Exception:  # noqa: BLE001 - one stream's bug must not stop the others
@@ -320,7 +347,7 @@ class Daemon:
                 if rt.buffer.has_pending:
                     self._wake(rt.name)
 
-    def _process(self, rt: StreamRuntime) -> None:
+    def _process(self, rt: StreamRuntime, helper: EvalHelper | None = None) -> None:
         window = rt.buffer.take()
         if window is None:
             return
@@ -334,6 +361,7 @@ class Daemon:
                 force_cold=rt.force_cold,
                 stop=self._stop,
                 on_generation=self.on_generation,
+                helper=helper,
             )
         except Stopped:
             raise

@@ -35,7 +35,7 @@ import numpy as np
 from streamid.daemon.config import StreamConfig
 from streamid.daemon.validate import ValidationSummary, summarise
 from streamid.daemon.window import Window
-from streamid.engine import CoEAState, Coevolution, Model
+from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine.identify import free_run_r2
 from streamid.errors import StreamidError
 
@@ -120,8 +120,12 @@ def identify_window(
     force_cold: bool = False,
     stop: threading.Event | None = None,
     on_generation: Callable[[str, Any], None] | None = None,
+    helper: EvalHelper | None = None,
 ) -> Outcome:
     """Identify ``window``; ``version`` is the version the model would get.
+
+    ``helper`` (an :class:`~streamid.engine.parallel.EvalHelper` this worker owns)
+    evaluates half of every population batch; the outcome is the same without it.
 
     Raises
     ------
@@ -179,11 +183,11 @@ def identify_window(
     rng = rng_for(cfg, window.stream, version)
     try:
         try:
-            co = _start(u_est, y_est, engine_cfg, rng, warm_state if warm else None, window, out_name, meta)
+            co = _start(u_est, y_est, engine_cfg, rng, warm_state if warm else None, window, out_name, meta, helper)
         except _WarmMismatch:  # the saved populations do not fit this data: start cold
             warm = False
             engine_cfg = cfg.coea_config(cold=True)
-            co = _start(u_est, y_est, engine_cfg, rng, None, window, out_name, meta)
+            co = _start(u_est, y_est, engine_cfg, rng, None, window, out_name, meta, helper)
     except StreamidError as exc:
         return Outcome("failed", f"identification could not start: {exc}", "engine_error", signature=sig, **common)
     try:
@@ -255,11 +259,12 @@ def _start(
     window: Window,
     out_name: str,
     meta: dict[str, Any],
+    helper: EvalHelper | None = None,
 ) -> Coevolution:
     try:
         return Coevolution(
             u, y, engine_cfg, rng, warm_start=warm, input_names=window.input_names, output_name=out_name,
-            window={"stream": window.stream, **meta},
+            window={"stream": window.stream, **meta}, helper=helper,
         )
     except StreamidError:
         if warm is not None:
