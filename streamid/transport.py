@@ -142,6 +142,12 @@ class ZenohSettings:
                 conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
             if self.connect or self.config_file is None:
                 conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+            # Zenoh's shared-memory transport (on by default) maps a 16 MiB pool in /dev/shm per
+            # process and removes it at exit; the streamid command leaves with os._exit (see
+            # streamid.cli), which skipped that and left ~35 MB behind per `streamid demo`.
+            # Loopback TCP carries 80k 16-kB messages/s here, far above what decoding takes in.
+            # Off unless `extra` turns it on (a file cannot: its "true" is Zenoh's default).
+            conf.insert_json5("transport/shared_memory/enabled", "false")
             for key, value in self.extra:
                 conf.insert_json5(key, value)
         except zenoh.ZError as exc:

@@ -200,3 +200,32 @@ def test_config_file_without_listen_or_scouting_stays_on_loopback(tmp_path) -> N
     conf = ZenohSettings(mode=None, config_file=str(explicit)).to_config()
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7999"]
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is True
+
+
+def test_sessions_leave_nothing_in_dev_shm_even_after_os_exit(zenoh_endpoint: str) -> None:
+    """Zenoh's shared-memory pools (16 MiB each) are off: a CLI process leaving with os._exit left them behind."""
+    import os
+    import subprocess
+    import sys
+
+    assert ZenohSettings().to_config().get_json("transport/shared_memory/enabled") == "false"
+    on = ZenohSettings(extra=(("transport/shared_memory/enabled", "true"),))
+    assert on.to_config().get_json("transport/shared_memory/enabled") == "true"  # still possible, explicitly
+    if not os.path.isdir("/dev/shm"):
+        pytest.skip("no /dev/shm here")
+    code = (
+        "import json, os, sys\n"
+        "from streamid.transport import Bus, ZenohSettings\n"
+        f"b = Bus(ZenohSettings(listen=({zenoh_endpoint!r},)))\n"
+        "b.put('streamid/shm/samples', bytes(16000))\n"
+        "print(json.dumps(sorted(os.listdir('/dev/shm'))), flush=True)\n"
+        "b.close()\n"
+        "os._exit(0)\n"
+    )
+    before = set(os.listdir("/dev/shm"))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    during = {n for n in json.loads(out.stdout.strip().splitlines()[-1]) if n.endswith(".zenoh")}
+    after = {n for n in os.listdir("/dev/shm") if n.endswith(".zenoh")} - before
+    assert not (during - before), f"zenoh mapped shared memory: {sorted(during - before)}"
+    assert not after, f"left behind in /dev/shm: {sorted(after)}"
