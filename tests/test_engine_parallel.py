@@ -113,7 +113,9 @@ def test_the_helper_goes_away_with_a_killed_owner():
         "import os, sys\n"
         "from streamid.engine import EvalHelper\n"
         "h = EvalHelper()\n"
-        "print(h.pid, os.path.dirname(h._ctl_path), flush=True)\n"
+        "folder = os.path.dirname(h._ctl_path)\n"
+        "open(os.path.join(folder, 'data-99'), 'wb').close()  # as a bind() cut short: its path never written\n"
+        "print(h.pid, folder, flush=True)\n"
         "sys.stdin.read()\n"
     )
     owner = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)

@@ -48,7 +48,7 @@ from streamid.engine.parallel import (
     _STARTED,
     _UNIFORMS,
     _layout,
-    _unlink,
+    _remove_folder,
     _views,
 )
 from streamid.engine.rbf import BatchEvaluator
@@ -156,14 +156,7 @@ def serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
                         pass
             ctl[_SLEEPING] = 0
             if os.getppid() != parent:  # the caller died without closing: remove what it left
-                raw = bytes(cmm[_PATH_AT:_PATH_MAX]).split(b"\0", 1)[0].decode(errors="replace")
-                for path in (raw, ctl_path):
-                    if path:
-                        _unlink(path)
-                try:
-                    os.rmdir(os.path.dirname(ctl_path))
-                except OSError:
-                    pass
+                _remove_folder(os.path.dirname(ctl_path))
                 return 0
     return 0
 

@@ -236,6 +236,8 @@ class EvalHelper:
         cap = max(1, capacity - (capacity + 1) // 2)
         lay = _layout(n, d, int(neurons), cap, max(0, int(uniforms)))
         with self._lock:
+            if self._closed:
+                raise StreamidError("this EvalHelper is closed")
             path = os.path.join(self._dir, f"data-{self._bind_seq + 1}")
             with open(path, "wb") as f:
                 f.truncate(max(lay["_size"][0], 1))
@@ -285,13 +287,8 @@ class EvalHelper:
         self._cleanup_files()
 
     def _cleanup_files(self) -> None:
-        if self._data is not None:
-            _unlink(self._data[0])
-        _unlink(self._ctl_path)
-        try:
-            os.rmdir(self._dir)
-        except OSError:
-            pass
+        with self._lock:  # never while a bind() is creating the next data file
+            _remove_folder(self._dir)
 
     def __enter__(self) -> EvalHelper:
         return self
@@ -459,4 +456,18 @@ def _unlink(path: str) -> None:
     try:
         os.unlink(path)
     except FileNotFoundError:
+        pass
+
+
+def _remove_folder(folder: str) -> None:
+    """Remove the helper's private folder and every file in it (only ever files of ours: mkdtemp)."""
+    try:
+        names = os.listdir(folder)
+    except FileNotFoundError:
+        return
+    for name in names:
+        _unlink(os.path.join(folder, name))
+    try:
+        os.rmdir(folder)
+    except OSError:
         pass
