@@ -34,8 +34,13 @@ Why this is safe and exact
   elsewhere): it never takes CPU time from the caller or any other program,
   it only uses a core that would otherwise idle.
 * **Nothing is pickled.** Control words, data and results are plain arrays in
-  two files on ``/dev/shm`` (tmpfs) that both processes map; they are removed
-  by :meth:`EvalHelper.close`. The helper exits when its parent disappears.
+  files of a private folder on ``/dev/shm`` (tmpfs) that both processes map; the
+  folder is removed by :meth:`EvalHelper.close`, or by the helper when its
+  parent disappears without closing (it then exits).
+* **Random numbers drawn ahead.** In its idle time the helper draws the next
+  block of uniforms of a run from a copy of the caller's PCG64 state
+  (:meth:`HelperBinding.request_uniforms`); the caller takes them and advances
+  its own generator past them, so the stream is exactly the caller's.
 
 One helper serves one run at a time: :meth:`EvalHelper.bind` for a new run retires
 the previous binding (which then evaluates in its own process).
