@@ -51,3 +51,44 @@ def test_each_worker_owns_a_helper_that_stops_with_the_daemon(zenoh_endpoint: st
         for h, f in zip(helpers, folders):
             assert h._proc.poll() is not None, "a helper outlived its daemon"
             assert not os.path.exists(f), "a helper's shared files were left behind"
+
+
+def _helper_folders() -> set[str]:
+    import glob
+    import tempfile
+
+    roots = ["/dev/shm", tempfile.gettempdir()]
+    return {p for r in roots for p in glob.glob(os.path.join(r, "streamid-helper-*"))}
+
+
+def test_a_sigkilled_daemon_leaves_no_helper_behind(tmp_path) -> None:
+    """The daemon's helpers notice their owner's death, remove their shared files and exit."""
+    import signal
+    import time
+
+    import numpy as np
+
+    from conftest import endpoint
+    from test_daemon_cli import replay, start_daemon, wait_version
+    from test_engine_parallel import _alive
+
+    before = _helper_folders()
+    ep = endpoint()
+    proc = start_daemon(tmp_path, ep)
+    try:
+        replay(ep, end_s=4.0)  # identifications run: the helper holds a run's data
+        wait_version(ep, 1)
+        mine = _helper_folders() - before
+        assert mine, "the daemon started no evaluation helper"
+        pids = [int(np.fromfile(os.path.join(f, "control"), dtype=np.int64, count=2)[1]) for f in mine]
+        assert all(p > 0 for p in pids)  # the helpers wrote their pids (control word 1)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and ((_helper_folders() & mine) or any(map(_alive, pids))):
+            time.sleep(0.05)
+        assert not (_helper_folders() & mine), "a helper left its shared files behind"
+        assert not any(map(_alive, pids)), "a helper outlived its daemon"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
