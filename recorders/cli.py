@@ -7,8 +7,9 @@ import json
 import threading
 
 from streamid.errors import ConfigError
-from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags, settings_from_args
-from streamid.signals import stop_on_signals
+from streamid.transport import DEFAULT_ENDPOINT
+from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
+from streamid.commands.os_signals import stop_on_signals
 
 __all__ = ["register_record", "register_simulate", "run_record", "run_simulate"]
 

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.errors import DataError, StreamidError
-from streamid.mcaplog import write_arrays_log
+from streamid.logs import write_arrays_log
 
 __all__ = ["RealLog", "REAL_LOGS", "load_mr_damper", "load_piezo_p885", "convert"]
 

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from streamid.errors import ConfigError
-from streamid.keys import check_stream_name
-from streamid.mcaplog import write_arrays_log
+from streamid.wire.keys import check_stream_name
+from streamid.logs import write_arrays_log
 
 __all__ = ["DeviceSpec", "DEVICES", "simulate_device_log"]
 

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
-from streamid import codec
+from streamid.wire import codec
 from streamid.errors import ConfigError, LogError
-from streamid.mcaplog import LogWriter
+from streamid.logs import LogWriter
 from streamid.transport import Bus, ZenohSettings
 
 __all__ = ["RecorderConfig", "RecordStats", "Recorder", "record"]

@@ -24,7 +24,7 @@ import numpy as np
 
 from replay.player import ReplayConfig, replay_log
 from streamid.errors import StreamidError
-from streamid.mcaplog import write_arrays_log
+from streamid.logs import write_arrays_log
 from streamid.transport import ZenohSettings
 
 __all__ = ["bench_max_speed", "bench_realtime", "bench"]
@@ -101,8 +101,8 @@ def bench_realtime(duration_s: float = 10.0, seed: int = 0) -> dict[str, Any]:
 
 
 def bench(options: Any) -> Iterator[Any]:
-    """``streamid bench`` provider: yields ``streamid.benchkit.Measurement`` rows."""
-    from streamid.benchkit import Measurement
+    """``streamid bench`` provider: yields ``streamid.bench.kit.Measurement`` rows."""
+    from streamid.bench.kit import Measurement
 
     quick = bool(getattr(options, "quick", False))
     repeat = max(1, int(getattr(options, "repeat", 1)))

@@ -8,9 +8,10 @@ import threading
 from pathlib import Path
 
 from streamid.errors import ConfigError
-from streamid.mcaplog import bundled_log, bundled_logs
-from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags, settings_from_args
-from streamid.signals import stop_on_signals
+from streamid.logs import bundled_log, bundled_logs
+from streamid.transport import DEFAULT_ENDPOINT
+from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
+from streamid.commands.os_signals import stop_on_signals
 
 __all__ = ["register", "run", "resolve_log"]
 

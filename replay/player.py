@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from streamid import codec
+from streamid.wire import codec
 from streamid.errors import CodecError, ConfigError
-from streamid.keys import SAMPLE_KINDS, check_stream_name, parse_key
-from streamid.mcaplog import LogMessage, LogReader
+from streamid.wire.keys import SAMPLE_KINDS, check_stream_name, parse_key
+from streamid.logs import LogMessage, LogReader
 from streamid.transport import Bus, BusPublisher, ZenohSettings
 
 __all__ = ["ReplayConfig", "ReplayReport", "replay_log", "parse_stream_map"]

@@ -31,7 +31,7 @@ __all__ = [
 ]
 
 _ENGINE_EXPORTS = {
-    "CoEAConfig": "streamid.engine.config",
+    "CoEAConfig": "streamid.engine.settings",
     "CoEAState": "streamid.engine.coevolution",
     "Coevolution": "streamid.engine.coevolution",
     "EvalHelper": "streamid.engine.parallel",

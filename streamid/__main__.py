@@ -1,3 +1,3 @@
-from streamid.cli import console_main
+from streamid.commands.main import console_main
 
 console_main()

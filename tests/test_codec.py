@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid import codec, protowire
-from streamid.codec import CodecError, SampleBatch, decode, encode
+from streamid.wire import codec
+
+from streamid.wire import protobuf as protowire
+from streamid.wire.codec import CodecError, SampleBatch, decode, encode
 
 DATA = Path(__file__).parent / "data"
 

@@ -12,7 +12,8 @@ import pytest
 
 from conftest import endpoint
 from recorders import Recorder
-from streamid import codec, mcaplog
+from streamid.wire import codec
+from streamid import logs as mcaplog
 from streamid.transport import ZenohSettings
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "wire-format.md"
@@ -53,7 +54,7 @@ def test_protobuf_class_example_matches_hand_written(tmp_path: Path) -> None:
     # stand-in for what `protoc --python_out=. sample_batch.proto` generates
     (tmp_path / "sample_batch_pb2.py").write_text(
         "from google.protobuf import descriptor_pb2, descriptor_pool, message_factory\n"
-        "from streamid.codec import FILE_DESCRIPTOR_SET\n"
+        "from streamid.wire.codec import FILE_DESCRIPTOR_SET\n"
         "_pool = descriptor_pool.DescriptorPool()\n"
         "for _f in descriptor_pb2.FileDescriptorSet.FromString(FILE_DESCRIPTOR_SET).file:\n"
         "    _pool.Add(_f)\n"

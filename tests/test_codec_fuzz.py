@@ -7,8 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from streamid import codec
-from streamid.codec import CodecError, SampleBatch, decode, encode
+from streamid.wire import codec
+from streamid.wire.codec import CodecError, SampleBatch, decode, encode
 
 FUZZ = settings(max_examples=400, deadline=None)
 

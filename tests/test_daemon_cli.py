@@ -19,8 +19,8 @@ from pathlib import Path
 from conftest import STREAMID, endpoint
 
 from replay.player import ReplayConfig, replay_log
-from streamid.client import latest_model
-from streamid.mcaplog import bundled_log
+from streamid.transport.client import latest_model
+from streamid.logs import bundled_log
 from streamid.transport import ZenohSettings
 
 RERUN = str(Path(sys.executable).parent / "rerun")

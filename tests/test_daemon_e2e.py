@@ -21,15 +21,15 @@ import pytest
 from conftest import endpoint
 
 from replay.player import ReplayConfig, replay_log
-from streamid.client import ModelSubscriber, latest_model, latest_status
-from streamid.codec import SampleBatch, encode
+from streamid.transport.client import ModelSubscriber, latest_model, latest_status
+from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.daemon.messages import ModelUpdate
+from streamid.wire.documents import ModelUpdate
 from streamid.daemon.service import Daemon
 from streamid.engine.validation import r2
-from streamid.mcaplog import bundled_log, read_log_arrays
+from streamid.logs import bundled_log, read_log_arrays
 from streamid.transport import Bus, ZenohSettings
-from streamid.viz import Viz, VizSettings
+from streamid.viz.rerun_view import Viz, VizSettings
 
 STREAM = "mr_damper"
 CFG = DaemonConfig(

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from conftest import endpoint
 
-from streamid.client import ModelSubscriber, latest_model, latest_status
-from streamid.codec import SampleBatch, encode
+from streamid.transport.client import ModelSubscriber, latest_model, latest_status
+from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
 from streamid.daemon.service import Daemon
 from streamid.sim import get_device

@@ -8,7 +8,7 @@ import pytest
 
 from streamid.daemon.config import DaemonConfig, StreamConfig
 from streamid.daemon.service import Daemon
-from streamid.daemon.worker import identify_window
+from streamid.online.update import identify_window
 from streamid.engine import EvalHelper
 from streamid.transport import ZenohSettings
 

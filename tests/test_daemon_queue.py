@@ -22,12 +22,12 @@ import pytest
 from conftest import endpoint
 
 from replay.player import ReplayConfig, replay_log
-from streamid.client import ModelSubscriber, latest_status
+from streamid.transport.client import ModelSubscriber, latest_status
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.daemon.messages import ModelUpdate
+from streamid.wire.documents import ModelUpdate
 from streamid.daemon.service import Daemon
 from streamid.engine.validation import r2
-from streamid.mcaplog import bundled_log, read_log_arrays
+from streamid.logs import bundled_log, read_log_arrays
 from streamid.transport import Bus, ZenohSettings
 
 BASE = StreamConfig(window_s=3.0, update_every_s=0.5, cold_generations=100, warm_generations=8, neurons=5,

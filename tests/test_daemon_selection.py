@@ -7,14 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from streamid.codec import SampleBatch
+from streamid.wire.codec import SampleBatch
 from streamid.daemon.config import StreamConfig, config_from_mapping
-from streamid.daemon.window import WindowBuffer
-from streamid.daemon.worker import identify_window
+from streamid.online.window import WindowBuffer
+from streamid.online.update import identify_window
 from streamid.engine.identify import free_run_r2
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError
-from streamid.mcaplog import bundled_log, read_log_arrays
+from streamid.logs import bundled_log, read_log_arrays
 
 BASE = StreamConfig(window_s=3.0, update_every_s=1.5, cold_generations=40, warm_generations=10, neurons=5,
                     max_lag_y=3, max_lag_u=3, seed=2, max_pending_windows=8)

@@ -12,9 +12,9 @@ import pytest
 
 from streamid.daemon.config import StreamConfig
 from streamid.daemon.runtime import StreamRuntime
-from streamid.daemon.state import StateStore, StreamState, atomic_write_text
-from streamid.daemon.window import Window
-from streamid.daemon.worker import identify_window
+from streamid.daemon.state_store import StateStore, StreamState, atomic_write_text
+from streamid.online.window import Window
+from streamid.online.update import identify_window
 from streamid.errors import ConfigError, ModelFormatError
 from streamid.sim import get_device
 

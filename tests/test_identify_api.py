@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid.dataset import load_dataset, load_table, split_index
+from streamid.logs.datafile import load_dataset, load_table, split_index
 from streamid.engine import CoEAConfig
 from streamid.engine.identify import free_run_r2, identify, refit_weights
 from streamid.errors import DataError
@@ -76,7 +76,7 @@ def test_load_csv_mat_mcap(tmp_path: Path) -> None:
         load_dataset(p, ["d"], "c")
     mat = load_table(DATA / "mr_damper" / "Magneto.mat")
     assert {"U", "Y", "U_val", "Y_val"} <= set(mat.columns) and len(mat.columns["U"]) == 2000
-    from streamid.mcaplog import bundled_log
+    from streamid.logs import bundled_log
 
     log = load_dataset(bundled_log("mr_damper"), ["velocity_cm_s"], "force_N", est=2000)
     assert log.n_est == 2000 and log.n_val == 1499

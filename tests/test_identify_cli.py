@@ -91,7 +91,7 @@ def test_mat_file(tmp_path: Path) -> None:
 
 
 def test_mcap_log() -> None:
-    from streamid.mcaplog import bundled_log
+    from streamid.logs import bundled_log
 
     p = cli(str(bundled_log("mr_damper")), "--input", "velocity_cm_s", "--output", "force_N", "--est", "2000", *QUICK)
     assert p.returncode == 0, p.stderr

@@ -13,7 +13,7 @@ from scipy.io import loadmat
 from conftest import DATA_DIR, STREAMID
 from recorders.convert import convert, main as convert_main
 from recorders.devices import DEVICES, simulate_device_log
-from streamid import mcaplog
+from streamid import logs as mcaplog
 from streamid.errors import ConfigError
 
 

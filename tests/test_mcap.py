@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from conftest import rerun_check
-from streamid import codec, mcaplog
-from streamid.codec import SampleBatch
+from streamid.wire import codec
+from streamid import logs as mcaplog
+from streamid.wire.codec import SampleBatch
 from streamid.errors import LogError
 
 

@@ -27,7 +27,7 @@ def test_python_example_runs_and_finds_the_reactor_lags() -> None:
 
 
 def test_every_command_in_the_table_exists() -> None:
-    from streamid.cli import build_parser
+    from streamid.commands.main import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")

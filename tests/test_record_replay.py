@@ -19,7 +19,8 @@ from recorders import Recorder, RecorderConfig
 from recorders.devices import simulate_device_log
 from replay import ReplayConfig, replay_log
 from replay.player import parse_stream_map
-from streamid import codec, mcaplog
+from streamid.wire import codec
+from streamid import logs as mcaplog
 from streamid.errors import ConfigError, LogError
 from streamid.transport import Bus, ZenohSettings
 

@@ -39,14 +39,14 @@ import numpy as np
 import pytest
 from conftest import STREAMID, endpoint, free_tcp_port
 
-from streamid.client import ModelSubscriber, latest_model, latest_status
-from streamid.codec import SampleBatch, encode
+from streamid.transport.client import ModelSubscriber, latest_model, latest_status
+from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.daemon.messages import ModelUpdate, parse_model_update
+from streamid.wire.documents import ModelUpdate, parse_model_update
 from streamid.daemon.service import Daemon
 from streamid.sim import get_device
 from streamid.transport import Bus, ZenohSettings
-from streamid.viz import Viz, VizSettings
+from streamid.viz.rerun_view import Viz, VizSettings
 
 P = 5_000_000  # 200 Hz
 B = 50
@@ -219,7 +219,7 @@ def test_daemon_sigkilled_thrice_resumes_warm_with_unique_increasing_versions(tm
 
 _WRITER = """
 import sys, json
-from streamid.daemon.state import StateStore, StreamState
+from streamid.daemon.state_store import StateStore, StreamState
 store = StateStore(sys.argv[1])
 pad = "x" * 200_000
 v = int(sys.argv[2])
@@ -246,7 +246,7 @@ def test_state_writer_killed_mid_write_never_leaves_a_partial_document(tmp_path:
         last = doc["version"]
     assert last >= 25
     leftovers = [p.name for p in tmp_path.iterdir() if p.name != "s.json"]
-    from streamid.daemon.state import StateStore
+    from streamid.daemon.state_store import StateStore
 
     StateStore(tmp_path)  # a restarted daemon removes the temporaries of killed writers
     assert [p.name for p in tmp_path.iterdir()] == ["s.json"], leftovers

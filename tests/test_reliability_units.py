@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamid.codec import SampleBatch
+from streamid.wire.codec import SampleBatch
 from streamid.daemon.config import StreamConfig
-from streamid.daemon.window import Window, WindowBuffer, WindowParams
-from streamid.daemon.worker import identify_window
+from streamid.online.window import Window, WindowBuffer, WindowParams
+from streamid.online.update import identify_window
 from streamid.sim import get_device
 
 P = 5_000_000

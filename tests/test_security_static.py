@@ -21,7 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags, settings_from_args
+from streamid.transport import DEFAULT_ENDPOINT
+from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
 
 ROOT = Path(__file__).resolve().parents[1]
 SCANNED_PACKAGES = ("streamid", "recorders", "replay")
@@ -159,7 +160,7 @@ def test_connection_flags_default_to_loopback_or_nothing() -> None:
 
 
 def test_every_cli_command_defaults_to_loopback() -> None:
-    from streamid.cli import build_parser
+    from streamid.commands.main import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -178,7 +179,7 @@ def test_every_cli_command_defaults_to_loopback() -> None:
 
 
 def test_viz_server_binds_loopback_by_default() -> None:
-    from streamid.viz import VizSettings
+    from streamid.viz.rerun_view import VizSettings
 
     assert ipaddress.ip_address(VizSettings().serve_bind).is_loopback
 

@@ -10,15 +10,10 @@ import time
 import pytest
 
 from conftest import endpoint
-from streamid import keys
+from streamid.wire import keys
 from streamid.errors import ConfigError, TransportError
-from streamid.transport import (
-    DEFAULT_ENDPOINT,
-    Bus,
-    ZenohSettings,
-    add_connection_flags,
-    settings_from_args,
-)
+from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
+from streamid.transport import DEFAULT_ENDPOINT, Bus, ZenohSettings
 
 
 def _wait(pred, timeout_s: float = 5.0) -> bool:

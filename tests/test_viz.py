@@ -14,8 +14,8 @@ import pytest
 from conftest import free_tcp_port
 
 from streamid.errors import ConfigError
-from streamid.viz import CorrelationCurve, UpdateReport, Viz, VizSettings, parse_rerun_url, screenshot
-from streamid.viz_plot import CANVAS, Axis, Series, figure, fitness_figure, log_ticks, nice_ticks, tick_text
+from streamid.viz.rerun_view import CorrelationCurve, UpdateReport, Viz, VizSettings, parse_rerun_url, screenshot
+from streamid.viz.figures import CANVAS, Axis, Series, figure, fitness_figure, log_ticks, nice_ticks, tick_text
 
 RERUN = str(Path(sys.executable).parent / "rerun")
 #: the viewer/server binary itself (the ``rerun`` script forks it: terminate the binary, not the wrapper)
@@ -231,7 +231,7 @@ def test_figure_ticks_labels_and_clipping() -> None:
 
 def test_absent_viewer_is_reported_once_and_costs_nothing(caplog: pytest.LogCaptureFixture, tmp_path: Path) -> None:
     port = free_tcp_port()  # nothing listens there
-    caplog.set_level(logging.WARNING, logger="streamid.viz")
+    caplog.set_level(logging.WARNING, logger="streamid.viz.rerun_view")
     viz = Viz(VizSettings(connect=f"rerun+http://127.0.0.1:{port}/proxy", rrd=str(tmp_path / "f.rrd"), probe_every_s=0.05))
     viz.add_stream("s")
     for v in range(1, 6):
@@ -257,7 +257,7 @@ def test_viewer_that_goes_away_is_dropped_with_one_warning(caplog: pytest.LogCap
                 break
             except OSError:
                 time.sleep(0.1)
-        caplog.set_level(logging.INFO, logger="streamid.viz")
+        caplog.set_level(logging.INFO, logger="streamid.viz.rerun_view")
         viz = Viz(VizSettings(connect=f"rerun+http://127.0.0.1:{port}/proxy", probe_every_s=0.05))
         assert viz._live is not None  # noqa: SLF001 - connected to the real server
         viz.add_stream("s")

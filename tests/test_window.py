@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from streamid.codec import SampleBatch
-from streamid.daemon.window import Window, WindowBuffer, WindowParams
+from streamid.wire.codec import SampleBatch
+from streamid.online.window import Window, WindowBuffer, WindowParams
 from streamid.errors import ConfigError
 
 P = 1_000_000  # 1 kHz

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from streamid.codec import SampleBatch
+from streamid.wire.codec import SampleBatch
 from streamid.daemon.config import StreamConfig, config_from_mapping
-from streamid.daemon.pending import PendingWindows, due_windows
-from streamid.daemon.window import Window, WindowBuffer, WindowParams
+from streamid.online.pending import PendingWindows, due_windows
+from streamid.online.window import Window, WindowBuffer, WindowParams
 from streamid.errors import ConfigError
 
 P = 1_000_000  # 1 kHz

@@ -26,7 +26,8 @@ DEFAULT_RRD = "streamid.rrd"
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags
+    from streamid.transport import DEFAULT_ENDPOINT
+    from streamid.commands.zenoh_flags import add_connection_flags
 
     p = sub.add_parser(
         "daemon",
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
     from streamid.daemon.config import load_config
     from streamid.daemon.service import Daemon
-    from streamid.transport import settings_from_args
+    from streamid.commands.zenoh_flags import settings_from_args
 
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -110,7 +111,7 @@ def _viz(args: argparse.Namespace) -> Any:
         if args.rrd or args.rerun_connect or args.rerun_serve:
             raise ConfigError("--no-rerun excludes --rrd, --rerun-connect and --rerun-serve; give one or the other")
         return None
-    from streamid.viz import Viz, VizSettings
+    from streamid.viz.rerun_view import Viz, VizSettings
 
     rrd = args.rrd
     if rrd is None and args.rerun_connect is None and args.rerun_serve is None:

@@ -135,7 +135,7 @@ def _line(t0: float, up: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from streamid.client import ModelSubscriber, latest_status
+    from streamid.transport.client import ModelSubscriber, latest_status
     from streamid.transport import Bus, ZenohSettings
 
     if args.loops is not None and args.loops < 1:
@@ -226,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"\ndiagnostics: {rrd}\nopen them:   rerun {rrd}")
     print(f"daemon log:  {out / 'daemon.log'}")
     if args.screenshot:
-        from streamid.viz import screenshot
+        from streamid.viz.rerun_view import screenshot
 
         try:
             print(f"screenshot:  {screenshot(rrd, args.screenshot)}")

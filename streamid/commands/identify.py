@@ -26,8 +26,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from streamid.dataset import Dataset, load_dataset
-from streamid.engine.config import DEFAULT, PAPER, SELECTIONS, CoEAConfig
+from streamid.logs.datafile import Dataset, load_dataset
+from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper

@@ -20,8 +20,9 @@ import argparse
 import sys
 import threading
 
-from streamid.signals import stop_on_signals
-from streamid.transport import DEFAULT_ENDPOINT, Bus, add_connection_flags, settings_from_args
+from streamid.commands.os_signals import stop_on_signals
+from streamid.transport import DEFAULT_ENDPOINT, Bus
+from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -21,7 +21,8 @@ from streamid.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from streamid.transport import DEFAULT_ENDPOINT, add_connection_flags
+    from streamid.transport import DEFAULT_ENDPOINT
+    from streamid.commands.zenoh_flags import add_connection_flags
 
     p = sub.add_parser(
         "watch",
@@ -59,11 +60,12 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from streamid.client import ModelSubscriber
-    from streamid.daemon.messages import parse_status
+    from streamid.transport.client import ModelSubscriber
+    from streamid.wire.documents import parse_status
     from streamid.errors import ModelFormatError
-    from streamid.keys import PREFIX, status_key
-    from streamid.transport import Bus, settings_from_args
+    from streamid.wire.keys import PREFIX, status_key
+    from streamid.transport import Bus
+    from streamid.commands.zenoh_flags import settings_from_args
 
     if args.count is not None and args.count < 1:
         raise ConfigError(f"--count must be an integer >= 1; got {args.count}")

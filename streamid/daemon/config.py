@@ -40,10 +40,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from streamid.daemon.window import WindowParams
-from streamid.engine.config import CoEAConfig
+from streamid.online.window import WindowParams
+from streamid.engine.settings import CoEAConfig
 from streamid.errors import ConfigError
-from streamid.keys import STREAM_NAME_RULE, is_valid_stream_name
+from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
 __all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping"]
 

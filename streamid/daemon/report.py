@@ -1,12 +1,12 @@
-"""Turn an identification outcome into the :class:`streamid.viz_types.UpdateReport` that Rerun draws."""
+"""Turn an identification outcome into the :class:`streamid.viz.reports.UpdateReport` that Rerun draws."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from streamid.daemon.window import Window
-from streamid.daemon.worker import Outcome
-from streamid.viz_types import CorrelationCurve, UpdateReport
+from streamid.online.window import Window
+from streamid.online.update import Outcome
+from streamid.viz.reports import CorrelationCurve, UpdateReport
 
 __all__ = ["update_report"]
 

@@ -2,7 +2,7 @@
 
 A :class:`StreamRuntime` is created when a stream is configured or
 discovered.  The receiving path only touches its :attr:`~StreamRuntime.buffer`;
-a worker applies each identification :class:`~streamid.daemon.worker.Outcome`
+a worker applies each identification :class:`~streamid.online.update.Outcome`
 with :meth:`StreamRuntime.apply`, which decides what is published: an accepted
 model gets the next version (saved to the state directory *before* it is
 published, so versions never repeat after a crash), anything else marks the
@@ -20,10 +20,10 @@ from collections.abc import Callable
 from typing import Any
 
 from streamid.daemon.config import StreamConfig
-from streamid.daemon.messages import STATUS_FORMAT, encode_json, model_update_message
-from streamid.daemon.state import StateStore, StreamState
-from streamid.daemon.window import Window, WindowBuffer
-from streamid.daemon.worker import Outcome
+from streamid.wire.documents import STATUS_FORMAT, encode_json, model_update_message
+from streamid.daemon.state_store import StateStore, StreamState
+from streamid.online.window import Window, WindowBuffer
+from streamid.online.update import Outcome
 from streamid.engine import CoEAState
 from streamid.errors import ModelFormatError, StreamidError
 

@@ -3,11 +3,11 @@
 Threads (no forked processes: Zenoh is not fork-safe, and nothing is pickled):
 
 * **Zenoh's callback threads** run the receiving path only: split the key,
-  :func:`streamid.codec.decode`, :meth:`WindowBuffer.append`.  A closed window
+  :func:`streamid.wire.codec.decode`, :meth:`WindowBuffer.append`.  A closed window
   joins the stream's bounded queue of pending windows and wakes a worker.
 * **Worker threads** (``daemon.workers``, default 1) take pending windows,
   oldest first, one stream at a time each (round robin between streams), run
-  :func:`~streamid.daemon.worker.identify_window`, save the state, publish the
+  :func:`~streamid.online.update.identify_window`, save the state, publish the
   model and only then draw it in Rerun.  Each worker owns an
   :class:`~streamid.engine.parallel.EvalHelper` (``daemon.helper``): a fresh
   ``python -m`` process, started before the Zenoh session, sharing memory with
@@ -16,7 +16,7 @@ Threads (no forked processes: Zenoh is not fork-safe, and nothing is pickled):
   to start is reported once and the worker goes on alone.  A stream whose identification is still
   running keeps at most ``max_pending_windows`` (default 1) newer windows; a
   window closing beyond that drops the oldest (coalesced), so the backlog is
-  bounded by construction (:mod:`streamid.daemon.pending`).
+  bounded by construction (:mod:`streamid.online.pending`).
 * **One housekeeping thread** declares the per-stream publishers and
   queryables, publishes status every ``status_every_s`` and forwards the
   buffers' events (gaps, resets, bad input) to the Rerun event log.
@@ -37,16 +37,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from streamid.codec import decode
+from streamid.wire.codec import decode
 from streamid.daemon.config import DaemonConfig
-from streamid.daemon.messages import encode_json
+from streamid.wire.documents import encode_json
 from streamid.daemon.memory import retain_freed_memory
 from streamid.daemon.runtime import StreamRuntime
-from streamid.daemon.state import StateStore
-from streamid.daemon.worker import Outcome, Stopped, identify_window
+from streamid.daemon.state_store import StateStore
+from streamid.online.update import Outcome, Stopped, identify_window
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, ModelFormatError, StreamidError
-from streamid.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
+from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
 from streamid.transport import Bus, ZenohSettings
 
 __all__ = ["Daemon"]
@@ -65,7 +65,7 @@ class Daemon:
     zenoh
         How to open the Zenoh session.
     viz
-        A :class:`streamid.viz.Viz` (or None: no diagnostics).
+        A :class:`streamid.viz.rerun_view.Viz` (or None: no diagnostics).
     state_dir
         Where models and populations are saved (None: nowhere).
     identify

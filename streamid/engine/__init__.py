@@ -9,7 +9,7 @@ free run, ``streamid.model/1`` JSON), ``validate`` / ``r2`` / ``correlation_test
 from __future__ import annotations
 
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress
-from streamid.engine.config import DEFAULT, PAPER, CoEAConfig
+from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.identify import Result, RunSummary, identify
 from streamid.engine.model import MODEL_FORMAT, Model
 from streamid.engine.parallel import EvalHelper

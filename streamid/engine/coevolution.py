@@ -46,12 +46,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine import de, harmony
 from streamid.engine._blas import one_blas_thread
-from streamid.engine.config import CoEAConfig
+from streamid.engine.settings import CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.rbf import BatchEvaluator, activations, fit_weights
 from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
-from streamid.engine.state import STATE_FORMAT, CoEAState
+from streamid.engine.populations import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
 
 __all__ = ["CoEAState", "Coevolution", "Progress", "STATE_FORMAT"]

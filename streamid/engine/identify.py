@@ -7,7 +7,7 @@ Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
   the best pair ever evaluated, weights refitted. Runs in this process and
   reports every generation to the callback.
 * otherwise ``restarts`` independent runs (seeds drawn from ``rng``; two-stage
-  when ``lag_search_neurons > 0``, see :class:`~streamid.engine.config.CoEAConfig`) in
+  when ``lag_search_neurons > 0``, see :class:`~streamid.engine.settings.CoEAConfig`) in
   ``workers`` processes (spawned, never forked: the caller may hold a Zenoh
   session) or in this process. Each run offers candidates -- its best pair and
   every parameter vector of its final population paired with the best harmony
@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
-from streamid.engine.config import DEFAULT, CoEAConfig
+from streamid.engine.settings import DEFAULT, CoEAConfig
 from streamid.engine.model import Model, free_run
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.rbf import activations, fit_weights
@@ -245,7 +245,7 @@ def identify(
     y : array_like, shape (N,)
         Estimation output (identify several outputs one at a time).
     config : CoEAConfig, optional
-        Settings; default :data:`~streamid.engine.config.DEFAULT`.
+        Settings; default :data:`~streamid.engine.settings.DEFAULT`.
     rng : numpy.random.Generator or int, optional
         Source of all randomness (an int seeds ``default_rng``; None = seed 0).
     warm_start : CoEAState, optional

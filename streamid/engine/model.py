@@ -165,7 +165,7 @@ class Model:
     window : dict
         The data the model was fitted on (sample count, indices/times when known).
     config : dict
-        The :class:`~streamid.engine.config.CoEAConfig` used (as a dict).
+        The :class:`~streamid.engine.settings.CoEAConfig` used (as a dict).
 
     Raises
     ------

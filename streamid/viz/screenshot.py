@@ -1,7 +1,7 @@
 """Screenshots of an ``.rrd`` by the real Rerun viewer, headless (no ``rerun`` import here).
 
 :func:`render` starts the viewer binary that ships with rerun-sdk, drives it
-through its control API (a client handed in by :func:`streamid.viz.screenshot`)
+through its control API (a client handed in by :func:`streamid.viz.rerun_view.screenshot`)
 and writes the picture once the recording is loaded and drawn.  Rendering
 from standard input (``rerun --screenshot-to``) takes the shot after a few
 frames, before a daemon's thousands of small chunks are all loaded: that gave
@@ -63,7 +63,7 @@ def render(
 
     ``connect(url)`` returns a client of the viewer's control API
     (:meth:`rerun.experimental.ViewerClient.connect`: ``open``, ``get_state``,
-    ``take_screenshot``); :func:`streamid.viz.screenshot` passes it, so that this
+    ``take_screenshot``); :func:`streamid.viz.rerun_view.screenshot` passes it, so that this
     module does not import rerun.
 
     Raises

@@ -36,6 +36,7 @@ measured the same way, offline with the same setting.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -65,10 +66,10 @@ def _free_endpoint() -> str:
 
 def online_models(scfg: StreamConfig, timeout_s: float = 120.0) -> tuple[list[Any], dict[str, Any]]:
     """Replay the log at max speed into a daemon; returns the model updates received and the final status."""
-    from replay.player import ReplayConfig, replay_log  # bench only: replay depends on streamid
+    from replay.player import ReplayConfig, replay_log
 
-    from streamid.client import ModelSubscriber, latest_status
-    from streamid.mcaplog import bundled_log
+    from streamid.transport.client import ModelSubscriber, latest_status
+    from streamid.logs import bundled_log
     from streamid.transport import Bus
 
     ep = _free_endpoint()
@@ -115,7 +116,7 @@ def mr_damper_max_speed(seed: int = 0, seeds: int = 6, selection: str = "fitness
     """Online (cold, then warm) vs offline (cold, ``seeds`` seeds) free-run validation R^2 per window."""
     import dataclasses
 
-    from streamid.mcaplog import bundled_log, read_log_arrays
+    from streamid.logs import bundled_log, read_log_arrays
 
     cfg = dataclasses.replace(MR_CONFIG, seed=seed, engine=(("selection", selection),) if selection != "fitness" else ())
     got, status = online_models(cfg)
@@ -157,3 +158,22 @@ def mr_damper_max_speed(seed: int = 0, seeds: int = 6, selection: str = "fitness
         "selection": selection,
         "seeds": seeds,
     }
+
+
+def bench(options: Any) -> Iterator[Any]:
+    """``streamid bench`` provider ``mr``: the MR damper log replayed at max speed into a daemon."""
+    from streamid.bench.kit import Measurement
+
+    SECTION = "daemon"
+    if not getattr(options, "quick", False):
+        for sel in ("fitness", "fr_est"):
+            mr = mr_damper_max_speed(int(getattr(options, "seed", 0)), selection=sel)
+            case = f"MR damper log, max speed, selection {sel}"
+            yield Measurement(SECTION, case, "R2 FR val online", "", tuple(mr["online_r2_fr_val"]),
+                              f"{mr['models']} models for {mr['windows_closed']} windows (cold, then warm G=30)")
+            yield Measurement(SECTION, case, "R2 FR val offline", "", tuple(mr["offline_median_r2_fr_val"]),
+                              f"identify cold G=400, median of {mr['seeds']} seeds per window")
+            yield Measurement(SECTION, case, "online - offline median", "", tuple(mr["diff"]),
+                              f"mean rank {mr['mean_rank']:.2f} (0.5: same); "
+                              f"{'matches' if mr['matches'] else 'does NOT match'} (replay.bench_mr)")
+

@@ -99,7 +99,7 @@ def fit_metamss(
 
 #: (data set, loader, peers to run as (label, fit function, keyword arguments)).
 def _cases(options: Any) -> list[tuple[str, Callable[[], tuple[np.ndarray, ...]], list[tuple[Callable[..., PeerFit], dict[str, Any]]]]]:
-    from streamid.engine.benchmarks import mr_damper_data, piezo_data, reactor_data
+    from streamid.bench.engine_cases import mr_damper_data, piezo_data, reactor_data
 
     frols_lags = (5,) if options.quick else (5, 7)
     mr = [(fit_frols, {"max_lag": lag, "n_info_values": 15}) for lag in frols_lags]
@@ -122,7 +122,7 @@ def bench(options: Any) -> Iterator[Any]:
     FROLS is deterministic, so its figures are the median of up to three timed
     repetitions of the same fit; MetaMSS is seeded with ``options.seed``.
     """
-    from streamid.benchkit import Measurement
+    from streamid.bench.kit import Measurement
 
     try:
         import sysidentpy  # noqa: F401

@@ -11,7 +11,7 @@ Formats
 * ``.mat`` (MATLAB v4-v7.2, read with :func:`scipy.io.loadmat`): every numeric
   vector variable is a column (``N x 1`` or ``1 x N``); a matrix ``X`` of shape
   ``N x k`` gives columns ``X[0] .. X[k-1]``. MATLAB v7.3 (HDF5) files are not supported.
-* ``.mcap``: a streamid log (see :mod:`streamid.mcaplog`); columns are the
+* ``.mcap``: a streamid log (see :mod:`streamid.logs.mcap_files`); columns are the
   stream's input and output channel names.
 """
 
@@ -138,7 +138,7 @@ def _read_mat(path: Path) -> Table:
 
 
 def _read_mcap(path: Path, stream: str | None) -> Table:
-    from streamid.mcaplog import read_log_arrays
+    from streamid.logs.arrays import read_log_arrays
 
     arr = read_log_arrays(path, stream)
     cols = {**{k: np.asarray(v, dtype=np.float64) for k, v in arr.inputs.items()}}

@@ -17,14 +17,14 @@ import time
 from collections.abc import Callable, Iterable
 from importlib.metadata import entry_points
 
-from streamid.benchkit import BenchOptions, Measurement, format_table, machine_description
+from streamid.bench.kit import BenchOptions, Measurement, format_table, machine_description
 from streamid.errors import ConfigError
 
 #: streamid's own providers, ``module:function`` with ``function(options) -> Iterable[Measurement]``.
 BUILTIN_PROVIDERS: dict[str, str] = {
-    "engine": "streamid.engine.benchmarks:bench",
-    "peers": "streamid.peers:bench",
-    "daemon": "streamid.daemon.bench:bench",
+    "engine": "streamid.bench.engine_cases:bench",
+    "peers": "streamid.bench.peers:bench",
+    "daemon": "streamid.bench.daemon_cases:bench",
 }
 
 ENTRY_POINT_GROUP = "streamid.benchmarks"

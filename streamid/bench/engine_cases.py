@@ -3,7 +3,7 @@
 Each ``*_case(seed)`` runs one identification on the project's own data (the
 reactor simulator; the MR damper and piezo logs bundled in ``streamid/data``)
 and returns a dict of figures; :func:`bench` turns repeated cases into the
-table rows of :mod:`streamid.benchkit`.
+table rows of :mod:`streamid.bench.kit`.
 
 Figures and targets (issue 2)
 ------------------------------
@@ -11,7 +11,7 @@ Figures and targets (issue 2)
   identification time (8,040 evaluations), FR validation R^2 (>= 0.9999), lags
   ``y(t-1), u(t-1), u(t-2)`` (optionally ``y(t-2)``);
 * MR damper (first 2000 estimation, last 1499 validation): the paper's settings
-  (G=200, M=10) and streamid's defaults (:data:`~streamid.engine.config.DEFAULT`,
+  (G=200, M=10) and streamid's defaults (:data:`~streamid.engine.settings.DEFAULT`,
   <= 3 s wall, OSA val R^2 >= 0.996, FR val R^2 median >= 0.98, min >= 0.97);
 * piezo (first half / second half, M=13, G=100): FR val R^2 >= 0.9997;
 * scaling: seconds of one run for N = 480, 2000, 10000 and M = 10, 20, 40.
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from streamid.engine.config import DEFAULT, PAPER, CoEAConfig
+from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.identify import identify
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.validation import prediction_r2
@@ -48,7 +48,7 @@ PIEZO_CONFIG = PAPER.replace(neurons=13, generations=100)
 
 @lru_cache(maxsize=4)
 def _log(name: str, inp: str, out: str) -> tuple[np.ndarray, np.ndarray]:
-    from streamid.mcaplog import bundled_log, read_log_arrays
+    from streamid.logs import bundled_log, read_log_arrays
 
     arr = read_log_arrays(bundled_log(name))
     return np.asarray(arr.inputs[inp], dtype=np.float64), np.asarray(arr.outputs[out], dtype=np.float64)
@@ -146,7 +146,7 @@ def scaling_case(
 
 
 def _rows(section: str, case: str, results: list[dict[str, Any]], metrics: Iterable[tuple[str, str, str]]) -> Iterator[Any]:
-    from streamid.benchkit import Measurement
+    from streamid.bench.kit import Measurement
 
     for key, unit, note in metrics:
         yield Measurement(section, case, key, unit, tuple(float(r[key]) for r in results), note)
@@ -168,7 +168,7 @@ def bench(options: Any) -> Iterator[Any]:
 
 
 def _bench(options: Any, helper: EvalHelper | None) -> Iterator[Any]:
-    from streamid.benchkit import Measurement
+    from streamid.bench.kit import Measurement
 
     n = 2 if options.quick else max(1, options.repeat)
     seeds = [options.seed + i for i in range(n)]

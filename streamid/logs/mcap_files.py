@@ -24,13 +24,10 @@ import struct
 import time
 from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
-import numpy as np
-from numpy.typing import NDArray
 from mcap.records import Channel as _McapChannel
 from mcap.records import Chunk as _McapChunk
 from mcap.records import Message as _McapMessage
@@ -39,26 +36,18 @@ from mcap.records import Schema as _McapSchema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from streamid import codec
+from streamid.wire import codec
 from streamid.errors import CodecError, ConfigError, LogError
-from streamid.keys import SAMPLE_KINDS, parse_key
-
-if TYPE_CHECKING:
-    from streamid.logarrays import LogArrays
+from streamid.wire.keys import SAMPLE_KINDS, parse_key
 
 __all__ = [
     "LOG_FORMAT",
     "LogMessage",
     "LogWriter",
     "LogReader",
-    "LogArrays",
     "LogInfo",
     "iter_log",
     "log_info",
-    "read_log_arrays",
-    "bundled_log",
-    "bundled_logs",
-    "write_arrays_log",
 ]
 
 _log = logging.getLogger(__name__)
@@ -433,73 +422,3 @@ def log_info(path: str | os.PathLike[str], *, partial: bool = False) -> LogInfo:
             continue
         samples[key] = samples.get(key, 0) + n
     return LogInfo(Path(path), messages, samples, start, end, reader.metadata, reader.problem)
-
-
-# ---------------------------------------------------------------------------
-# arrays (implemented in streamid.logarrays, re-exported here)
-# ---------------------------------------------------------------------------
-def read_log_arrays(
-    path: str | os.PathLike[str],
-    stream: str | None = None,
-    *,
-    partial: bool = False,
-) -> LogArrays:
-    """Concatenate a stream's sample batches into arrays (see :func:`streamid.logarrays.read_log_arrays`).
-
-    Returns a :class:`~streamid.logarrays.LogArrays` with ``t_ns`` (int64),
-    ``inputs``/``outputs`` (name -> float64 array) and ``period_ns``.
-
-    Raises
-    ------
-    LogError
-        Unreadable file, unknown/ambiguous stream, undecodable or inconsistent batches.
-    """
-    from streamid.logarrays import read_log_arrays as _read
-
-    return _read(path, stream, partial=partial)
-
-
-def write_arrays_log(
-    path: str | os.PathLike[str],
-    stream: str,
-    inputs: Mapping[str, NDArray[np.float64]],
-    outputs: Mapping[str, NDArray[np.float64]],
-    *,
-    period_ns: int,
-    t0_ns: int = 0,
-    batch_size: int = 100,
-    split: bool = False,
-    metadata: Mapping[str, str] | None = None,
-) -> int:
-    """Write uniformly sampled arrays as a log of sample batches (see :func:`streamid.logarrays.write_arrays_log`)."""
-    from streamid.logarrays import write_arrays_log as _write
-
-    return _write(path, stream, inputs, outputs, period_ns=period_ns, t0_ns=t0_ns,
-                  batch_size=batch_size, split=split, metadata=metadata)
-
-
-def __getattr__(name: str) -> Any:
-    if name == "LogArrays":
-        from streamid.logarrays import LogArrays
-
-        return LogArrays
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-# ---------------------------------------------------------------------------
-# bundled logs
-# ---------------------------------------------------------------------------
-def bundled_logs() -> list[str]:
-    """Names of the logs shipped in ``streamid/data`` (without ``.mcap``)."""
-    root = resources.files("streamid") / "data"
-    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".mcap"))
-
-
-def bundled_log(name: str) -> Path:
-    """Path of a log shipped with streamid, e.g. ``bundled_log("mr_damper")``."""
-    stem = name[:-5] if name.endswith(".mcap") else name
-    res = resources.files("streamid") / "data" / f"{stem}.mcap"
-    path = Path(str(res))
-    if not path.is_file():
-        raise LogError(f"bundled log name must be one of {bundled_logs()}; got {name!r}")
-    return path

@@ -1,6 +1,6 @@
 """Client side of the daemon: receive identified models over Zenoh.
 
->>> from streamid.client import ModelSubscriber, latest_model
+>>> from streamid.transport.client import ModelSubscriber, latest_model
 >>> from streamid.transport import ZenohSettings
 >>> zs = ZenohSettings(connect=("tcp/127.0.0.1:7447",))
 >>> with ModelSubscriber(zs, "bench1", lambda up: print(up.version, up.model.lags)):   # doctest: +SKIP
@@ -8,7 +8,7 @@
 >>> up = latest_model(zs, "bench1", timeout_s=2.0)                                     # doctest: +SKIP
 >>> yhat = up.model.simulate(u, y[: up.model.max_lag])                                  # doctest: +SKIP
 
-Each update is a :class:`~streamid.daemon.messages.ModelUpdate`: the engine's
+Each update is a :class:`~streamid.wire.documents.ModelUpdate`: the engine's
 :class:`~streamid.engine.Model` rebuilt from the published JSON, its version,
 the window it was fitted on and its validation metrics.
 """
@@ -21,10 +21,10 @@ import time
 from collections.abc import Callable
 from types import TracebackType
 
-from streamid.daemon.messages import ModelUpdate, parse_model_update, parse_status
+from streamid.wire.documents import ModelUpdate, parse_model_update, parse_status
 from streamid.errors import ConfigError, ModelFormatError
-from streamid.keys import PREFIX, check_stream_name, model_key, status_key
-from streamid.transport import Bus, ZenohSettings
+from streamid.wire.keys import PREFIX, check_stream_name, model_key, status_key
+from streamid.transport.zenoh_bus import Bus, ZenohSettings
 
 __all__ = ["ModelSubscriber", "ModelUpdate", "latest_model", "latest_status"]
 
@@ -45,8 +45,8 @@ class ModelSubscriber:
     Parameters
     ----------
     settings
-        :class:`~streamid.transport.ZenohSettings` (a session is opened and
-        closed with the subscriber) or an open :class:`~streamid.transport.Bus`.
+        :class:`~streamid.transport.zenoh_bus.ZenohSettings` (a session is opened and
+        closed with the subscriber) or an open :class:`~streamid.transport.zenoh_bus.Bus`.
     stream
         Stream name, or ``"*"`` for every stream.
     callback

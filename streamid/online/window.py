@@ -5,7 +5,7 @@ One :class:`WindowBuffer` per stream receives sample batches (combined
 time) and keeps the newest samples in a preallocated ring, one row per signal.
 Every ``hop`` new complete samples a window of the newest ``window`` samples
 *closes*: it is copied out into the stream's bounded queue of *pending* windows
-(:mod:`streamid.daemon.pending`), which the identification worker empties when
+(:mod:`streamid.online.pending`), which the identification worker empties when
 it is free.  With the default bound of one, a window that closes while the
 previous one is still pending replaces it (counted as coalesced), so a slow
 identification never builds a queue; with ``max_pending_windows = N`` up to N
@@ -44,8 +44,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from streamid.daemon.pending import PendingWindows, cut_block, due_windows
-from streamid.daemon.window_types import (
+from streamid.online.pending import PendingWindows, cut_block, due_windows
+from streamid.online.window_types import (
     DEFAULT_HOP_S,
     DEFAULT_WINDOW_S,
     BatchLike,

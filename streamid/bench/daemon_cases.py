@@ -1,4 +1,4 @@
-"""Daemon figures for ``streamid bench`` (and ``python -m streamid.daemon.bench`` for long soaks).
+"""Daemon figures for ``streamid bench`` (and ``python -m streamid.bench.daemon_cases`` for long soaks).
 
 * **ingestion**: samples/s the daemon receives, decodes and windows (no
   identification) from a publisher in another process putting pre-encoded
@@ -9,13 +9,13 @@
   resident memory over the run.
 * **cold vs warm**: time and validation R^2 of a cold run (G=400) and of warm
   updates (G=30) on consecutive windows of a stationary system (the piezo).
-* **MR damper at max speed** (:mod:`streamid.daemon.bench_mr`): the real MR
+* **MR damper at max speed** (:mod:`replay.bench_mr`): the real MR
   damper log put back to back, every window identified (bounded queue of
   pending windows); the published models' free-run validation R^2 against
   offline cold ``identify`` runs (several seeds) with the same settings on the
   same windows, and whether they match (defined there).
 * **load** (issue 6): eight 2 kHz streams plus the 20 kHz piezo log into one
-  ``streamid daemon`` process for 2 minutes (:mod:`streamid.daemon.load`):
+  ``streamid daemon`` process for 2 minutes (:mod:`streamid.bench.load`):
   samples lost, resident memory after warm-up, updates per stream.
 """
 
@@ -32,17 +32,16 @@ from typing import Any
 
 import numpy as np
 
-from streamid.benchkit import BenchOptions, Measurement
-from streamid.codec import SampleBatch, encode
-from streamid.daemon.bench_mr import mr_damper_max_speed
+from streamid.bench.kit import BenchOptions, Measurement
+from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.daemon.load import load_run, summary
+from streamid.bench.load import load_run, summary
 from streamid.daemon.service import Daemon
-from streamid.daemon.window import WindowBuffer
-from streamid.daemon.worker import identify_window
+from streamid.online.window import WindowBuffer
+from streamid.online.update import identify_window
 from streamid.transport import ZenohSettings
 
-__all__ = ["bench", "ingestion_rate", "realtime_run", "cold_vs_warm", "mr_damper_max_speed", "load_run"]
+__all__ = ["bench", "ingestion_rate", "realtime_run", "cold_vs_warm", "load_run"]
 
 SECTION = "daemon"
 
@@ -62,7 +61,7 @@ def _rss_mb() -> float:
 
 def _publisher(ep: str, device: str, batch: int, seconds: float, seed: int) -> subprocess.Popen[str]:
     """Start a publisher process putting pre-encoded batches back to back; it prints one JSON line."""
-    code = f"from streamid.daemon.bench import _publish_main; _publish_main({ep!r}, {device!r}, {batch}, {seconds}, {seed})"
+    code = f"from streamid.bench.daemon_cases import _publish_main; _publish_main({ep!r}, {device!r}, {batch}, {seconds}, {seed})"
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
 
 
@@ -154,7 +153,7 @@ def realtime_run(seconds: float = 30.0, seed: int = 0, warm_generations: int = 3
                                              seed=seed))
     viz = None
     if rrd is not None:
-        from streamid.viz import Viz, VizSettings
+        from streamid.viz.rerun_view import Viz, VizSettings
 
         viz = Viz(VizSettings(rrd=rrd))
     daemon = Daemon(cfg, ZenohSettings(listen=(ep,)), viz=viz).start()
@@ -268,21 +267,10 @@ def bench(options: BenchOptions) -> Iterable[Measurement]:
                       f"one window per second; coalesced {sorted(set(ls['coalesced'].values()))}")
     yield Measurement(SECTION, case, "longest time without a model", "s",
                       tuple(ls["longest_without_model_s"].values()), "per stream, after warm-up")
-    if not options.quick:
-        for sel in ("fitness", "fr_est"):
-            mr = mr_damper_max_speed(options.seed, selection=sel)
-            case = f"MR damper log, max speed, selection {sel}"
-            yield Measurement(SECTION, case, "R2 FR val online", "", tuple(mr["online_r2_fr_val"]),
-                              f"{mr['models']} models for {mr['windows_closed']} windows (cold, then warm G=30)")
-            yield Measurement(SECTION, case, "R2 FR val offline", "", tuple(mr["offline_median_r2_fr_val"]),
-                              f"identify cold G=400, median of {mr['seeds']} seeds per window")
-            yield Measurement(SECTION, case, "online - offline median", "", tuple(mr["diff"]),
-                              f"mean rank {mr['mean_rank']:.2f} (0.5: same); "
-                              f"{'matches' if mr['matches'] else 'does NOT match'} (streamid.daemon.bench_mr)")
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m streamid.daemon.bench soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``mr [SELECTION]`` | ``load SECONDS``."""
+    """``python -m streamid.bench.daemon_cases soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``load SECONDS``."""
     what = argv[0] if argv else "soak"
     if what == "soak":
         r = realtime_run(float(argv[1]) if len(argv) > 1 else 300.0, rrd=argv[2] if len(argv) > 2 else None)
@@ -297,8 +285,6 @@ def _main(argv: list[str]) -> int:
         print(json.dumps(ingestion_rate(int(argv[1]) if len(argv) > 1 else 1000)))
     elif what == "coldwarm":
         print(json.dumps(cold_vs_warm()))
-    elif what == "mr":
-        print(json.dumps(mr_damper_max_speed(selection=argv[1] if len(argv) > 1 else "fitness")))
     elif what == "load":
         secs = float(argv[1]) if len(argv) > 1 else 120.0
         r = load_run(secs)

@@ -1,6 +1,6 @@
 """Identification of one closed window, off the receiving path.
 
-:func:`identify_window` is a pure function of a :class:`~streamid.daemon.window.Window`
+:func:`identify_window` is a pure function of a :class:`~streamid.online.window.Window`
 and the stream's settings: it splits the window (the newest
 ``validation_fraction`` is held out), runs the coevolution generation by
 generation -- cold, or warm-started from the previous final populations, which
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 
 from streamid.daemon.config import StreamConfig
-from streamid.daemon.validate import ValidationSummary, summarise
-from streamid.daemon.window import Window
+from streamid.online.summary import ValidationSummary, summarise
+from streamid.online.window import Window
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine.identify import free_run_r2
 from streamid.errors import StreamidError

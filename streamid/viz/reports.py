@@ -1,6 +1,6 @@
 """Plain data of the Rerun diagnostics: sink settings and what one update draws.
 
-No ``rerun`` import here (:mod:`streamid.viz` is the only module that imports
+No ``rerun`` import here (:mod:`streamid.viz.rerun_view` is the only module that imports
 it), so the daemon can build reports and check settings without it.
 """
 

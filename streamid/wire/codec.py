@@ -33,8 +33,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.errors import CodecError
-from streamid.keys import STREAM_NAME_RULE, is_valid_stream_name, samples_key, u_key, y_key
-from streamid.protowire import U64_MASK, fields, len_field, packed, signed, utf8, varint
+from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name, samples_key, u_key, y_key
+from streamid.wire.protobuf import U64_MASK, fields, len_field, packed, signed, utf8, varint
 
 __all__ = [
     "FORMAT_VERSION",

@@ -1,10 +1,10 @@
-"""Samples of a log as arrays, and arrays as a log (the file access is :mod:`streamid.mcaplog`'s).
+"""Samples of a log as arrays, and arrays as a log (the file access is :mod:`streamid.logs.mcap_files`'s).
 
 :func:`read_log_arrays` concatenates a stream's sample batches (aligning
 ``.../u`` and ``.../y`` batches on their common sample times) for
 identification; :func:`write_arrays_log` writes uniformly sampled arrays as
 batches, as a device would publish them.  Both are re-exported by
-:mod:`streamid.mcaplog`.
+:mod:`streamid.logs.mcap_files`.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid import codec
+from streamid.wire import codec
 from streamid.errors import CodecError, ConfigError, LogError
-from streamid.keys import SAMPLE_KINDS, parse_key
-from streamid.mcaplog import LogReader, LogWriter
+from streamid.wire.keys import SAMPLE_KINDS, parse_key
+from streamid.logs.mcap_files import LogReader, LogWriter
 
 __all__ = ["LogArrays", "read_log_arrays", "write_arrays_log"]
 

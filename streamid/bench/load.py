@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from streamid.codec import SampleBatch, encode
+from streamid.wire.codec import SampleBatch, encode
 from streamid.transport import ZenohSettings
 
 __all__ = ["load_run", "multi_publish_main", "proc_memory_mb", "resident_by_mapping", "summary"]
@@ -146,7 +146,7 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
     ``replay`` (the replayer's report), ``seconds``, ``smaps`` (the daemon's resident memory by mapping
     at the end, MB).  ``retain_memory=False`` runs the daemon with glibc's default allocator behaviour.
     """
-    from streamid.client import ModelSubscriber, latest_status
+    from streamid.transport.client import ModelSubscriber, latest_status
     from streamid.transport import Bus
 
     ep = _free_endpoint()
@@ -167,7 +167,7 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
                 t0 = time.monotonic()
                 sub = ModelSubscriber(bus, "*", lambda up: models.setdefault(up.stream, []).append(
                     time.monotonic() - t0), fetch_latest=False)
-                code = (f"from streamid.daemon.load import multi_publish_main; "
+                code = (f"from streamid.bench.load import multi_publish_main; "
                         f"multi_publish_main({ep!r}, {streams}, {rate_hz}, {seconds}, 100, {seed})")
                 multi = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
                 procs.append(multi)
@@ -237,7 +237,7 @@ def summary(r: dict[str, Any], warmup_s: float) -> dict[str, Any]:
     }
 
 
-if __name__ == "__main__":  # pragma: no cover - ``python -m streamid.daemon.load [SECONDS] [--default-malloc]``
+if __name__ == "__main__":  # pragma: no cover - ``python -m streamid.bench.load [SECONDS] [--default-malloc]``
     secs = float(sys.argv[1]) if len(sys.argv) > 1 else 120.0
     res = load_run(secs, retain_memory="--default-malloc" not in sys.argv)
     print(json.dumps({**summary(res, min(30.0, secs / 4)), "smaps": res["smaps"]}, indent=1))

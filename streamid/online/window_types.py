@@ -1,6 +1,6 @@
 """Types of the window buffer: its parameters, the closed :class:`Window`, events.
 
-See :mod:`streamid.daemon.window` for the buffer itself.
+See :mod:`streamid.online.window` for the buffer itself.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ MAX_PENDING_WINDOWS = 1000
 
 
 class BatchLike(Protocol):
-    """What the buffer reads from a batch (:class:`streamid.codec.SampleBatch`)."""
+    """What the buffer reads from a batch (:class:`streamid.wire.codec.SampleBatch`)."""
 
     stream: str
     seq: int
@@ -65,8 +65,8 @@ class WindowParams:
         before the lagging one is declared unaligned.  ``None``: max(window, hop).
     max_pending_windows
         How many closed windows may wait for identification (1 to
-        :data:`~streamid.daemon.pending.MAX_PENDING_WINDOWS`); a window closing
-        with that many waiting drops the oldest.  See :mod:`streamid.daemon.pending`.
+        :data:`~streamid.online.pending.MAX_PENDING_WINDOWS`); a window closing
+        with that many waiting drops the oldest.  See :mod:`streamid.online.pending`.
     """
 
     window_s: float | None = None

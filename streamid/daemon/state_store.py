@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from streamid.errors import ConfigError, ModelFormatError
-from streamid.keys import STREAM_NAME_RULE, is_valid_stream_name
+from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
 __all__ = ["STATE_FORMAT", "StreamState", "StateStore", "atomic_write_text"]
 

@@ -12,7 +12,6 @@ Publishers of samples use BLOCK congestion control: with Zenoh's default
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import threading
@@ -31,8 +30,6 @@ __all__ = [
     "DEFAULT_ENDPOINT",
     "MODES",
     "ZenohSettings",
-    "add_connection_flags",
-    "settings_from_args",
     "Bus",
     "BusPublisher",
 ]
@@ -144,7 +141,7 @@ class ZenohSettings:
                 conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
             # Zenoh's shared-memory transport (on by default) maps a 16 MiB pool in /dev/shm per
             # process and removes it at exit; the streamid command leaves with os._exit (see
-            # streamid.cli), which skipped that and left ~35 MB behind per `streamid demo`.
+            # streamid.commands.main), which skipped that and left ~35 MB behind per `streamid demo`.
             # Loopback TCP carries 80k 16-kB messages/s here, far above what decoding takes in.
             # Off unless `extra` turns it on (a file cannot: its "true" is Zenoh's default).
             conf.insert_json5("transport/shared_memory/enabled", "false")
@@ -155,60 +152,6 @@ class ZenohSettings:
                 f"zenoh configuration refused ({exc}); settings: {self}"
             ) from exc
         return conf
-
-
-def add_connection_flags(
-    parser: argparse.ArgumentParser,
-    *,
-    default_connect: Sequence[str] = (),
-    default_listen: Sequence[str] = (),
-    default_mode: str = "peer",
-) -> None:
-    """Add the shared Zenoh connection flags to ``parser``.
-
-    Flags: ``--mode``, ``--connect ENDPOINT`` (repeatable), ``--listen
-    ENDPOINT`` (repeatable), ``--zenoh-config FILE``, ``--multicast-scouting``.
-    The default endpoints apply only when none of ``--connect``,
-    ``--listen`` and ``--zenoh-config`` is given.
-    """
-    group = parser.add_argument_group("zenoh connection")
-    group.add_argument("--mode", choices=MODES, default=None,
-                       help=f"Zenoh session mode (default: {default_mode}, or the --zenoh-config file's)")
-    group.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
-                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable; "
-                            f"default: {' '.join(default_connect) or 'none'})")
-    group.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
-                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; "
-                            f"default: {' '.join(default_listen) or 'none'})")
-    group.add_argument("--zenoh-config", default=None, metavar="FILE",
-                       help="Zenoh JSON5 configuration file (access control, TLS, ...)")
-    group.add_argument("--multicast-scouting", action="store_true",
-                       help="enable Zenoh multicast scouting (off by default)")
-    parser.set_defaults(_zenoh_default_connect=tuple(default_connect),
-                        _zenoh_default_listen=tuple(default_listen),
-                        _zenoh_default_mode=default_mode)
-
-
-def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
-    """Build :class:`ZenohSettings` from flags added by :func:`add_connection_flags`."""
-    config_file = getattr(args, "zenoh_config", None)
-    explicit = args.connect is not None or args.listen is not None or config_file is not None
-    if explicit:  # endpoints given (or a config file): no default endpoint is added
-        connect = tuple(args.connect or ())
-        listen = tuple(args.listen or ())
-    else:
-        connect = tuple(getattr(args, "_zenoh_default_connect", ()))
-        listen = tuple(getattr(args, "_zenoh_default_listen", ()))
-    mode = args.mode
-    if mode is None and config_file is None:
-        mode = getattr(args, "_zenoh_default_mode", "peer")
-    return ZenohSettings(
-        mode=mode,
-        connect=tuple(connect),
-        listen=tuple(listen),
-        config_file=config_file,
-        multicast_scouting=bool(getattr(args, "multicast_scouting", False)),
-    )
 
 
 Callback = Callable[[str, bytes], None]

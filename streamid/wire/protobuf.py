@@ -1,4 +1,4 @@
-"""Protocol-buffers wire primitives used by :mod:`streamid.codec`.
+"""Protocol-buffers wire primitives used by :mod:`streamid.wire.codec`.
 
 Varints, tags and field iteration over a ``bytes`` buffer, plus packed
 fixed-width arrays read with numpy.  Every malformation raises

@@ -2,7 +2,7 @@
 
 Benchmark providers are plain callables ``provider(options) -> Iterable[Measurement]``.
 streamid's own providers live next to the code they measure
-(``streamid.engine.benchmarks``, ``streamid.daemon.bench``); the packages around
+(``streamid.bench.engine_cases``, ``streamid.bench.daemon_cases``); the packages around
 streamid (``replay``, ``recorders``) register theirs in the ``streamid.benchmarks``
 entry-point group, so streamid never imports them.
 

@@ -22,7 +22,7 @@ from collections import deque
 
 import numpy as np
 
-from streamid.daemon.window_types import MAX_PENDING_WINDOWS, Window
+from streamid.online.window_types import MAX_PENDING_WINDOWS, Window
 
 __all__ = ["PendingWindows", "cut_block", "due_windows", "MAX_PENDING_WINDOWS"]
 

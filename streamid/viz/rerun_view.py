@@ -30,7 +30,7 @@ Data are logged on the ``stream_time`` timeline (the samples' own clock: a
 duration, or a timestamp for Unix-epoch clocks).  One recording has one time
 cursor for all its streams, whose clocks need not agree, so everything that
 shows "the newest update" is *latest-at* (bar charts, text, and 2-D figures
-laid out by :mod:`streamid.viz_plot`) and the time series (history) show their
+laid out by :mod:`streamid.viz.figures`) and the time series (history) show their
 whole range: wherever the cursor stands, every stream's tab shows that
 stream's newest update at or before it.  The blueprint lays each stream out as
 a tab (in the order the streams were declared) and the time panel follows the
@@ -64,9 +64,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from streamid.viz_plot import COL_FR, COL_MEASURED, COL_OSA, CANVAS, Figure, fitness_figure, plane_figure, validation_figures
-from streamid.viz_shot import render, rerun_cli
-from streamid.viz_types import (
+from streamid.viz.figures import COL_FR, COL_MEASURED, COL_OSA, CANVAS, Figure, fitness_figure, plane_figure, validation_figures
+from streamid.viz.screenshot import render, rerun_cli
+from streamid.viz.reports import (
     TEST_LABELS as _TEST_LABELS,
     CorrelationCurve,
     UpdateReport,
@@ -448,7 +448,7 @@ class Viz:
 
     @staticmethod
     def _log_figure(rec: rr.RecordingStream, path: str, fig: Figure, keys: Sequence[str]) -> None:
-        """Draw a :class:`~streamid.viz_plot.Figure` under ``path``; series of ``keys`` it lacks are cleared."""
+        """Draw a :class:`~streamid.viz.figures.Figure` under ``path``; series of ``keys`` it lacks are cleared."""
         thin = rr.Radius.ui_points(0.5)
         rec.log(f"{path}/grid", rr.LineStrips2D(list(fig.grid), colors=[_COL_GRID], radii=thin, draw_order=1.0))
         x0, y0, x1, y1 = fig.frame
@@ -525,7 +525,7 @@ def screenshot(
     timeout_s: float = 90.0,
     settle_s: float = 4.0,
 ) -> Path:
-    """Render ``rrd`` with the real Rerun viewer, headless, into ``png`` (see :func:`streamid.viz_shot.render`)."""
+    """Render ``rrd`` with the real Rerun viewer, headless, into ``png`` (see :func:`streamid.viz.screenshot.render`)."""
     from rerun.experimental import ViewerClient
 
     return render(rrd, png, connect=ViewerClient.connect, window_size=window_size, timeout_s=timeout_s,

@@ -3,8 +3,8 @@
 Subcommands are small modules exposing ``register(subparsers)``; each adds its
 parser and sets ``func`` (``func(args) -> int``).  Commands that belong to the
 packages around streamid (``recorders`` provides ``record`` and ``simulate``,
-``replay`` provides ``replay``) register themselves through the
-``streamid.commands`` entry-point group, so that streamid never imports them:
+``replay`` provides ``replay``, and :mod:`streamid.bench` provides ``bench``) register themselves through the
+``streamid.commands`` entry-point group, so that no product module imports them:
 data flows one way, and those packages depend on streamid, not the reverse.
 """
 
@@ -26,7 +26,6 @@ BUILTIN_COMMANDS: tuple[str, ...] = (
     "streamid.commands.daemon",
     "streamid.commands.watch",
     "streamid.commands.demo",
-    "streamid.commands.bench",
     "streamid.commands.router",
 )
 

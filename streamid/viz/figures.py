@@ -11,7 +11,7 @@ plane are therefore drawn as *latest-at* 2-D figures (lines, a frame, a grid,
 tick labels and a legend on a fixed canvas): wherever the cursor stands, each
 stream shows its own newest update at or before it.
 
-:func:`figure` lays out a plot; :mod:`streamid.viz` turns a :class:`Figure`
+:func:`figure` lays out a plot; :mod:`streamid.viz.rerun_view` turns a :class:`Figure`
 into ``LineStrips2D``/``Boxes2D``/``Points2D`` and the blueprint fixes each
 view's visual bounds to the figure's canvas (x to the right, y downwards).
 """
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from streamid.viz_types import UpdateReport
+from streamid.viz.reports import UpdateReport
 
 __all__ = [
     "Axis",

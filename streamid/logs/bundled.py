@@ -1,0 +1,30 @@
+"""The logs shipped inside the package (``streamid/data/*.mcap``), by name."""
+
+from __future__ import annotations
+
+import difflib
+from importlib import resources
+from pathlib import Path
+
+from streamid.errors import LogError
+
+__all__ = ["bundled_log", "bundled_logs"]
+
+
+def bundled_logs() -> list[str]:
+    """Names of the logs shipped in ``streamid/data`` (without ``.mcap``)."""
+    root = resources.files("streamid") / "data"
+    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".mcap"))
+
+
+def bundled_log(name: str) -> Path:
+    """Path of a log shipped with streamid, e.g. ``bundled_log("mr_damper")``."""
+    stem = name[:-5] if name.endswith(".mcap") else name
+    res = resources.files("streamid") / "data" / f"{stem}.mcap"
+    path = Path(str(res))
+    if not path.is_file():
+        names = bundled_logs()
+        close = difflib.get_close_matches(stem, names, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise LogError(f"bundled log name must be one of {names}; got {name!r}{hint}")
+    return path
