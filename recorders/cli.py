@@ -66,12 +66,13 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def register_simulate(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from recorders.devices import DEVICES
+    from recorders.devices import recorded_devices
 
+    devices = recorded_devices()
     lines = "\n".join(
         f"  {d.name:<10} {d.rate_hz:>8g} Hz  {d.input_name} -> {d.output_name}  "
-        f"(stream {d.stream}, {d.batch_size} samples/batch, default {d.default_duration_s:g} s)"
-        for d in DEVICES.values()
+        f"(stream {d.stream}, {d.batch_size} samples/batch, default {d.default_seconds:g} s)"
+        for d in devices.values()
     )
     p = sub.add_parser(
         "simulate",
@@ -80,7 +81,7 @@ def register_simulate(sub: argparse._SubParsersAction) -> None:  # type: ignore[
                     "Devices:\n" + lines,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("device", choices=sorted(DEVICES), help="device to simulate")
+    p.add_argument("device", choices=sorted(devices), help="device to simulate")
     p.add_argument("output", help="MCAP file to write")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="record length in seconds (default: per device)")

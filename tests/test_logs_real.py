@@ -12,9 +12,10 @@ from scipy.io import loadmat
 
 from conftest import DATA_DIR, STREAMID
 from recorders.convert import convert, main as convert_main
-from recorders.devices import DEVICES, simulate_device_log
+from recorders.devices import recorded_devices, simulate_device_log
 from streamid import logs as mcaplog
 from streamid.errors import ConfigError
+from streamid.sim import get_device
 
 
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:
@@ -79,14 +80,15 @@ def test_convert_refuses_bad_sources(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("device", "duration_s"), [("reactor", None), ("mr_damper", 5.0), ("piezo", 0.1)])
 def test_simulated_device_logs_are_the_seeded_simulation(device: str, duration_s, tmp_path: Path) -> None:
-    spec = DEVICES[device]
+    spec = get_device(device)
+    assert recorded_devices()[device] is spec  # one registry: streamid.sim
     a_path, b_path, c_path = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
     info = simulate_device_log(device, a_path, seed=3, duration_s=duration_s)
     simulate_device_log(device, b_path, seed=3, duration_s=duration_s)
     simulate_device_log(device, c_path, seed=4, duration_s=duration_s)
     assert _messages(a_path) == _messages(b_path)
     assert _messages(a_path) != _messages(c_path)
-    t_ns, u, y = spec.load()(info["samples"], np.random.default_rng(3))
+    t_ns, u, y = spec.simulate(info["samples"], np.random.default_rng(3))
     a = mcaplog.read_log_arrays(a_path)
     assert a.stream == spec.stream and a.period_ns == spec.period_ns
     assert a.inputs[spec.input_name].tobytes() == np.asarray(u, np.float64).tobytes()

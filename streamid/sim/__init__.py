@@ -18,6 +18,10 @@ Every simulator has the signature ``f(n_samples, rng) -> Trace`` (``rng`` a
 ``Trace(t_ns, u, y)``: int64 sample times from 0 in steps of the device's
 ``period_ns``, the input and the output. The global numpy RNG is never used.
 
+This registry is the only list of devices: ``streamid simulate`` (the
+``recorders`` package) writes the log of every device that has a ``stream``,
+in batches of ``batch_size`` samples.
+
 Examples
 --------
 >>> from streamid.sim import get_device
@@ -106,7 +110,12 @@ class Device:
     min_seconds : float
         Shortest record the excitation supports (its lowest frequency line needs it).
     description : str
-        One line on the model.
+        One line on the model (also the ``model`` of a simulated log's metadata).
+    stream : str or None
+        Stream a simulated recorder of the device publishes on
+        (``streamid simulate``); None: the device has no recorder.
+    batch_size : int
+        Samples per published batch of that recorder.
     """
 
     name: str
@@ -119,6 +128,8 @@ class Device:
     default_seconds: float
     min_seconds: float
     description: str
+    stream: str | None = None
+    batch_size: int = 1
 
     @property
     def rate_hz(self) -> float:
@@ -153,16 +164,19 @@ _DEVICES = {
             "piezo", simulate_piezo, PiezoParams().period_ns, "voltage_V", "V", "deflection_um", "um",
             10.0, 0.05,
             "PZT/Cu unimorph micromanipulator: Bouc-Wen hysteresis, 1 kHz bending mode, 5 kHz/40 nm sensor",
+            stream="piezo", batch_size=200,  # 10 ms per batch
         ),
         Device(
             "mr_damper", simulate_mr_damper, MRDamperParams().period_ns, "velocity_cm_s", "cm/s",
             "force_N", "N", 60.0, 0.1,
             "MR damper, Spencer et al. 1997 phenomenological model, band-limited random velocity",
+            stream="mr_damper_sim", batch_size=20,  # 100 ms per batch
         ),
         Device(
             "reactor", simulate_reactor, ReactorParams().period_ns, "initiator_flow", "1",
             "molecular_weight", "g/mol", 192.0, 0.2,
             "continuous MMA polymerization reactor of the paper (eq. 17), u ~ U[0.007, 0.015]",
+            stream="reactor", batch_size=5,  # 1 s per batch
         ),
         Device(
             "bouc_wen", _bouc_wen_device, BENCHMARK_PERIOD_NS, "force_N", "N", "displacement_m", "m",
