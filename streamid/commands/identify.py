@@ -18,16 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TextIO
 
 import numpy as np
 
 from streamid.logs.datafile import Dataset, load_dataset
 from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
+from streamid.engine.fanout import fan_out
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
@@ -189,19 +188,12 @@ def identify_runs(
                 p.generation, p.generations, f"{p.evaluations} evaluations, best fitness {p.best_fitness:.5g}"
             )
         return [_one(jobs[0], helper)]
-    out: list[dict[str, Any]] = []
-    if workers <= 1:
-        for j in jobs:
-            out.append(_one(j, helper))
-            if bar is not None:
-                bar.update(len(out), len(jobs), f"run {len(out)}/{len(jobs)}")
-        return out
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn")) as ex:
-        for r in ex.map(_one, jobs):
-            out.append(r)
-            if bar is not None:
-                bar.update(len(out), len(jobs), f"run {len(out)}/{len(jobs)}")
-    return out
+
+    def progress(out: list[dict[str, Any]]) -> None:
+        if bar is not None:
+            bar.update(len(out), len(jobs), f"run {len(out)}/{len(jobs)}")
+
+    return fan_out(_one, jobs, workers, helper=helper, on_result=progress)
 
 
 def _stats(values: list[float]) -> dict[str, float]:

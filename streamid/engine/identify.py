@@ -27,10 +27,9 @@ data are never looked at.
 
 from __future__ import annotations
 
-import multiprocessing
 import time
 from collections.abc import Callable
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
+from streamid.engine.fanout import fan_out
 from streamid.engine.settings import DEFAULT, CoEAConfig
 from streamid.engine.model import Model, free_run
 from streamid.engine.parallel import EvalHelper
@@ -332,9 +332,8 @@ def identify(
         for i, s in enumerate(seeds)
     ]
     total_gen = cfg.generations * cfg.restarts
-    outs: list[dict[str, Any]] = []
 
-    def report() -> None:
+    def report(outs: list[dict[str, Any]]) -> None:
         if callback is not None:
             callback(
                 Progress(
@@ -345,22 +344,7 @@ def identify(
                 )
             )
 
-    workers = min(cfg.workers, cfg.restarts)
-    if executor is None and workers <= 1:
-        for job in jobs:
-            outs.append(_one_run(job, helper))
-            report()
-    else:
-        own = executor is None
-        ex = executor or ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
-        try:
-            futures = [ex.submit(_one_run, job) for job in jobs]
-            for fut in futures:
-                outs.append(fut.result())
-                report()
-        finally:
-            if own:
-                ex.shutdown(wait=True, cancel_futures=True)
+    outs = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report)
 
     models = [Model.from_json(o["model"]) for o in outs]
     chosen = int(np.argmax([o["score"] for o in outs]))
