@@ -126,3 +126,41 @@ def test_prediction_input_errors() -> None:
         m.simulate(np.zeros((10, 2)), [1.0])
     with pytest.raises(DataError, match="at least"):
         m.predict_osa(np.zeros((3, 2)), np.zeros(3))
+
+
+def test_lags_are_written_one_way_with_signal_names() -> None:
+    from streamid.engine.regressors import format_lags
+
+    assert format_lags("force_N", [1, 2], ["velocity_cm_s"], [[1, 2, 3]]) == "force_N(t-1,t-2) velocity_cm_s(t-1..t-3)"
+    assert format_lags("y", [1, 2], ["u"], [[1, 2, 3, 6, 7]]) == "y(t-1,t-2) u(t-1..t-3,t-6,t-7)"
+    assert format_lags("y", [], ["a", "b"], [[], [4]]) == "b(t-4)"
+    assert format_lags("y", [], ["u"], [[]]) == "(no regressors)"
+    assert _model().lags_text() == "out(t-1) a(t-1) b(t-3)"
+
+
+def test_print_and_summary_are_short_and_readable() -> None:
+    m = _model().with_metrics(r2_osa_est=0.99, r2_osa_val=0.98, r2_fr_est=0.97, r2_fr_val=0.9612)
+    text = m.summary()
+    assert str(m) == text
+    assert len(text.splitlines()) <= 8 and "[[" not in text and "array(" not in text
+    for part in ("a, b -> out", "out(t-1) a(t-1) b(t-3)", "4 Gaussian neurons", "free run est 0.9700 val 0.9612",
+                 "fitness     1.5", "100 samples"):
+        assert part in text, part
+    assert repr(m).startswith("<Model out = F[out(t-1) a(t-1) b(t-3)], 4 neurons") and len(repr(m)) < 200
+
+
+def test_save_and_load_round_trip_and_name_a_bad_file(tmp_path) -> None:
+    m = _model()
+    path = m.save(tmp_path / "m.json")
+    back = Model.load(path)
+    assert back.lags == m.lags and np.array_equal(back.centres, m.centres) and back.metrics == m.metrics
+    assert not list(tmp_path.glob(".*.tmp"))
+    wrapped = tmp_path / "update.json"  # a daemon's model-update document is read through its "model" field
+    wrapped.write_text(json.dumps({"format": "streamid.model-update/1", "model": m.to_dict()}), encoding="utf-8")
+    assert Model.load(wrapped).lags_text() == m.lags_text()
+    with pytest.raises(ModelFormatError, match="cannot read .*missing.json"):
+        Model.load(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json", encoding="utf-8")
+    with pytest.raises(ModelFormatError, match="bad.json.*must be JSON"):
+        Model.load(bad)

@@ -58,22 +58,22 @@ def test_tests_on_white_residual_pass_and_values_match_direct() -> None:
     e = rng.normal(size=n)
     rep = correlation_tests(e, u, max_lag=20)
     assert rep.band == pytest.approx(1.96 / np.sqrt(n))
-    assert {t.name for t in rep.tests} == {"ee", "ue[0]", "e_eu[0]", "u2_e[0]", "u2_e2[0]"}
+    assert {t.name for t in rep.tests} == {"ee", "ue", "e_eu", "u2_e", "u2_e2"}
     for t in rep.tests:
         assert t.fraction_inside >= PASS_FRACTION - 0.05  # white noise: ~5 % outside by chance
         assert t.max_abs < t.strict_band * 1.2
     ee = rep["ee"]
     assert ee.lags == tuple(range(1, 21))
     assert ee.values[4] == pytest.approx(_phi_direct(e, e, 5), abs=1e-12)
-    ue = rep["ue[0]"]
+    ue = rep["ue"]
     assert ue.lags == tuple(range(-20, 21))
     assert ue.values[20 + 3] == pytest.approx(_phi_direct(u, e, 3), abs=1e-12)
     assert ue.values[20 - 3] == pytest.approx(_phi_direct(e, u, 3), abs=1e-12)
     eu = e[1:] * u[1:]  # (eu)(t) = e(t+1) u(t+1)
-    assert rep["e_eu[0]"].values[2] == pytest.approx(_phi_direct(e[:-1], eu, 2), abs=1e-12)
+    assert rep["e_eu"].values[2] == pytest.approx(_phi_direct(e[:-1], eu, 2), abs=1e-12)
     u2 = u**2 - u.mean() ** 2
-    assert rep["u2_e[0]"].values[20 + 1] == pytest.approx(_phi_direct(u2, e, 1), abs=1e-12)
-    assert rep["u2_e2[0]"].values[20] == pytest.approx(_phi_direct(u2, e**2, 0), abs=1e-12)
+    assert rep["u2_e"].values[20 + 1] == pytest.approx(_phi_direct(u2, e, 1), abs=1e-12)
+    assert rep["u2_e2"].values[20] == pytest.approx(_phi_direct(u2, e**2, 0), abs=1e-12)
 
 
 def test_tests_detect_unmodelled_dynamics() -> None:
@@ -85,19 +85,53 @@ def test_tests_detect_unmodelled_dynamics() -> None:
     assert not correlation_tests(e, u)["ee"].passed
     e2 = rng.normal(size=n) * 0.1 + np.roll(u, 2) ** 2  # a missed input term u(t-2)^2
     rep = correlation_tests(e2, u)
-    assert not rep["u2_e[0]"].passed
+    assert not rep["u2_e"].passed
     assert not rep.passed
     e3 = rng.normal(size=n) * 0.1 + 0.5 * np.roll(u, 1)  # a missed linear term
-    assert not correlation_tests(e3, u)["ue[0]"].passed
+    assert not correlation_tests(e3, u)["ue"].passed
 
 
 def test_miso_tests_per_input_and_dict() -> None:
     rng = np.random.default_rng(3)
     u = rng.uniform(-1, 1, (500, 2))
-    rep = correlation_tests(rng.normal(size=500), u, max_lag=5)
+    rep = correlation_tests(rng.normal(size=500), u, max_lag=5, input_names=("volt", "temp"))
     names = [t.name for t in rep.tests]
-    assert names == ["ee", "ue[0]", "e_eu[0]", "u2_e[0]", "u2_e2[0]", "ue[1]", "e_eu[1]", "u2_e[1]", "u2_e2[1]"]
+    assert names == ["ee", "ue[volt]", "e_eu[volt]", "u2_e[volt]", "u2_e2[volt]", "ue[temp]", "e_eu[temp]", "u2_e[temp]", "u2_e2[temp]"]
+    assert [t.name for t in correlation_tests(rng.normal(size=500), u, max_lag=5).tests][1] == "ue[u0]"
     d = rep.to_dict()
     assert set(d["tests"]) == set(names)
-    t = d["tests"]["ue[1]"]
+    t = d["tests"]["ue[temp]"]
     assert len(t["lags"]) == len(t["values"]) == 11 and isinstance(t["passed"], bool)
+
+
+def test_a_failed_test_names_the_lag_the_value_and_the_band() -> None:
+    rng = np.random.default_rng(2)
+    n = 1000
+    u = rng.uniform(-1, 1, n)
+    e = rng.normal(size=n) * 0.1 + 0.5 * np.roll(u, 1)  # a missed linear term u(t-1)
+    ue = correlation_tests(e, u)["ue"]
+    lag, value = ue.worst()
+    assert lag == 1 and value > 0.5
+    assert ue.verdict() == f"ue FAIL: lag 1 value {value:.3g} outside ±{ue.strict_band:.3g} (99.9 % band)"
+    assert ue.to_dict()["reason"] == ue.reason != ""
+    r0 = np.random.default_rng(0)  # a white residual that passes (about one seed in four fails by chance)
+    ok = correlation_tests(r0.normal(size=n), r0.uniform(-1, 1, n))["ee"]
+    assert ok.passed and ok.reason == "" and ok.verdict().startswith("ee pass (")
+    # a failure by the 5 % rule alone names how many lags left the 95 % band
+    band = 1.96 / np.sqrt(n)
+    from streamid.engine.validation import CorrelationTest
+
+    t = CorrelationTest("ee", "φ_ee(τ) = δ(τ)", tuple(range(1, 11)), tuple([1.2 * band] * 2 + [0.0] * 8), band)
+    assert not t.passed and t.reason.startswith("2 of 10 lags outside ±")
+
+
+def test_correlation_test_names_are_the_documented_ones() -> None:
+    from pathlib import Path
+
+    from streamid.engine.validation import TESTS, correlation_test_name
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "method.md").read_text(encoding="utf-8")
+    for name, (formula, _) in TESTS.items():
+        assert f"`{name}`" in doc and formula in doc, name
+    with pytest.raises(DataError, match="must be one of"):
+        correlation_test_name("xixi")

@@ -21,17 +21,19 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite
+from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Model", "MODEL_FORMAT", "free_run"]
+__all__ = ["Model", "MODEL_FORMAT", "free_run", "format_lags"]
 
 MODEL_FORMAT = "streamid.model/1"
 
@@ -233,6 +235,51 @@ class Model:
             "u": [[r.lag for r in self.regressors if r.signal == "u" and r.index == i] for i in range(self.n_inputs)],
         }
 
+    def lags_text(self) -> str:
+        """The selected lags in streamid's one vocabulary, e.g. ``force_N(t-1,t-2) velocity_cm_s(t-1..t-3)``.
+
+        See :func:`format_lags`.
+        """
+        lags = self.lags
+        return format_lags(self.output_name, lags["y"], self.input_names, lags["u"])
+
+    def summary(self) -> str:
+        """A short readable description: signals with their lags, neurons, metrics (a few lines).
+
+        ``str(model)`` and ``print(model)`` give the same text; ``to_json`` gives every number.
+        """
+        lines = [
+            f"RBF-NARX model {', '.join(self.input_names)} -> {self.output_name}",
+            f"  regressors  {self.lags_text()}  ({len(self.regressors)} terms, max lag {self.max_lag})",
+            f"  network     {self.neurons} Gaussian neurons",
+        ]
+        r2 = {k: self.metrics.get(f"r2_{k}") for k in ("osa_est", "fr_est", "osa_val", "fr_val")}
+        if any(isinstance(v, (int, float)) for v in r2.values()):
+
+            def f(v: Any) -> str:
+                return f"{v:.4f}" if isinstance(v, (int, float)) else "n/a"
+
+            lines.append(
+                f"  R2          one-step-ahead est {f(r2['osa_est'])} val {f(r2['osa_val'])}, "
+                f"free run est {f(r2['fr_est'])} val {f(r2['fr_val'])}"
+            )
+        fit = self.metrics.get("fitness")
+        if isinstance(fit, (int, float)):
+            lines.append(f"  fitness     {fit:.6g} (one-step-ahead MSE on the estimation data, {self.output_name} units squared)")
+        n = self.window.get("n_samples", self.window.get("samples"))
+        if isinstance(n, int):
+            lines.append(f"  fitted on   {n} samples")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def __repr__(self) -> str:
+        return (
+            f"<Model {self.output_name} = F[{self.lags_text()}], {self.neurons} neurons; "
+            "model.summary() describes it, model.to_json() holds every number>"
+        )
+
     def labels(self) -> list[str]:
         """Readable names of the regressors, e.g. ``['y(t-1)', 'u(t-1)']``."""
         return [r.label(self.input_names, self.output_name) for r in self.regressors]
@@ -417,6 +464,45 @@ class Model:
         except (json.JSONDecodeError, UnicodeDecodeError, TypeError) as exc:
             raise ModelFormatError(f"a model file must be JSON text; parsing failed: {exc}") from None
         return cls.from_dict(d)
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the model's JSON file (``streamid.model/1``) to ``path``; returns the path.
+
+        The file is written whole or not at all (a temporary file renamed into place).
+        """
+        target = Path(path)
+        tmp = target.with_name(f".{target.name}.tmp")
+        tmp.write_text(self.to_json(), encoding="utf-8")
+        os.replace(tmp, target)
+        return target
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Model:
+        """Read a model JSON file written by :meth:`save`, ``streamid identify --model`` or the daemon.
+
+        A daemon's model-update document (``streamid.model-update/1``) is accepted too: its
+        ``model`` field is read.
+
+        Raises
+        ------
+        ModelFormatError
+            If the file is missing, not JSON, or not a valid model document (the message names the file).
+        """
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ModelFormatError(f"model file must be a readable streamid.model/1 JSON file; cannot read {str(p)!r}: {exc}") from None
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ModelFormatError(f"model file {str(p)!r} must be JSON text; parsing failed: {exc}") from None
+        if isinstance(d, Mapping) and d.get("format") != MODEL_FORMAT and isinstance(d.get("model"), Mapping):
+            d = d["model"]
+        try:
+            return cls.from_dict(d)
+        except ModelFormatError as exc:
+            raise ModelFormatError(f"{p}: {exc}") from None
 
     def with_metrics(self, **metrics: Any) -> Model:
         """A copy with metrics added (values must be finite)."""

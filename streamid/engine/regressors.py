@@ -14,6 +14,7 @@ centre. Row ``k`` of the regressor matrix is the regressor at time
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +30,7 @@ __all__ = [
     "candidate_regressors",
     "lag_matrix",
     "check_finite",
+    "format_lags",
 ]
 
 
@@ -50,6 +52,38 @@ class Regressor:
 
     def to_dict(self) -> dict[str, Any]:
         return {"signal": self.signal, "index": self.index, "lag": self.lag}
+
+
+def _lag_runs(lags: Sequence[int]) -> str:
+    """``[1, 2, 3, 6, 7]`` -> ``t-1..t-3,t-6,t-7``: runs of three or more consecutive lags collapse with ``..``."""
+    vals = sorted(set(int(v) for v in lags))
+    parts: list[str] = []
+    i = 0
+    while i < len(vals):
+        j = i
+        while j + 1 < len(vals) and vals[j + 1] == vals[j] + 1:
+            j += 1
+        if j - i >= 2:
+            parts.append(f"t-{vals[i]}..t-{vals[j]}")
+        else:
+            parts.extend(f"t-{v}" for v in vals[i : j + 1])
+        i = j + 1
+    return ",".join(parts)
+
+
+def format_lags(output_name: str, y_lags: Sequence[int], input_names: Sequence[str], u_lags: Sequence[Sequence[int]]) -> str:
+    """The one way streamid writes a model's regressors: signal names with their lags.
+
+    ``format_lags("force_N", [1, 2], ["velocity_cm_s"], [[1, 2, 3]])`` is
+    ``"force_N(t-1,t-2) velocity_cm_s(t-1..t-3)"``: the output first, then each input in
+    order; a signal with no selected lag is left out; runs of three or more consecutive
+    lags collapse with ``..``; ``"(no regressors)"`` when nothing is selected.
+    """
+    parts = [f"{output_name}({_lag_runs(y_lags)})"] if len(y_lags) else []
+    for name, lu in zip(input_names, u_lags):
+        if len(lu):
+            parts.append(f"{name}({_lag_runs(lu)})")
+    return " ".join(parts) if parts else "(no regressors)"
 
 
 def candidate_regressors(max_lag_y: int, max_lag_u: int, n_inputs: int) -> tuple[Regressor, ...]:

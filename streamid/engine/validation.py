@@ -16,7 +16,15 @@ With the normalised cross-correlation of the paper (eq. 6)::
     phi_(u^2)'e(tau)   = 0                 tau = -max_lag .. max_lag, (u^2)'(t) = u(t)^2 - mean(u)^2
     phi_(u^2)'e^2(tau) = 0                 tau = -max_lag .. max_lag
 
-each within the 95 % band ``+-1.96 / sqrt(N)``. streamid reports, per test (and
+each within the 95 % band ``+-1.96 / sqrt(N)``.
+
+Names
+-----
+streamid calls the tests, everywhere (CLI, ``watch``, Rerun, JSON, docs; see
+:data:`TESTS`): ``ee``, ``ue``, ``e_eu``, ``u2_e``, ``u2_e2``.  With several
+inputs the input tests carry the input's name: ``ue[velocity]``.
+
+streamid reports, per test (and
 per input for the input tests), the values, the fraction of the tested lags
 inside the band, and ``passed`` = at least 95 % of them inside (a white
 residual leaves about 5 % outside by chance) *and* none outside the 99.9 % band
@@ -40,6 +48,8 @@ if TYPE_CHECKING:
     from streamid.engine.model import Model
 
 __all__ = [
+    "TESTS",
+    "correlation_test_name",
     "r2",
     "ccf",
     "correlation_tests",
@@ -55,6 +65,24 @@ __all__ = [
 PASS_FRACTION = 0.95
 #: ...and no lag lies outside +-STRICT_Z / sqrt(N) (the 99.9 % band).
 STRICT_Z = 3.29
+
+
+#: The five correlation tests: canonical name -> (formula, what a failure suggests).
+#: ``e`` is the one-step-ahead residual, ``u`` an input.
+TESTS: dict[str, tuple[str, str]] = {
+    "ee": ("φ_ee(τ) = δ(τ)", "the residual is correlated with its own past: unmodelled dynamics or coloured noise"),
+    "ue": ("φ_ue(τ) = 0", "the input is correlated with the residual: an input term (or lag) is missing"),
+    "e_eu": ("φ_e(eu)(τ) = 0, τ ≥ 0", "residual x input is predictable from the residual: a missing output-input cross term"),
+    "u2_e": ("φ_(u²)'e(τ) = 0", "the squared input explains the residual: a missing even nonlinearity of the input"),
+    "u2_e2": ("φ_(u²)'e²(τ) = 0", "the squared input explains the residual's size: a missing nonlinear input term"),
+}
+
+
+def correlation_test_name(kind: str, input_name: str | None = None) -> str:
+    """The name of a correlation test: ``kind`` (one of :data:`TESTS`), with ``[input]`` when given."""
+    if kind not in TESTS:
+        raise DataError(f"correlation test must be one of {list(TESTS)}; got {kind!r}")
+    return kind if input_name is None or kind == "ee" else f"{kind}[{input_name}]"
 
 
 def r2(y: ArrayLike, yhat: ArrayLike) -> float:
@@ -126,6 +154,40 @@ class CorrelationTest:
     def max_abs(self) -> float:
         return float(np.max(np.abs(self.values))) if self.values else 0.0
 
+    @property
+    def kind(self) -> str:
+        """The test without its input: ``ue`` for ``ue[velocity]``."""
+        return self.name.split("[", 1)[0]
+
+    def worst(self) -> tuple[int, float]:
+        """``(lag, value)`` of the largest ``|value|`` (``(0, 0.0)`` when there are no lags)."""
+        if not self.values:
+            return 0, 0.0
+        i = int(np.argmax(np.abs(self.values)))
+        return int(self.lags[i]), float(self.values[i])
+
+    @property
+    def reason(self) -> str:
+        """Why the test failed, naming the lag, its value and the band it left (``""`` when it passed)."""
+        if self.passed:
+            return ""
+        lag, value = self.worst()
+        if abs(value) > self.strict_band:
+            return f"lag {lag} value {value:.3g} outside ±{self.strict_band:.3g} (99.9 % band)"
+        v = np.abs(np.asarray(self.values))
+        out = int(np.sum(v > self.band))
+        return (
+            f"{out} of {v.size} lags outside ±{self.band:.3g} (95 % band, at most {100 * (1 - PASS_FRACTION):.0f} % may be), "
+            f"largest at lag {lag} value {value:.3g}"
+        )
+
+    def verdict(self) -> str:
+        """One line: ``ee pass (20/20 lags inside ±0.0877)`` or ``ue FAIL: lag 3 value 0.21 outside ±0.147 ...``."""
+        if self.passed:
+            v = np.abs(np.asarray(self.values))
+            return f"{self.name} pass ({int(np.sum(v <= self.band))}/{v.size} lags inside ±{self.band:.3g})"
+        return f"{self.name} FAIL: {self.reason}"
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "formula": self.formula,
@@ -136,6 +198,7 @@ class CorrelationTest:
             "fraction_inside": self.fraction_inside,
             "max_abs": self.max_abs,
             "passed": self.passed,
+            "reason": self.reason,
         }
 
 
@@ -169,7 +232,9 @@ class CorrelationReport:
         }
 
 
-def correlation_tests(residual: ArrayLike, u: ArrayLike, max_lag: int = 20) -> CorrelationReport:
+def correlation_tests(
+    residual: ArrayLike, u: ArrayLike, max_lag: int = 20, input_names: tuple[str, ...] | list[str] | None = None
+) -> CorrelationReport:
     """The five correlation tests of eq. (5) on a residual and the inputs at the same times.
 
     Parameters
@@ -180,11 +245,14 @@ def correlation_tests(residual: ArrayLike, u: ArrayLike, max_lag: int = 20) -> C
         Inputs at the same time instants.
     max_lag : int
         Largest lag tested (default 20).
+    input_names : sequence of str, optional
+        Names of the inputs (default ``u0``, ``u1``, ...), used in the test names when there are several.
 
     Returns
     -------
     CorrelationReport
-        Test names: ``ee``; for input ``i``: ``ue[i]``, ``e_eu[i]``, ``u2_e[i]``, ``u2_e2[i]``.
+        Test names (:data:`TESTS`): ``ee``, ``ue``, ``e_eu``, ``u2_e``, ``u2_e2``; with several
+        inputs the input tests once per input, named ``ue[<input name>]`` and so on.
     """
     ua, e = as_data(u, residual, min_samples=3)
     if not (isinstance(max_lag, (int, np.integer)) and max_lag >= 1):
@@ -195,21 +263,26 @@ def correlation_tests(residual: ArrayLike, u: ArrayLike, max_lag: int = 20) -> C
     pos = np.arange(1, L + 1)
     nonneg = np.arange(0, L + 1)
     both = np.arange(-L, L + 1)
-    tests = [CorrelationTest("ee", "phi_ee(tau) = delta(tau)", tuple(pos.tolist()), tuple(ccf(e, e, pos).tolist()), band)]
-    for i in range(ua.shape[1]):
+    n_in = ua.shape[1]
+    names = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(n_in))
+    if len(names) != n_in:
+        raise DataError(f"input_names must name the {n_in} input(s); got {list(names)}")
+
+    def mk(kind: str, i: int | None, lags: NDArray[np.int64], values: NDArray[np.float64]) -> CorrelationTest:
+        nm = correlation_test_name(kind, None if i is None or n_in == 1 else names[i])
+        return CorrelationTest(nm, TESTS[kind][0], tuple(lags.tolist()), tuple(values.tolist()), band)
+
+    tests = [mk("ee", None, pos, ccf(e, e, pos))]
+    for i in range(n_in):
         ui = ua[:, i]
         eu = np.zeros(n)
         eu[:-1] = e[1:] * ui[1:]  # (eu)(t) = e(t+1) u(t+1)
         u2 = ui**2 - ui.mean() ** 2
         tests += [
-            CorrelationTest(f"ue[{i}]", "phi_ue(tau) = 0", tuple(both.tolist()), tuple(ccf(ui, e, both).tolist()), band),
-            CorrelationTest(
-                f"e_eu[{i}]", "phi_e(eu)(tau) = 0, tau >= 0", tuple(nonneg.tolist()), tuple(ccf(e[:-1], eu[:-1], nonneg).tolist()), band
-            ),
-            CorrelationTest(f"u2_e[{i}]", "phi_(u^2)'e(tau) = 0", tuple(both.tolist()), tuple(ccf(u2, e, both).tolist()), band),
-            CorrelationTest(
-                f"u2_e2[{i}]", "phi_(u^2)'e^2(tau) = 0", tuple(both.tolist()), tuple(ccf(u2, e**2, both).tolist()), band
-            ),
+            mk("ue", i, both, ccf(ui, e, both)),
+            mk("e_eu", i, nonneg, ccf(e[:-1], eu[:-1], nonneg)),
+            mk("u2_e", i, both, ccf(u2, e, both)),
+            mk("u2_e2", i, both, ccf(u2, e**2, both)),
         ]
     return CorrelationReport(n, float(band), tuple(tests))
 
@@ -297,7 +370,7 @@ def validate(
         osa_val=osa_v,
         fr_est=fr_e,
         fr_val=fr_v,
-        correlation_est=correlation_tests(res_e, ue[L:], max_lag),
-        correlation_val=correlation_tests(res_v, uv[L:], max_lag),
+        correlation_est=correlation_tests(res_e, ue[L:], max_lag, model.input_names),
+        correlation_val=correlation_tests(res_v, uv[L:], max_lag, model.input_names),
         predictions={"osa_est": p_osa_e, "fr_est": p_fr_e, "osa_val": p_osa_v, "fr_val": p_fr_v},
     )
