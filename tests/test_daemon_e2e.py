@@ -24,7 +24,7 @@ from replay.player import ReplayConfig, replay_log
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.wire.documents import ModelUpdate
+from streamid.transport.updates import ModelUpdate
 from streamid.daemon.service import Daemon
 from streamid.engine.validation import r2
 from streamid.logs import bundled_log, read_log_arrays

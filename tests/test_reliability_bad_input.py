@@ -32,7 +32,7 @@ from conftest import STREAMID, endpoint
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.wire.documents import ModelUpdate
+from streamid.transport.updates import ModelUpdate
 from streamid.daemon.service import Daemon
 from streamid.sim import get_device
 from streamid.transport import Bus, ZenohSettings

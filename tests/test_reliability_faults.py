@@ -42,7 +42,7 @@ from conftest import STREAMID, endpoint, free_tcp_port
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
-from streamid.wire.documents import ModelUpdate, parse_model_update
+from streamid.transport.updates import ModelUpdate, parse_model_update
 from streamid.daemon.service import Daemon
 from streamid.sim import get_device
 from streamid.transport import Bus, ZenohSettings

@@ -8,7 +8,7 @@
 >>> up = latest_model(zs, "bench1", timeout_s=2.0)                                     # doctest: +SKIP
 >>> yhat = up.model.simulate(u, y[: up.model.max_lag])                                  # doctest: +SKIP
 
-Each update is a :class:`~streamid.wire.documents.ModelUpdate`: the engine's
+Each update is a :class:`~streamid.transport.updates.ModelUpdate`: the engine's
 :class:`~streamid.engine.Model` rebuilt from the published JSON, its version,
 the window it was fitted on and its validation metrics.
 """
@@ -21,7 +21,8 @@ import time
 from collections.abc import Callable
 from types import TracebackType
 
-from streamid.wire.documents import ModelUpdate, parse_model_update, parse_status
+from streamid.transport.updates import ModelUpdate, parse_model_update
+from streamid.wire.documents import parse_status
 from streamid.errors import ConfigError, ModelFormatError
 from streamid.wire.keys import PREFIX, check_stream_name, model_key, status_key
 from streamid.transport.zenoh_bus import Bus, ZenohSettings

@@ -20,18 +20,17 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 from streamid.errors import ModelFormatError
 
 __all__ = [
     "MODEL_UPDATE_FORMAT",
     "STATUS_FORMAT",
-    "ModelUpdate",
+    "ModelUpdateFields",
     "encode_json",
     "model_update_message",
-    "parse_model_update",
+    "parse_model_update_fields",
     "parse_status",
 ]
 
@@ -73,39 +72,6 @@ def model_update_message(
     }
 
 
-@dataclass(frozen=True, eq=False)
-class ModelUpdate:
-    """A parsed model update.
-
-    Attributes
-    ----------
-    stream, version
-        Which stream, which model version.
-    model
-        The engine's :class:`~streamid.engine.Model` rebuilt from the JSON.
-    window, metrics
-        The window the model was fitted on and its validation figures.
-    warm, generations, identification_s
-        How it was identified.
-    published_unix_ns, window_closed_unix_ns
-        When (wall clock).
-    document
-        The whole JSON document.
-    """
-
-    stream: str
-    version: int
-    model: Any
-    window: dict[str, Any]
-    metrics: dict[str, Any]
-    warm: bool
-    generations: int
-    identification_s: float
-    published_unix_ns: int
-    window_closed_unix_ns: int
-    document: dict[str, Any]
-
-
 def _doc(payload: bytes | str, fmt: str, what: str) -> dict[str, Any]:
     try:
         doc = json.loads(payload)
@@ -117,27 +83,47 @@ def _doc(payload: bytes | str, fmt: str, what: str) -> dict[str, Any]:
     return doc
 
 
-def parse_model_update(payload: bytes | str) -> ModelUpdate:
-    """Parse a ``streamid.model-update/1`` payload (the model is rebuilt and checked).
+class ModelUpdateFields(TypedDict):
+    """The fields of a checked model update; ``model`` is still the engine's JSON document."""
+
+    stream: str
+    version: int
+    model: dict[str, Any]
+    window: dict[str, Any]
+    metrics: dict[str, Any]
+    warm: bool
+    generations: int
+    identification_s: float
+    published_unix_ns: int
+    window_closed_unix_ns: int
+    document: dict[str, Any]
+
+
+def parse_model_update_fields(payload: bytes | str) -> ModelUpdateFields:
+    """Parse and check a ``streamid.model-update/1`` payload, all but its model.
+
+    ``model`` is only checked to be a JSON object: rebuilding the engine's model from
+    it is the reader's job (:func:`streamid.transport.updates.parse_model_update`), so
+    the wire format does not depend on the engine.
 
     Raises
     ------
     ModelFormatError
-        If the payload is not such a document or its model is invalid.
+        If the payload is not such a document.
     """
-    from streamid.engine.model import Model  # the engine is only needed to rebuild the model
-
     doc = _doc(payload, MODEL_UPDATE_FORMAT, "model update")
     try:
         version = doc["version"]
         if isinstance(version, bool) or not isinstance(version, int) or version < 1:
             raise ModelFormatError(f"model update 'version' must be an integer >= 1; got {version!r}")
-        model = Model.from_dict(doc["model"])
+        model = doc["model"]
+        if not isinstance(model, dict):
+            raise ModelFormatError(f"model update 'model' must be a JSON object; got {type(model).__name__}")
         metrics = doc.get("metrics", {})
         for k, v in metrics.items():
             if isinstance(v, float) and not math.isfinite(v):
                 raise ModelFormatError(f"model update metric {k!r} must be finite; got {v!r}")
-        return ModelUpdate(
+        return ModelUpdateFields(
             stream=str(doc["stream"]),
             version=version,
             model=model,
