@@ -39,10 +39,9 @@ def test_csv_report_and_model(tmp_path: Path) -> None:
     data = tmp_path / "d.csv"
     narx_csv(data)
     rep, mod = tmp_path / "r.json", tmp_path / "m.json"
-    p = cli(str(data), "--input", "force", "--output", "pos", *QUICK, "--json", str(rep), "--model", str(mod))
+    p = cli(str(data), "--input", "force", "--output", "pos", *QUICK, "--report", str(rep), "--model", str(mod))
     assert p.returncode == 0, p.stderr
     assert "force -> pos" in p.stdout and "estimation 300 samples" in p.stdout and "validation 300" in p.stdout
-    assert "pos(t-1)" in p.stdout and "force(t-2)" in p.stdout
     r = json.loads(rep.read_text())
     assert r["best"] == 0 and len(r["runs"]) == 1
     run = r["runs"][0]
@@ -54,6 +53,7 @@ def test_csv_report_and_model(tmp_path: Path) -> None:
     assert set(r["summary"]["fitness"]) >= {"min", "max", "mean", "std"}
     m = Model.from_json(mod.read_text())
     assert m.lags == run["lags"]
+    assert f"pos(t) = F[{m.lags_text()}]" in p.stdout and m.lags_text().startswith("pos(t-1")
     assert m.input_names == ("force",) and m.output_name == "pos"
     assert m.window["n_samples"] == 300 and m.window["source"] == "d.csv"
     raw = np.loadtxt(data, delimiter=",", skiprows=1)
@@ -66,7 +66,7 @@ def test_runs_in_parallel_give_table4_statistics(tmp_path: Path) -> None:
     narx_csv(data, n=400)
     rep = tmp_path / "r.json"
     args = [str(data), "--input", "force", "--input", "noise", "--output", "pos", "--est-fraction", "0.6"]
-    p = cli(*args, *QUICK[:-4], "--runs", "3", "--seed", "7", "--workers", "2", "--progress", "never", "--json", str(rep))
+    p = cli(*args, *QUICK[:-4], "--runs", "3", "--seed", "7", "--workers", "2", "--progress", "never", "--report", str(rep))
     assert p.returncode == 0, p.stderr
     r = json.loads(rep.read_text())
     assert [x["seed"] for x in r["runs"]] == [7, 8, 9]
@@ -79,7 +79,7 @@ def test_runs_in_parallel_give_table4_statistics(tmp_path: Path) -> None:
     assert all(len(x["lags"]["u"]) == 2 for x in r["runs"])
     # the same seeds in one process give the same numbers
     rep1 = tmp_path / "r1.json"
-    p1 = cli(*args, *QUICK, "--runs", "3", "--seed", "7", "--json", str(rep1))
+    p1 = cli(*args, *QUICK, "--runs", "3", "--seed", "7", "--report", str(rep1))
     assert p1.returncode == 0, p1.stderr
     assert [x["fitness"] for x in json.loads(rep1.read_text())["runs"]] == f
 
@@ -140,3 +140,28 @@ def test_progress_bar_draws_after_its_delay() -> None:
     off.update(5, 10)
     off.close()
     assert silent.getvalue() == ""
+
+
+def test_max_lag_y_and_u_json_line_and_every_test_explained(tmp_path: Path) -> None:
+    """--max-lag-y/--max-lag-u bound the lags; --json is one JSON line on stdout (as on every command)."""
+    data = tmp_path / "d.csv"
+    narx_csv(data, n=400)
+    base = [str(data), "--input", "force", "--output", "pos", *QUICK[:5], "--workers", "1", "--progress", "never"]
+    p = cli(*base, "--max-lag-y", "1", "--max-lag-u", "2", "--json")
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.strip().splitlines()
+    assert len(lines) == 1, p.stdout
+    rep = json.loads(lines[0])
+    assert rep["config"]["max_lag_y"] == 1 and rep["config"]["max_lag_u"] == 2
+    assert max(rep["runs"][0]["lags"]["y"], default=0) <= 1 and max(rep["runs"][0]["lags"]["u"][0], default=0) <= 2
+    t = cli(*base, "--max-lag-y", "1", "--max-lag-u", "2")
+    assert t.returncode == 0, t.stderr
+    assert "max lag y 1 / u 2" in t.stdout
+    for name in ("ee", "ue", "e_eu", "u2_e", "u2_e2"):  # one line per test, with its verdict and the reason of a failure
+        assert any(line.strip().startswith(f"{name} pass (") or line.strip().startswith(f"{name} FAIL: ")
+                   for line in t.stdout.splitlines()), name
+    for line in t.stdout.splitlines():
+        if " FAIL: " in line:
+            assert "lag" in line and "outside ±" in line, line
+    bad = cli(*base, "--max-lag-y", "-1")
+    assert bad.returncode == 2 and "max_lag_y" in bad.stderr and "-1" in bad.stderr, bad.stderr

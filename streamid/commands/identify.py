@@ -1,17 +1,16 @@
-"""``streamid identify``: identify an RBF-NARX model from a data file (CSV, MAT or MCAP log).
+"""streamid identify: identify an RBF-NARX model from a data file (CSV, MAT or MCAP log).
 
-Examples
---------
-::
+Examples:
 
     streamid identify data.csv --input u --output y
     streamid identify mr.mcap --input velocity_cm_s --output force_N --est 2000 --model mr.json
-    streamid identify data.csv --input u --output y --paper --neurons 10 --generations 400 --runs 10 --json r.json
+    streamid identify data.csv --input u --output y --paper --runs 10 --report r.json
 
-Estimation data are the first samples (``--est N`` or ``--est-fraction F``,
-default half), validation data the rest. With ``--runs R`` the identification is
-repeated with seeds ``S .. S+R-1`` (in parallel over ``--workers`` processes) and
-the fitness statistics are reported like the paper's Table 4.
+Estimation data are the first samples (--est N or --est-fraction F, default
+half), validation data the rest. With --runs R the identification is repeated
+with seeds S .. S+R-1 (in parallel over --workers processes) and the fitness
+statistics are reported like the paper's Table 4.  How to read the output:
+the README's "Your own data file" section and docs/method.md.
 """
 
 from __future__ import annotations
@@ -30,7 +29,7 @@ from streamid.engine.fanout import fan_out
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
-from streamid.engine.validation import validate
+from streamid.engine.validation import CorrelationTest, validate
 from streamid.errors import ConfigError
 
 __all__ = ["register", "run", "identify_runs"]
@@ -57,6 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--neurons", type=int, metavar="M", help=f"RBF neurons (default {DEFAULT.neurons}; --paper {PAPER.neurons})")
     p.add_argument("--max-lag", type=int, metavar="L", help="largest candidate lag of the output and of every input (default 10)")
+    p.add_argument("--max-lag-y", type=int, metavar="LY", help="largest candidate lag of the output (default: --max-lag, or 10)")
+    p.add_argument("--max-lag-u", type=int, metavar="LU", help="largest candidate lag of every input (default: --max-lag, or 10)")
     p.add_argument(
         "--generations", type=int, metavar="G", help=f"generations per run (default {DEFAULT.generations}; --paper {PAPER.generations})"
     )
@@ -78,7 +79,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
     p.add_argument("--runs", type=int, default=1, metavar="R", help="independent identifications, seeds S..S+R-1 (default 1)")
     p.add_argument("--workers", type=int, default=2, metavar="W", help="processes (default 2; 1 = this process only)")
-    p.add_argument("--json", metavar="REPORT.json", help="write the report as JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print the report as one JSON line on stdout instead of the table (as every streamid command's --json)")
+    p.add_argument("--report", metavar="REPORT.json", help="also write the report as a JSON file")
     p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (streamid.model/1 JSON)")
     p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal)")
     p.set_defaults(func=run)
@@ -101,6 +104,10 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
             changes[field] = v
     if args.max_lag is not None:
         changes["max_lag_y"] = changes["max_lag_u"] = args.max_lag
+    if args.max_lag_y is not None:
+        changes["max_lag_y"] = args.max_lag_y
+    if args.max_lag_u is not None:
+        changes["max_lag_u"] = args.max_lag_u
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1; got {args.workers}")
     if args.runs < 1:
@@ -216,12 +223,9 @@ def _best_index(runs: list[dict[str, Any]], cfg: CoEAConfig) -> int:
     return int(np.argmax([r["selection_score"] for r in runs]))
 
 
-def _fmt_lags(lags: dict[str, Any], names: tuple[str, ...], output: str) -> str:
-    parts = [f"{output}: " + " ".join(str(v) for v in lags["y"])] if lags["y"] else []
-    for name, ls in zip(names, lags["u"]):
-        if ls:
-            parts.append(f"{name}: " + " ".join(str(v) for v in ls))
-    return " | ".join(parts) if parts else "(none)"
+def _lags_text(run: dict[str, Any]) -> str:
+    """The run's lags in streamid's one vocabulary (:meth:`Model.lags_text`)."""
+    return Model.from_json(run["model"]).lags_text()
 
 
 def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str, Any]], best: int, wall: float) -> None:
@@ -247,7 +251,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(
             f"{i:>3}{m} {r['seed']:>6} {r['seconds']:>8.2f} {r['evaluations']:>7} {r['fitness']:>11.5g} "
             f"{r2d['osa_est']:>9.5f} {r2d['osa_val']:>9.5f} {r2d['fr_est']:>9.5f} {r2d['fr_val']:>9.5f}  "
-            f"{_fmt_lags(r['lags'], ds.input_names, ds.output_name)}\n"
+            f"{_lags_text(r)}\n"
         )
     if len(runs) > 1:
         st = _stats([r["fitness"] for r in runs])
@@ -256,13 +260,13 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(f"  min {st['min']:.6g}  max {st['max']:.6g}  mean {st['mean']:.6g}  std {st['std']:.4g}\n")
         w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
     b = runs[best]
-    w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data), regressors {', '.join(b['regressors'])}\n")
-    for part in ("est", "val"):
+    w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = F[{_lags_text(b)}]\n")
+    for part, title in (("est", "estimation"), ("val", "validation")):
         c = b["correlation"][part]
-        cells = ", ".join(
-            f"{name} {100 * t['fraction_inside']:.0f}%{'' if t['passed'] else ' FAIL'}" for name, t in c["tests"].items()
-        )
-        w(f"correlation tests ({part}, lags inside +-{c['band']:.3f}): {cells}\n")
+        w(f"correlation tests on the {title} residual ({c['n']} samples, 95 % band ±{c['band']:.3g}):\n")
+        for name, t in c["tests"].items():
+            test = CorrelationTest(name, t["formula"], tuple(t["lags"]), tuple(t["values"]), float(c["band"]))
+            w(f"  {test.verdict()}\n")
     w(f"wall time {wall:.2f} s\n")
 
 
@@ -290,12 +294,13 @@ def run(args: argparse.Namespace) -> int:
             helper.close()
     best = _best_index(runs, cfg)
     wall = time.perf_counter() - t0
-    _print_report(sys.stdout, ds, cfg, runs, best, wall)
+    if not args.json:
+        _print_report(sys.stdout, ds, cfg, runs, best, wall)
     if args.model:
         model = Model.from_json(runs[best]["model"])
         with open(args.model, "w", encoding="utf-8") as fh:
             fh.write(model.to_json())
-    if args.json:
+    if args.json or args.report:
         report = {
             "format": "streamid.identify_report/1",
             "data": {
@@ -316,6 +321,9 @@ def run(args: argparse.Namespace) -> int:
                 "wall_seconds": wall,
             },
         }
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(report, fh, indent=1, allow_nan=False)
+        if args.report:
+            with open(args.report, "w", encoding="utf-8") as fh:
+                json.dump(report, fh, indent=1, allow_nan=False)
+        if args.json:
+            print(json.dumps(report, allow_nan=False), flush=True)
     return 0
