@@ -7,15 +7,21 @@ anything but loopback and never find each other by accident.
 Helpers importable from tests (``from conftest import free_tcp_port``):
 ``free_tcp_port()``, ``endpoint()``, ``STREAMID`` (argv prefix running the CLI
 with the venv's interpreter), ``rerun_check(path)`` (``rerun mcap check``).
+
+System packages (not pip-installable) that some tests need are detected here, in
+one place: a test marked ``@pytest.mark.needs("vulkan")`` (or calling
+``require("vulkan")``, e.g. in a fixture) is skipped with the Debian package to
+install when the thing is absent. ``SYSTEM_NEEDS`` lists them.
 """
 
 from __future__ import annotations
 
+import functools
 import shutil
 import socket
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -34,6 +40,78 @@ RERUN = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
 def rerun_check(path: Path) -> subprocess.CompletedProcess[str]:
     """Run ``rerun mcap check PATH`` (the caller asserts on return code and output)."""
     return subprocess.run([RERUN, "mcap", "check", str(path)], capture_output=True, text=True, timeout=60)
+
+
+#: Asks the Vulkan loader for the physical devices (a subprocess: a broken driver cannot take pytest down).
+_VULKAN_PROBE = r"""
+import ctypes, sys
+try:
+    vk = ctypes.CDLL("libvulkan.so.1")
+except OSError:
+    sys.exit("no Vulkan loader (libvulkan.so.1)")
+class CreateInfo(ctypes.Structure):  # VkInstanceCreateInfo
+    _fields_ = [("sType", ctypes.c_int32), ("pNext", ctypes.c_void_p), ("flags", ctypes.c_uint32),
+                ("pApplicationInfo", ctypes.c_void_p), ("enabledLayerCount", ctypes.c_uint32),
+                ("ppEnabledLayerNames", ctypes.c_void_p), ("enabledExtensionCount", ctypes.c_uint32),
+                ("ppEnabledExtensionNames", ctypes.c_void_p)]
+info = CreateInfo(sType=1)  # VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO
+instance = ctypes.c_void_p()
+res = vk.vkCreateInstance(ctypes.byref(info), None, ctypes.byref(instance))
+if res != 0:
+    sys.exit(f"vkCreateInstance returned {res} (no Vulkan driver, ICD)")
+count = ctypes.c_uint32(0)
+res = vk.vkEnumeratePhysicalDevices(instance, ctypes.byref(count), None)
+vk.vkDestroyInstance(instance, None)
+if res != 0 or count.value == 0:
+    sys.exit(f"no Vulkan device (vkEnumeratePhysicalDevices returned {res}, {count.value} devices)")
+"""
+
+
+@functools.cache
+def vulkan_renderer() -> str | None:
+    """None when Vulkan can render here (a loader, a driver and a device), else why not.
+
+    The real Rerun viewer (wgpu) renders through Vulkan; without a GPU it needs a
+    software rasteriser (lavapipe, Debian package ``mesa-vulkan-drivers``). Probed
+    once per session, by asking the Vulkan loader for its physical devices.
+    """
+    try:
+        res = subprocess.run([sys.executable, "-c", _VULKAN_PROBE], capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        return "the Vulkan probe did not finish within 60 s"
+    return None if res.returncode == 0 else (res.stderr.strip().splitlines() or ["the Vulkan probe failed"])[-1]
+
+
+def _command(name: str) -> Callable[[], str | None]:
+    return lambda: None if shutil.which(name) else f"no `{name}` command on PATH"
+
+
+#: What tests may need beyond pip: name -> (probe returning None when present or why not, what it is and its
+#: Debian package). Every other tool the tests run comes with a pip package (``rerun`` with rerun-sdk).
+SYSTEM_NEEDS: dict[str, tuple[Callable[[], str | None], str]] = {
+    "vulkan": (vulkan_renderer, "a Vulkan renderer (Debian package mesa-vulkan-drivers)"),
+    "openssl": (_command("openssl"), "the openssl command (Debian package openssl)"),
+}
+
+
+def require(what: str) -> None:
+    """Skip the calling test (or fixture) when ``what`` (a key of ``SYSTEM_NEEDS``) is absent, naming its package."""
+    probe, needs = SYSTEM_NEEDS[what]
+    why = probe()
+    if why is not None:
+        pytest.skip(f"needs {needs}: {why}")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", f"needs(*what): skip unless these system packages are present (one of {', '.join(SYSTEM_NEEDS)})"
+    )
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    for mark in item.iter_markers("needs"):
+        for what in mark.args:
+            require(what)
 
 
 def free_tcp_port() -> int:

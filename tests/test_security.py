@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -39,7 +38,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import endpoint
+from conftest import endpoint, require
 from test_security_static import is_loopback_endpoint
 from streamid.errors import TransportError
 from streamid.transport import Bus, ZenohSettings
@@ -478,8 +477,7 @@ def test_real_cli_daemon_with_the_shipped_configs(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """Two throw-away CAs + daemon certificates made by the shipped script (keys never committed)."""
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl is needed to generate the TLS test certificates")
+    require("openssl")  # examples/zenoh/make-test-certs.sh runs it
     dirs = []
     for name in ("certs", "other-ca"):
         out = tmp_path_factory.mktemp(name)
