@@ -7,7 +7,7 @@ import json
 import threading
 from pathlib import Path
 
-from streamid.errors import ConfigError
+from streamid.errors import ConfigError, LogError
 from streamid.logs import bundled_log, bundled_logs
 from streamid.transport import DEFAULT_ENDPOINT
 from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
@@ -17,15 +17,27 @@ __all__ = ["register", "run", "resolve_log"]
 
 
 def resolve_log(name: str) -> Path:
-    """A path, or the name of a bundled log (``mr_damper``, ``piezo_p885``)."""
+    """A path, or the name of a bundled log (``mr_damper``, ``piezo_p885``).
+
+    Raises
+    ------
+    LogError
+        If ``name`` is neither an existing file nor a bundled log; the message lists the
+        bundled logs and the closest match.
+    """
     path = Path(name)
+    if path.exists():
+        return path
     stem = name[:-5] if name.endswith(".mcap") else name
-    if not path.exists() and stem in bundled_logs():
+    if "/" in name or "\\" in name:
+        raise LogError(f"LOG must be an existing MCAP file or a bundled log name ({', '.join(bundled_logs())}); no file {name!r}")
+    try:
         return bundled_log(stem)
-    return path
+    except LogError as exc:
+        raise LogError(f"no file {name!r} here, and {exc}") from None
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "replay",
         help="play an MCAP log onto Zenoh with its original timing (scaled) or at full speed",
@@ -55,7 +67,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="wait up to S seconds for a subscriber before starting (default 5)")
     p.add_argument("--partial", action="store_true",
                    help="replay every complete chunk of a truncated/corrupt log")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON line")
+    p.add_argument("--require-subscriber", action="store_true",
+                   help="exit with code 1 when no subscriber received the messages (default: say so and exit 0)")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON line on stdout")
     add_connection_flags(p, default_connect=(DEFAULT_ENDPOINT,))
     p.set_defaults(func=run)
 
@@ -80,7 +94,10 @@ def run(args: argparse.Namespace) -> int:
             "bytes": report.bytes, "passes": report.passes, "wall_s": report.wall_s,
             "samples_per_s": report.samples_per_s, "per_key": report.per_key,
             "timing_error_us": report.timing_error_us(), "problem": report.problem,
+            "unheard_keys": report.unheard_keys,
         }), flush=True)
     else:
         print(report.summary(), flush=True)
+    if report.unheard_keys and args.require_subscriber:
+        return 1
     return 0

@@ -119,6 +119,10 @@ class ReplayReport:
     problem: str | None = None
     #: wall-clock time (``time.time_ns()``) of the first put
     started_ns: int | None = None
+    #: keys published on which no subscriber was ever seen (nothing received them)
+    unheard_keys: list[str] = field(default_factory=list)
+    #: the endpoints the session connected to (for the message when nobody listened)
+    endpoints: tuple[str, ...] = ()
 
     @property
     def samples_per_s(self) -> float:
@@ -149,6 +153,12 @@ class ReplayReport:
             )
         if self.problem:
             text += f"; log problem: {self.problem}"
+        if self.unheard_keys:
+            where = f" via {', '.join(self.endpoints)}" if self.endpoints else ""
+            text += (
+                f"\nno subscriber{where} on {', '.join(self.unheard_keys)}: nothing received these messages "
+                "(is `streamid daemon` running and reachable there?)"
+            )
         return text
 
 
@@ -328,6 +338,8 @@ def replay_log(
     if bus is None:
         bus = Bus(settings if settings is not None else ZenohSettings())
     publishers: dict[str, BusPublisher] = {}
+    heard: set[str] = set()
+    report.endpoints = tuple(bus.settings.connect) or tuple(bus.settings.listen)
     remap = _Remapper(dict(cfg.stream_map))
     streams_seen: set[str] = set()
     start_ns = int(cfg.start_s * 1e9)
@@ -368,6 +380,8 @@ def replay_log(
                         if not pub.wait_for_subscribers(cfg.wait_subscribers_s):
                             _log.warning("no subscriber on %s after %.1f s; replaying anyway",
                                          new_key, cfg.wait_subscribers_s)
+                    if pub.has_subscribers():
+                        heard.add(new_key)
                 rel = log_ns - first - start_ns + n_pass * geo.msg_period_ns
                 last_rel = rel
                 if wall0 is None:
@@ -401,8 +415,11 @@ def replay_log(
             report.wall_s = (time.perf_counter_ns() - wall0) / 1e9
         report.log_span_s = last_rel / 1e9
     finally:
-        for pub in publishers.values():
+        for key, pub in publishers.items():
+            if key not in heard and pub.has_subscribers():
+                heard.add(key)
             pub.close()
+        report.unheard_keys = sorted(set(publishers) - heard)
         if own_bus:
             bus.close()
     return report

@@ -47,7 +47,12 @@ def providers() -> dict[str, Callable[[BenchOptions], Iterable[Measurement]]]:
     return found
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def section_names() -> list[str]:
+    """Names of the sections ``--only`` accepts (without importing them)."""
+    return sorted({*BUILTIN_PROVIDERS, *(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))})
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "bench",
         help="measure identification and streaming figures on this machine",
@@ -57,9 +62,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--repeat", type=int, default=5, help="runs each figure is the median of (default 5)")
     p.add_argument("--quick", action="store_true", help="small sizes and few runs: a smoke run, not for quoting")
     p.add_argument("--peers", action="store_true", help="also fit the data sets with SysIdentPy (extra 'peers')")
-    p.add_argument("--only", action="append", metavar="SECTION", help="run only these sections (repeatable)")
+    p.add_argument("--only", action="append", metavar="SECTION",
+                   help=f"run only this section (repeatable); sections: {', '.join(section_names())}")
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    p.add_argument("--json", metavar="FILE", help="also write the measurements as JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print the machine and the measurements as one JSON line on stdout instead of the table")
+    p.add_argument("--report", metavar="FILE", help="also write the machine and the measurements as a JSON file")
     p.set_defaults(func=run)
 
 
@@ -73,11 +81,16 @@ def run(args: argparse.Namespace) -> int:
     wanted = list(found) if not args.only else args.only
     unknown = [w for w in wanted if w not in found]
     if unknown:
-        raise ConfigError(f"--only takes one of {sorted(found)}, got {unknown}")
+        import difflib
+
+        close = [m for u in unknown for m in difflib.get_close_matches(u, list(found), n=1)]
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ConfigError(f"--only takes one of {', '.join(sorted(found))}; got {', '.join(map(repr, unknown))}{hint}")
     if not args.peers:
         wanted = [w for w in wanted if w != "peers" or args.only]
     machine = machine_description()
-    print("streamid bench — " + ", ".join(f"{k}: {v}" for k, v in machine.items()))
+    if not args.json:
+        print("streamid bench — " + ", ".join(f"{k}: {v}" for k, v in machine.items()))
     rows: list[Measurement] = []
     failures: list[str] = []
     for name in wanted:
@@ -91,10 +104,14 @@ def run(args: argparse.Namespace) -> int:
             continue
         rows.extend(got)
         print(f"[bench] {name} done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-    print(format_table(rows))
-    for f in failures:
-        print(f"FAILED {f}")
+    doc = {"machine": machine, "measurements": [m.to_dict() for m in rows], "failures": failures}
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump({"machine": machine, "measurements": [m.to_dict() for m in rows], "failures": failures}, fh, indent=1)
+        print(json.dumps(doc), flush=True)
+    else:
+        print(format_table(rows))
+        for f in failures:
+            print(f"FAILED {f}")
+    if args.report:
+        with open(args.report, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=1)
     return 1 if failures else 0

@@ -62,7 +62,7 @@ DEMO_STREAMS: tuple[DemoStream, ...] = (
 )
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "demo",
         help="replay the bundled MR damper and piezo logs through the daemon and show the models (about 1 min)",
@@ -253,10 +253,9 @@ def _summary(streams: Sequence[DemoStream], tallies: dict[str, _Tally], statuses
             rows.append((s.stream, "0", "-", "-", "-", "-", "-", "-", str(samples_in), str(bad)))
             continue
         m = t.last.metrics
-        lags = t.last.model.lags
         rows.append((
             s.stream, str(len(t.versions)), str(t.last.version),
-            f"y{lags['y']} u{lags['u'][0] if len(lags['u']) == 1 else lags['u']}",
+            t.last.model.lags_text(),
             f"{m.get('r2_osa_val', float('nan')):.4f}", f"{m.get('r2_fr_val', float('nan')):.4f}",
             f"{statistics.median(t.ident_s):.3f}",
             f"{statistics.median(t.latency_s):.3f}" if t.latency_s else "n/a",

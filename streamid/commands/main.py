@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from importlib.metadata import entry_points
 
 from streamid import __version__
+from streamid.commands.helptext import plain_parser
 from streamid.errors import StreamidError
 
 #: Subcommands that live inside streamid itself, in the order ``--help`` lists them.
@@ -52,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         module.register(sub)
     for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
         ep.load()(sub)
+    for command_parser in sub.choices.values():  # descriptions come from reST docstrings
+        plain_parser(command_parser)
     return parser
 
 

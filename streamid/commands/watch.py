@@ -20,7 +20,7 @@ from typing import Any
 from streamid.errors import ConfigError
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from streamid.transport import DEFAULT_ENDPOINT
     from streamid.commands.zenoh_flags import add_connection_flags
 
@@ -35,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--every", type=float, default=0.0, metavar="S",
                    help="also re-print the current models' age every S seconds (default: off)")
     p.add_argument("--count", type=int, metavar="N", help="exit after N model updates")
-    p.add_argument("--duration", type=float, metavar="S", help="exit after S seconds")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="exit after S seconds (with code 1 if no model was received by then)")
     p.add_argument("--json", action="store_true", help="print each update as one JSON line")
     p.set_defaults(func=run)
 
@@ -44,9 +45,6 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
     """One line: stream, version, lags, validation R^2, age."""
     now_ns = time.time_ns() if now_ns is None else now_ns
     m = up.metrics
-    lags = up.model.lags
-    names = list(up.model.input_names)
-    parts = [f"{up.model.output_name}:{lags['y']}"] + [f"{n}:{lu}" for n, lu in zip(names, lags["u"], strict=False)]
     age = max(0.0, (now_ns - up.published_unix_ns) / 1e9) if up.published_unix_ns else float("nan")
 
     def f(v: Any) -> str:
@@ -54,7 +52,7 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
 
     return (
         f"{up.stream} v{up.version} {'warm' if up.warm else 'cold'} G={up.generations} "
-        f"lags {' '.join(parts)} R2 val OSA {f(m.get('r2_osa_val'))} FR {f(m.get('r2_fr_val'))} "
+        f"{up.model.output_name}(t) = F[{up.model.lags_text()}] R2 val OSA {f(m.get('r2_osa_val'))} FR {f(m.get('r2_fr_val'))} "
         f"ident {up.identification_s:.2f}s age {age:.1f}s"
     )
 
@@ -101,21 +99,27 @@ def run(args: argparse.Namespace) -> int:
         elif not bad and prev is True:
             emit(f"{name} healthy again (model v{st.get('version')})")
 
+    settings = settings_from_args(args)
+    where = ", ".join(settings.connect) or ", ".join(f"listening on {e}" for e in settings.listen) or "the --zenoh-config endpoints"
+    timed_out = False
+    end = None if args.duration is None else time.monotonic() + args.duration
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with Bus(settings_from_args(args)) as bus:
-            if not bus.wait_connected(5.0):
-                print("streamid watch: no daemon or router reachable yet; still trying", file=sys.stderr, flush=True)
+        with Bus(settings) as bus:
+            wait = 5.0 if args.duration is None else min(5.0, args.duration)
+            if not bus.wait_connected(wait):
+                print(f"streamid watch: nothing reachable at {where} yet (no daemon or router there); still trying",
+                      file=sys.stderr, flush=True)
             skey = f"{PREFIX}/*/status" if args.stream == "*" else status_key(args.stream)
             bus.subscribe(skey, on_status)
             with ModelSubscriber(bus, args.stream, on_update) as sub:
                 if not sub.latest:
                     print(f"streamid watch: waiting for models on {args.stream!r} ...", file=sys.stderr, flush=True)
-                end = None if args.duration is None else time.monotonic() + args.duration
                 next_age = time.monotonic() + args.every if args.every else None
                 while not stop.wait(0.1):
                     now = time.monotonic()
                     if end is not None and now >= end:
+                        timed_out = True
                         break
                     if next_age is not None and now >= next_age:
                         next_age = now + args.every
@@ -124,4 +128,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+    if timed_out and seen[0] == 0:
+        print(f"streamid watch: no model received from {where} in {args.duration:g} s", file=sys.stderr, flush=True)
+        return 1
     return 0

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -154,6 +155,35 @@ class ZenohSettings:
         return conf
 
 
+_RUST_WHERE = re.compile(r"\s*at /\S+\.rs:\d+\.?")
+_BOUND_TO = re.compile(r"bound to ([a-z-]+/[^\s:\]]+:\d+)")
+
+
+def explain_open_error(message: str, settings: ZenohSettings) -> str:
+    """One sentence for a failed ``zenoh.open``: the endpoint, what is wrong and the flag that changes it.
+
+    Zenoh's own text (with Rust source paths) is reduced to its first clause.
+    """
+    text = _RUST_WHERE.sub("", message).strip().rstrip(".")
+    if "Address already in use" in text or "address in use" in text.lower():
+        m = _BOUND_TO.search(text)
+        ep = m.group(1) if m else (", ".join(settings.listen) or "the listen endpoint")
+        return (
+            f"cannot listen on {ep}: the address is already in use (another streamid daemon or router running?); "
+            f"stop that process or choose another endpoint with --listen, e.g. --listen tcp/127.0.0.1:7448"
+        )
+    if "Unable to connect" in text:
+        eps = ", ".join(settings.connect) or "the connect endpoints"
+        return (
+            f"cannot connect to {eps}: nothing answers there (mode {settings.mode or 'from the config file'}); "
+            "start `streamid daemon` or `streamid router` there, or point --connect at where one listens"
+        )
+    if "Can not create a new" in text and "listener" in text:
+        eps = ", ".join(settings.listen) or "the listen endpoint"
+        return f"cannot listen on {eps} ({text}); choose another endpoint with --listen, e.g. --listen tcp/127.0.0.1:7448"
+    return f"cannot open a zenoh session ({text}); listen {list(settings.listen)}, connect {list(settings.connect)}, mode {settings.mode}"
+
+
 Callback = Callable[[str, bytes], None]
 QueryHandler = Callable[[str], "bytes | None"]
 
@@ -225,10 +255,7 @@ class Bus:
         try:
             self._session = zenoh.open(conf)
         except zenoh.ZError as exc:
-            raise TransportError(
-                f"cannot open zenoh session ({exc}); check that listen endpoints are free "
-                f"and valid; settings: {self.settings}"
-            ) from exc
+            raise TransportError(explain_open_error(str(exc), self.settings)) from exc
         self._lock = threading.Lock()
         self._entities: list[Any] = []
         self._closed = False
