@@ -14,7 +14,7 @@ from streamid.commands.os_signals import stop_on_signals
 __all__ = ["register_record", "register_simulate", "run_record", "run_simulate"]
 
 
-def register_record(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_record(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "record",
         help="record Zenoh traffic (default streamid/**) to an MCAP log",
@@ -65,7 +65,7 @@ def run_record(args: argparse.Namespace) -> int:
     return 0
 
 
-def register_simulate(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register_simulate(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from recorders.devices import recorded_devices
 
     devices = recorded_devices()

@@ -19,14 +19,11 @@ from pathlib import Path
 from types import TracebackType
 
 from streamid.wire import codec
-from streamid.errors import ConfigError, LogError
+from streamid.errors import CodecError, ConfigError, LogError
 from streamid.logs import LogWriter
 from streamid.transport import Bus, ZenohSettings
 
 __all__ = ["RecorderConfig", "RecordStats", "Recorder", "record"]
-
-_STOP = object()
-
 
 @dataclass(frozen=True)
 class RecorderConfig:
@@ -124,7 +121,8 @@ class Recorder:
         self.stats = RecordStats(self.path)
         self._bus = bus
         self._own_bus = bus is None
-        self._q: queue.Queue[object] = queue.Queue(self.config.queue_messages)
+        # (key, receive time ns, payload); None asks the writer thread to stop
+        self._q: queue.Queue[tuple[str, int, bytes] | None] = queue.Queue(self.config.queue_messages)
         self._writer: LogWriter | None = None
         self._thread: threading.Thread | None = None
         self._handles: list[object] = []
@@ -194,10 +192,10 @@ class Recorder:
                 except queue.Empty:
                     writer.maybe_flush()
                     continue
-                if item is _STOP:
+                if item is None:
                     return
                 st.max_queue = max(st.max_queue, self._q.qsize() + 1)
-                key, t_ns, data = item  # type: ignore[misc]
+                key, t_ns, data = item
                 head = codec.peek_header(data)
                 if head is not None:
                     seq, t0 = head
@@ -261,7 +259,7 @@ class Recorder:
         if self._own_bus and self._bus is not None:
             self._bus.close()
         if self._thread is not None:
-            self._q.put(_STOP)
+            self._q.put(None)
             self._thread.join()
             self._thread = None
         if self._writer is not None:
@@ -274,7 +272,7 @@ class Recorder:
 def _sample_count(data: bytes) -> int:
     try:
         return len(codec.decode(data))
-    except codec.CodecError:
+    except CodecError:
         return 0
 
 

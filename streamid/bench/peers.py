@@ -102,7 +102,9 @@ def _cases(options: Any) -> list[tuple[str, Callable[[], tuple[np.ndarray, ...]]
     from streamid.bench.engine_cases import mr_damper_data, piezo_data, reactor_data
 
     frols_lags = (5,) if options.quick else (5, 7)
-    mr = [(fit_frols, {"max_lag": lag, "n_info_values": 15}) for lag in frols_lags]
+    mr: list[tuple[Callable[..., PeerFit], dict[str, Any]]] = [
+        (fit_frols, {"max_lag": lag, "n_info_values": 15}) for lag in frols_lags
+    ]
     if not options.quick:
         mr.append((fit_frols, {"max_lag": 5, "n_info_values": 40}))
         mr.append((fit_frols, {"max_lag": 5, "n_info_values": 15, "scale": True}))

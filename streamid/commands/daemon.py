@@ -25,7 +25,7 @@ from streamid.errors import ConfigError
 DEFAULT_RRD = "streamid.rrd"
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from streamid.transport import DEFAULT_ENDPOINT
     from streamid.commands.zenoh_flags import add_connection_flags
 

@@ -35,7 +35,7 @@ from streamid.errors import ConfigError
 __all__ = ["register", "run", "identify_runs"]
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "identify",
         help="identify an RBF-NARX model from a CSV, MAT or MCAP file",

@@ -25,7 +25,7 @@ from streamid.transport import DEFAULT_ENDPOINT, Bus
 from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "router",
         help="run a Zenoh router that daemons, publishers and subscribers connect to",

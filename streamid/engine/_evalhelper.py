@@ -61,13 +61,16 @@ def _lowest_priority() -> None:
     threads (a daemon's ingestion) or from other programs: when it gets no CPU
     the caller simply evaluates alone.
     """
-    try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))  # type: ignore[attr-defined]
-    except (AttributeError, OSError):
+    if sys.platform == "linux":
         try:
-            os.nice(19)
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+            return
         except OSError:
             pass
+    try:
+        os.nice(19)
+    except OSError:
+        pass
 
 
 def serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:

@@ -213,7 +213,7 @@ class Coevolution:
             self.best_f = float(f[i])
             self.best_h = masks[i].copy()
             self.best_x = x[i].copy()
-        return f  # type: ignore[no-any-return]
+        return f
 
     def _cold_start(self) -> None:
         P, rng = self.config.population, self.rng

@@ -202,7 +202,7 @@ class TrialMaker:
         its donor-key columns are modified (diagonals set to 2). Returns ``B``.
         """
         n, d = self.size, self.dim
-        b = uniforms.shape[0]
+        b: int = uniforms.shape[0]
         if b > self.block:
             raise ValueError(f"at most {self.block} generations per plan; got {b}")
         keys = uniforms[:, : n * n].reshape(b, n, n)

@@ -90,7 +90,7 @@ def improvise_from_uniforms(
     t = np.minimum((uniforms[:count] * hms).astype(np.intp), hms - 1)
     u3 = uniforms[count : count * (3 * d + 1)].reshape(3, count, d)
     from_memory = u3[0] < hmcr
-    new = u3[1] < 0.5
+    new: NDArray[np.bool_] = u3[1] < 0.5
     np.copyto(new, memory[t], where=from_memory)
     np.copyto(new, best[None, :], where=from_memory & (u3[2] < par))
     return new
@@ -119,7 +119,7 @@ class Improviser:
     def plan(self, uniforms: NDArray[np.float64], hmcr: NDArray[np.float64], par: NDArray[np.float64]) -> int:
         """Prepare ``B = uniforms.shape[0]`` generations; ``hmcr``, ``par`` of shape ``(B,)``. Returns ``B``."""
         c, d, hms = self.count, self.d, self.hms
-        b = uniforms.shape[0]
+        b: int = uniforms.shape[0]
         if b > self.block:
             raise ValueError(f"at most {self.block} generations per plan; got {b}")
         np.minimum((uniforms[:, :c] * hms).astype(np.intp), hms - 1, out=self._t[:b])

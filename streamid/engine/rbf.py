@@ -58,6 +58,7 @@ ill-conditioned the design is.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -91,7 +92,8 @@ def activations(r: NDArray[np.float64], centres: NDArray[np.float64], widths: ND
         ``exp(-||r_t - c_m||^2 / (2 sigma_m^2))``.
     """
     d2 = ((r[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
-    return np.exp(-d2 / (2.0 * widths[None, :] ** 2))
+    g: NDArray[np.float64] = np.exp(-d2 / (2.0 * widths[None, :] ** 2))
+    return g
 
 
 def rbf_output(
@@ -130,13 +132,16 @@ def fit_weights(
         rhs = np.concatenate([y, np.zeros(phi.shape[1])])
     else:
         rhs = y
-    z = np.linalg.lstsq(a, rhs, rcond=None)[0]
+    z: NDArray[np.float64] = np.linalg.lstsq(a, rhs, rcond=None)[0]
     return z * s
 
 
+_gufunc_solve: Callable[..., NDArray[np.float64]] | None
 try:  # the gufunc behind numpy.linalg.solve, without the wrapper's ~6 us of Python per call
-    from numpy.linalg._umath_linalg import solve as _gufunc_solve
-except ImportError:  # pragma: no cover - numpy moved it; the public function is equivalent
+    from numpy.linalg import _umath_linalg
+
+    _gufunc_solve = _umath_linalg.solve
+except (ImportError, AttributeError):  # pragma: no cover - numpy moved it; the public function is equivalent
     _gufunc_solve = None
 
 
@@ -151,10 +156,10 @@ def _solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64
         with np.errstate(invalid="ignore"):  # a singular member gives NaN (handled below), not a warning
             z = _gufunc_solve(a, b, signature="dd->d")
         if z.sum() == z.sum():  # no NaN: the usual case, one reduction
-            return z  # type: ignore[no-any-return]
+            return z
     else:  # pragma: no cover
         try:
-            return np.linalg.solve(a, b)
+            return np.linalg.solve(a, b).astype(np.float64, copy=False)
         except np.linalg.LinAlgError:
             pass
     return np.stack([np.linalg.lstsq(a[i], b[i, :, 0], rcond=None)[0] for i in range(a.shape[0])])[:, :, None]
@@ -370,7 +375,7 @@ class BatchEvaluator:
         z = _solve(gs, sb3)
         np.multiply(z[:, :, 0], s, out=w)  # w = S z
         np.matmul(v, ext, out=res)  # w^T Phi - y
-        mse = np.vecdot(r0, r0)  # a new array: callers may keep it
+        mse: NDArray[np.float64] = np.vecdot(r0, r0)  # a new array: callers may keep it
         mse /= self.n
         if return_weights:
             return mse, w.copy()

@@ -196,7 +196,8 @@ class Normalisation:
     def u(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         lo = np.asarray(self.u_low)
         hi = np.asarray(self.u_high)
-        return 2.0 * (u - lo) / (hi - lo) - 1.0
+        un: NDArray[np.float64] = 2.0 * (u - lo) / (hi - lo) - 1.0
+        return un
 
     def y(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
         return 2.0 * (y - self.y_low) / (self.y_high - self.y_low) - 1.0

@@ -10,6 +10,7 @@ Every field is checked in ``__post_init__``; a bad value raises
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
@@ -22,13 +23,10 @@ SELECTIONS = ("fr_est", "holdout_fr", "fitness")
 
 
 def _int(name: str, value: object, low: int, high: int | None = None) -> int:
-    ok = isinstance(value, int) and not isinstance(value, bool) and value >= low
-    if ok and high is not None:
-        ok = value <= high  # type: ignore[operator]
-    if not ok:
-        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
-        raise ConfigError(f"CoEAConfig.{name} must be an integer {rng}; got {value!r}")
-    return int(value)  # type: ignore[arg-type]
+    if isinstance(value, int) and not isinstance(value, bool) and value >= low and (high is None or value <= high):
+        return int(value)
+    rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+    raise ConfigError(f"CoEAConfig.{name} must be an integer {rng}; got {value!r}")
 
 
 def _float(name: str, value: object, low: float, high: float, *, open_low: bool = False) -> float:
@@ -45,7 +43,9 @@ def _float(name: str, value: object, low: float, high: float, *, open_low: bool 
 
 def _bounds(name: str, value: object, positive: bool) -> tuple[float, float]:
     try:
-        lo, hi = (float(v) for v in value)  # type: ignore[union-attr]
+        if not isinstance(value, Iterable):
+            raise TypeError(f"not iterable: {type(value).__name__}")
+        lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
         lo = hi = math.nan
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and (lo > 0 or not positive)):

@@ -115,7 +115,7 @@ def read_log_arrays(
     path = Path(path)
     reader = LogReader(path, partial=partial)
     by_stream: dict[str, list[codec.SampleBatch]] = {}
-    for key, t, data in reader:
+    for key, t_log, data in reader:
         try:
             s, kind = parse_key(key)
         except ConfigError:
@@ -127,7 +127,7 @@ def read_log_arrays(
         try:
             batch = codec.decode(data)
         except CodecError as exc:
-            raise LogError(f"{path}: message on {key!r} logged at {t} ns is not a valid "
+            raise LogError(f"{path}: message on {key!r} logged at {t_log} ns is not a valid "
                            f"sample batch: {exc}") from exc
         # a batch on .../u carries inputs, on .../y outputs; keep only that role
         if kind == "u" and batch.outputs or kind == "y" and batch.inputs:

@@ -25,7 +25,7 @@ from streamid.transport.updates import ModelUpdate, parse_model_update
 from streamid.wire.documents import parse_status
 from streamid.errors import ConfigError, ModelFormatError
 from streamid.wire.keys import PREFIX, check_stream_name, model_key, status_key
-from streamid.transport.zenoh_bus import Bus, ZenohSettings
+from streamid.transport.zenoh_bus import Bus, ZenohSettings, _Handle
 
 __all__ = ["ModelSubscriber", "ModelUpdate", "latest_model", "latest_status"]
 
@@ -88,7 +88,7 @@ class ModelSubscriber:
         self._bus, self._owned = _open(settings)
         key = f"{PREFIX}/*/model" if stream == "*" else model_key(stream)
         try:
-            self._sub = self._bus.subscribe(key, self._on_payload)
+            self._sub: _Handle | None = self._bus.subscribe(key, self._on_payload)
             if fetch_latest:
                 for _k, payload in self._bus.get(key, timeout_s=latest_timeout_s):
                     self._on_payload(_k, payload)

@@ -311,7 +311,7 @@ class Viz:
 
     def blueprint(self) -> rrb.Blueprint:
         """The layout: one tab per stream, in declaration order."""
-        tabs = [self._stream_layout(s) for s in self._streams]
+        tabs: list[rrb.Container | rrb.View] = [self._stream_layout(s) for s in self._streams]
         if not tabs:
             tabs = [rrb.TextLogView(origin="events", name="events")]
         root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs, active_tab=0)
@@ -427,9 +427,9 @@ class Viz:
                 cold = self._cold.get(r.stream)
             self._log_figure(rec, f"{base}/plot/fitness", fitness_figure((r.version, r.warm, f), cold),
                              _FIGURE_KEYS["fitness"])
-        for name, v in (("r2_osa", r.metrics.get("r2_osa_val")), ("r2_fr", r.metrics.get("r2_fr_val"))):
-            if v is not None and math.isfinite(v):
-                rec.log(f"{base}/history/{name}", rr.Scalars(max(v, -1.0)))
+        for name, metric in (("r2_osa", r.metrics.get("r2_osa_val")), ("r2_fr", r.metrics.get("r2_fr_val"))):
+            if metric is not None and math.isfinite(metric):
+                rec.log(f"{base}/history/{name}", rr.Scalars(max(metric, -1.0)))
         rec.log(f"{base}/history/identification_s", rr.Scalars(r.identification_s))
         if r.latency_s is not None:
             rec.log(f"{base}/history/latency_s", rr.Scalars(r.latency_s))

@@ -293,7 +293,7 @@ class SampleBatch:
             return False
         if (self.t_ns is None) != (other.t_ns is None):
             return False
-        if self.t_ns is not None and not np.array_equal(self.t_ns, other.t_ns):
+        if self.t_ns is not None and other.t_ns is not None and not np.array_equal(self.t_ns, other.t_ns):
             return False
         for a, b in ((self.inputs, other.inputs), (self.outputs, other.outputs)):
             if list(a) != list(b):
