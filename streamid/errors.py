@@ -13,6 +13,8 @@ __all__ = [
     "CodecError",
     "LogError",
     "TransportError",
+    "NoDaemonError",
+    "NoModelYetError",
     "ModelFormatError",
 ]
 
@@ -39,6 +41,14 @@ class LogError(StreamidError):
 
 class TransportError(StreamidError):
     """The Zenoh transport could not be opened or used."""
+
+
+class NoDaemonError(TransportError):
+    """Nothing reachable at the endpoint: no daemon, router or peer answered (names the endpoint)."""
+
+
+class NoModelYetError(StreamidError, LookupError):
+    """The network is reachable but no model of the stream was published yet (names the stream)."""
 
 
 class ModelFormatError(StreamidError, ValueError):

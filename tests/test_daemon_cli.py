@@ -54,7 +54,7 @@ def wait_version(ep: str, version: int, timeout_s: float = 30.0) -> int:
     deadline = time.monotonic() + timeout_s
     got = 0
     while time.monotonic() < deadline:
-        up = latest_model(ZenohSettings(connect=(ep,)), "mr_damper", timeout_s=0.5)
+        up = latest_model(ZenohSettings(connect=(ep,)), "mr_damper", timeout_s=0.5, default=None)
         got = up.version if up is not None else 0
         if got >= version:
             return got

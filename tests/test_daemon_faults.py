@@ -115,7 +115,7 @@ def run() -> dict:
                    and sum(st["identifications"].values()) > 0 for st in status.values()):
                 break
             time.sleep(0.1)
-        latest = {s: latest_model(connect, s, timeout_s=1.0) for s in ("good", "flaky", "strict")}
+        latest = {s: latest_model(connect, s, timeout_s=1.0, default=None) for s in ("good", "flaky", "strict")}
     daemon.stop()
     return {"status": status, "seen": seen, "latest": latest}
 

@@ -221,7 +221,7 @@ def run() -> dict[str, Any]:
                 if idle and all(st["samples_in"] > 0 for st in status.values()):
                     break
                 time.sleep(0.2)
-            latest = {s: latest_model(bus, s, timeout_s=1.0) for s in ("constant", "aligned_then_not")}
+            latest = {s: latest_model(bus, s, timeout_s=1.0, default=None) for s in ("constant", "aligned_then_not")}
             time.sleep(0.3)  # the last model messages reach the raw subscriber
     finally:
         daemon.stop()

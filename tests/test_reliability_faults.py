@@ -356,7 +356,7 @@ def test_failed_and_rejected_updates_degrade_keep_the_model_and_spare_the_others
             failing.update({"raiser", "arith"})
             send(range(40, 90), noisy=True)
             bad = _wait_idle(bus, names)
-            kept = {s: latest_model(bus, s, timeout_s=1.0) for s in names}
+            kept = {s: latest_model(bus, s, timeout_s=1.0, default=None) for s in names}
             failing.clear()
             send(range(90, 150))  # the faults end; noisy gets real data again
             after = _wait_idle(bus, names)

@@ -1,12 +1,17 @@
 """Client side of the daemon: receive identified models over Zenoh.
 
 >>> from streamid.transport.client import ModelSubscriber, latest_model
->>> from streamid.transport import ZenohSettings
->>> zs = ZenohSettings(connect=("tcp/127.0.0.1:7447",))
->>> with ModelSubscriber(zs, "bench1", lambda up: print(up.version, up.model.lags)):   # doctest: +SKIP
+>>> with ModelSubscriber("tcp/127.0.0.1:7447", "bench1", lambda up: print(up.version, up.model)):  # doctest: +SKIP
 ...     ...
->>> up = latest_model(zs, "bench1", timeout_s=2.0)                                     # doctest: +SKIP
+>>> up = latest_model("tcp/127.0.0.1:7447", "bench1", timeout_s=2.0)                   # doctest: +SKIP
 >>> yhat = up.model.simulate(u, y[: up.model.max_lag])                                  # doctest: +SKIP
+
+Where to connect is an endpoint string (``"tcp/127.0.0.1:7447"``), a
+:class:`~streamid.transport.zenoh_bus.ZenohSettings` (TLS, access control, ...)
+or an open :class:`~streamid.transport.zenoh_bus.Bus`.  :func:`latest_model`
+tells the two ways of getting nothing apart: :class:`~streamid.errors.NoDaemonError`
+(nothing reachable at the endpoint) and :class:`~streamid.errors.NoModelYetError`
+(reachable, but no model of that stream yet); ``default=None`` returns None for both.
 
 Each update is a :class:`~streamid.transport.updates.ModelUpdate`: the engine's
 :class:`~streamid.engine.Model` rebuilt from the published JSON, its version,
@@ -20,24 +25,39 @@ import threading
 import time
 from collections.abc import Callable
 from types import TracebackType
+from typing import Union
 
 from streamid.transport.updates import ModelUpdate, parse_model_update
 from streamid.wire.documents import parse_status
-from streamid.errors import ConfigError, ModelFormatError
+from streamid.errors import ConfigError, ModelFormatError, NoDaemonError, NoModelYetError
 from streamid.wire.keys import PREFIX, check_stream_name, model_key, status_key
 from streamid.transport.zenoh_bus import Bus, ZenohSettings, _Handle
 
-__all__ = ["ModelSubscriber", "ModelUpdate", "latest_model", "latest_status"]
+__all__ = ["ModelSubscriber", "ModelUpdate", "NoDaemonError", "NoModelYetError", "Target", "latest_model", "latest_status"]
 
 _log = logging.getLogger(__name__)
 
 
-def _open(bus_or_settings: Bus | ZenohSettings) -> tuple[Bus, bool]:
+#: Where to reach the daemon: an endpoint string, settings, or an open session.
+Target = Union[str, ZenohSettings, Bus]
+
+
+def _open(bus_or_settings: Target) -> tuple[Bus, bool]:
     if isinstance(bus_or_settings, Bus):
         return bus_or_settings, False
+    if isinstance(bus_or_settings, str):
+        bus_or_settings = ZenohSettings(connect=(bus_or_settings,))  # checks the endpoint's form
     if isinstance(bus_or_settings, ZenohSettings):
         return Bus(bus_or_settings), True
-    raise ConfigError(f"expected ZenohSettings or an open Bus; got {type(bus_or_settings).__name__}")
+    raise ConfigError(
+        "where to connect must be an endpoint string such as 'tcp/127.0.0.1:7447', ZenohSettings or an open Bus; "
+        f"got {type(bus_or_settings).__name__} {bus_or_settings!r}"
+    )
+
+
+def _where(bus: Bus) -> str:
+    s = bus.settings
+    return ", ".join(s.connect) or ", ".join(f"listening on {e}" for e in s.listen) or "the --zenoh-config endpoints"
 
 
 class ModelSubscriber:
@@ -46,8 +66,9 @@ class ModelSubscriber:
     Parameters
     ----------
     settings
+        An endpoint string such as ``"tcp/127.0.0.1:7447"`` or
         :class:`~streamid.transport.zenoh_bus.ZenohSettings` (a session is opened and
-        closed with the subscriber) or an open :class:`~streamid.transport.zenoh_bus.Bus`.
+        closed with the subscriber), or an open :class:`~streamid.transport.zenoh_bus.Bus`.
     stream
         Stream name, or ``"*"`` for every stream.
     callback
@@ -69,7 +90,7 @@ class ModelSubscriber:
 
     def __init__(
         self,
-        settings: ZenohSettings | Bus,
+        settings: Target,
         stream: str,
         callback: Callable[[ModelUpdate], object],
         *,
@@ -148,7 +169,8 @@ class ModelSubscriber:
         self.close()
 
 
-def _query(settings: ZenohSettings | Bus, key: str, timeout_s: float) -> list[tuple[str, bytes]]:
+def _query(settings: Target, key: str, timeout_s: float, *, probe: dict[str, object] | None = None) -> list[tuple[str, bytes]]:
+    """Query ``key`` until a reply or ``timeout_s``; ``probe`` receives ``reachable`` and ``where``."""
     if not timeout_s > 0:
         raise ConfigError(f"timeout_s must be > 0 seconds; got {timeout_s!r}")
     bus, owned = _open(settings)
@@ -158,6 +180,9 @@ def _query(settings: ZenohSettings | Bus, key: str, timeout_s: float) -> list[tu
             left = deadline - time.monotonic()
             got = bus.get(key, timeout_s=max(0.05, min(left, 0.5)))
             if got or deadline - time.monotonic() <= 0:
+                if probe is not None:
+                    probe["reachable"] = bool(got) or bus.wait_connected(0.0)
+                    probe["where"] = _where(bus)
                 return got
             time.sleep(0.02)
     finally:
@@ -165,10 +190,39 @@ def _query(settings: ZenohSettings | Bus, key: str, timeout_s: float) -> list[tu
             bus.close()
 
 
-def latest_model(settings: ZenohSettings | Bus, stream: str, timeout_s: float = 2.0) -> ModelUpdate | None:
-    """The current model of ``stream`` from the daemon's queryable (None if none within ``timeout_s``)."""
+class _Raise:
+    """Marker: no ``default`` given to :func:`latest_model`."""
+
+
+def latest_model(
+    settings: Target, stream: str, timeout_s: float = 2.0, *, default: object = _Raise
+) -> ModelUpdate | None:
+    """The current model of ``stream`` from the daemon's queryable.
+
+    Parameters
+    ----------
+    settings
+        Where the daemon is: an endpoint string such as ``"tcp/127.0.0.1:7447"``,
+        :class:`ZenohSettings`, or an open :class:`Bus`.
+    stream
+        The stream's name.
+    timeout_s
+        How long to wait for an answer.
+    default
+        Returned instead of raising when there is no model (either reason); e.g. ``default=None``.
+
+    Raises
+    ------
+    NoDaemonError
+        Nothing is reachable at the endpoint (no daemon, router or peer) within ``timeout_s``.
+    NoModelYetError
+        The network is reachable but no model of ``stream`` was published yet.
+    """
+    if stream != "*":
+        check_stream_name(stream)
     best: ModelUpdate | None = None
-    for key, payload in _query(settings, model_key(stream), timeout_s):
+    probe: dict[str, object] = {}
+    for key, payload in _query(settings, model_key(stream), timeout_s, probe=probe):
         try:
             up = parse_model_update(payload)
         except ModelFormatError as exc:
@@ -176,10 +230,23 @@ def latest_model(settings: ZenohSettings | Bus, stream: str, timeout_s: float = 
             continue
         if best is None or up.version > best.version:
             best = up
-    return best
+    if best is not None:
+        return best
+    if default is not _Raise:
+        return default  # type: ignore[return-value]
+    where = probe.get("where", "the endpoint")
+    if not probe.get("reachable"):
+        raise NoDaemonError(
+            f"no daemon reachable at {where}: nothing answered within {timeout_s:g} s "
+            "(start `streamid daemon`, or pass the endpoint it listens on)"
+        )
+    raise NoModelYetError(
+        f"no model of stream {stream!r} yet at {where}: the network answers, but no model was published "
+        f"within {timeout_s:g} s (is a device publishing on streamid/{stream}/samples? a first model takes one window)"
+    )
 
 
-def latest_status(settings: ZenohSettings | Bus, stream: str, timeout_s: float = 2.0) -> dict | None:
+def latest_status(settings: Target, stream: str, timeout_s: float = 2.0) -> dict | None:
     """The current status document of ``stream`` (None if none within ``timeout_s``)."""
     for key, payload in _query(settings, status_key(stream), timeout_s):
         try:
