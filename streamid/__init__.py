@@ -4,33 +4,47 @@ A NARX model y(t) = F[y(t-1..t-ny), u(t-1..t-nu)] with F a Gaussian RBF
 network is identified by a cooperative coevolution of a binary Adaptive Harmony
 Search (lag selection) and Differential Evolution (centres and widths), and
 re-identified online from samples arriving over Eclipse Zenoh.
+
+The engine half: :func:`identify`, :class:`Coevolution` / :class:`CoEAState`,
+:class:`CoEAConfig`, :class:`Model`, :class:`Result`, :func:`validate`,
+:class:`EvalHelper`.  The streaming half: :class:`OnlineIdentifier` (a stream's
+online identification as a library), :class:`Daemon` with :class:`DaemonConfig` and
+:class:`StreamConfig`, :class:`SampleBatch` (the samples on the wire), and on the
+client side :class:`ModelSubscriber` and :func:`latest_model`.
+
+Every name is imported on first use, so ``import streamid`` stays light (no numpy,
+Zenoh, Rerun or MCAP) for the command line and the daemon's start.
 """
 
 from __future__ import annotations
 
+import importlib
 from importlib.metadata import PackageNotFoundError, version
+from typing import TYPE_CHECKING
 
 from streamid.errors import StreamidError
+
+if TYPE_CHECKING:
+    from streamid.daemon.config import DaemonConfig, StreamConfig
+    from streamid.daemon.service import Daemon
+    from streamid.engine.coevolution import CoEAState, Coevolution
+    from streamid.engine.identify import Result, identify
+    from streamid.engine.model import Model
+    from streamid.engine.parallel import EvalHelper
+    from streamid.engine.settings import CoEAConfig
+    from streamid.engine.validation import validate
+    from streamid.online.identifier import OnlineIdentifier
+    from streamid.transport.client import ModelSubscriber, latest_model
+    from streamid.wire.codec import SampleBatch
 
 try:
     __version__ = version("streamid")
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0.0.0+local"
 
-__all__ = [
-    "StreamidError",
-    "__version__",
-    "CoEAConfig",
-    "CoEAState",
-    "Coevolution",
-    "EvalHelper",
-    "Model",
-    "Result",
-    "identify",
-    "validate",
-]
-
-_ENGINE_EXPORTS = {
+#: Where each lazily exported name lives.
+_EXPORTS = {
+    # the engine
     "CoEAConfig": "streamid.engine.settings",
     "CoEAState": "streamid.engine.coevolution",
     "Coevolution": "streamid.engine.coevolution",
@@ -39,14 +53,53 @@ _ENGINE_EXPORTS = {
     "Result": "streamid.engine.identify",
     "identify": "streamid.engine.identify",
     "validate": "streamid.engine.validation",
+    # streaming
+    "OnlineIdentifier": "streamid.online.identifier",
+    "Daemon": "streamid.daemon.service",
+    "DaemonConfig": "streamid.daemon.config",
+    "StreamConfig": "streamid.daemon.config",
+    "SampleBatch": "streamid.wire.codec",
+    "ModelSubscriber": "streamid.transport.client",
+    "latest_model": "streamid.transport.client",
 }
+
+__all__ = [
+    "StreamidError",
+    "__version__",
+    # the engine
+    "CoEAConfig",
+    "CoEAState",
+    "Coevolution",
+    "EvalHelper",
+    "Model",
+    "Result",
+    "identify",
+    "validate",
+    # streaming
+    "OnlineIdentifier",
+    "Daemon",
+    "DaemonConfig",
+    "StreamConfig",
+    "SampleBatch",
+    "ModelSubscriber",
+    "latest_model",
+]
 
 
 def __getattr__(name: str) -> object:
-    """Engine names re-exported lazily (``import streamid`` stays light for the CLI and the daemon)."""
-    module = _ENGINE_EXPORTS.get(name)
+    """The exported names, imported on first use (and then kept as attributes of the package)."""
+    module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'streamid' has no attribute {name!r}")
-    import importlib
+    try:
+        value = getattr(importlib.import_module(module), name)
+    except ModuleNotFoundError as exc:
+        if exc.name != module:
+            raise
+        raise AttributeError(f"streamid.{name} lives in {module}, which this installation does not have") from exc
+    globals()[name] = value
+    return value
 
-    return getattr(importlib.import_module(module), name)
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
