@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from streamid.daemon.config import DaemonConfig, StreamConfig
+from streamid.daemon.config import DaemonConfig
+from streamid.online import StreamConfig
 from streamid.daemon.service import Daemon
 from streamid.transport import ZenohSettings
 

@@ -41,7 +41,7 @@ def test_fr_est_publishes_the_candidate_with_the_best_free_run_on_estimation() -
     w = wins[0]
     a = identify_window(w, cfg_fit, version=1)
     b = identify_window(w, cfg_fr, version=1)  # same seed, same run: only the choice differs
-    assert a.accepted and b.accepted
+    assert a.kind == "identified" and b.kind == "identified"
     n_est = b.window_meta["n_estimation"]
     ue, ye = w.u[:n_est], w.y[:n_est, 0]
     fr_a, fr_b = free_run_r2([a.model, b.model], ue, ye)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import threading
@@ -10,8 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid.daemon.config import StreamConfig
-from streamid.daemon.runtime import StreamRuntime
+from streamid.online import OnlineIdentifier, StreamConfig
 from streamid.daemon.state_store import StateStore, StreamState, atomic_write_text
 from streamid.online.window import Window
 from streamid.online.update import identify_window
@@ -26,7 +26,7 @@ def _window(number: int, seed: int = 0) -> Window:
     dev = get_device("mr_damper")
     t, u, y = dev.simulate_seconds(2.0, seed=seed)
     return Window("s", number, 1, int(t[0]), dev.period_ns, ("v",), ("f",), u[:, None].copy(), y[:, None].copy(),
-                  0, 0, 0)
+                  0, 0)
 
 
 def test_round_trip_and_listing(tmp_path: Path) -> None:
@@ -115,52 +115,74 @@ def test_state_dir_must_be_creatable(tmp_path: Path) -> None:
         StateStore(f / "sub")
 
 
-def test_runtime_resumes_warm_with_increasing_versions(tmp_path: Path) -> None:
-    store = StateStore(tmp_path)
-    rt = StreamRuntime("s", CFG)
-    w1 = _window(1)
-    out = identify_window(w1, CFG, version=1)
-    assert out.accepted, out.reason
-    pub = rt.apply(w1, out, store)
-    assert pub is not None and pub.version == 1
-    saved = store.load("s")
-    assert saved is not None and saved.version == 1 and saved.coea_state is not None
-    assert json.loads(pub.payload) == saved.model_message  # what was published is what was saved
+def _samples(seconds: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    dev = get_device("mr_damper")  # 200 Hz: a 2 s window is 400 samples
+    return dev.simulate_seconds(seconds, seed=seed)
 
-    again = StreamRuntime("s", CFG)  # a restarted daemon
-    again.restore(saved)
-    assert again.version == 1 and again.model_payload == pub.payload and again.coea_state is not None
-    w2 = _window(2, seed=1)
-    out2 = identify_window(w2, CFG, version=2, warm_state=again.coea_state, warm_signature=again.signature)
-    assert out2.warm and out2.generations == CFG.warm_generations
-    pub2 = again.apply(w2, out2, store)
-    assert pub2 is not None and pub2.version == 2
+
+def test_identifier_resumes_warm_with_increasing_versions(tmp_path: Path) -> None:
+    store = StateStore(tmp_path)
+    t, u, y = _samples(2.0)
+    ident = OnlineIdentifier(CFG, stream="s")
+    ident.learn_many(t, u, y, inputs=["v"], outputs=["f"])
+    up = ident.update(persist=store.save, now_ns=123)
+    assert up is not None and up.accepted and up.version == 1, up and up.reason
+    saved = store.load("s")
+    assert saved is not None and saved.version == 1 and saved.coea_state is not None and saved.saved_unix_ns == 123
+    assert up.payload is not None and json.loads(up.payload) == saved.model_message  # what was handed out was saved
+
+    again = OnlineIdentifier.from_state(saved, CFG)  # a restarted daemon
+    assert again.version == 1 and again.payload == up.payload and again.model is not None
+    _, u2, y2 = _samples(2.0, seed=1)  # a new excitation, later on the same clock
+    again.learn_many(t + 2_000_000_000, u2, y2, inputs=["v"], outputs=["f"])
+    up2 = again.update(persist=store.save)
+    assert up2 is not None and up2.accepted and up2.version == 2
+    assert up2.outcome.warm and up2.outcome.generations == CFG.warm_generations
     assert store.load("s").version == 2  # type: ignore[union-attr]
 
 
-def test_runtime_keeps_the_previous_model_when_an_update_fails(tmp_path: Path) -> None:
+def test_identifier_keeps_the_previous_model_when_an_update_fails(tmp_path: Path) -> None:
     store = StateStore(tmp_path)
-    rt = StreamRuntime("s", CFG)
-    w1 = _window(1)
-    rt.apply(w1, identify_window(w1, CFG, version=1), store)
-    payload = rt.model_payload
-    flat = Window("s", 2, 1, w1.t0_ns, w1.period_ns, ("v",), ("f",), np.ones((w1.n, 1)), w1.y.copy(), 0, 0, 0)
-    out = identify_window(flat, CFG, version=2, warm_state=rt.coea_state, warm_signature=rt.signature)
-    assert out.kind == "dropped" and out.code == "constant_signal" and "constant" in out.reason
-    assert rt.apply(flat, out, store) is None
-    assert rt.degraded and "constant" in rt.degraded_reason
-    assert rt.version == 1 and rt.model_payload == payload and store.load("s").version == 1  # type: ignore[union-attr]
-    st = rt.status()
-    assert st["degraded"] and st["identifications"]["dropped"] == 1 and st["drop_reasons"] == {"constant_signal": 1}
-    strict = StreamConfig(**{**CFG.to_dict(), "min_r2_osa": 0.9999999})
-    out3 = identify_window(w1, strict, version=2)
-    assert out3.kind == "rejected" and "min_r2_osa" in out3.reason
-    assert rt.apply(w1, out3, store) is None and rt.version == 1
+    cfg = dataclasses.replace(CFG, update_every_s=2.0)  # windows do not overlap: the second is all flat input
+    t, u, y = _samples(4.0)
+    ident = OnlineIdentifier(cfg, stream="s")
+    ident.learn_many(t[:400], u[:400], y[:400], inputs=["v"], outputs=["f"])
+    first = ident.update(persist=store.save)
+    assert first is not None and first.accepted
+    payload = ident.payload
+    ident.learn_many(t[400:800], np.ones(400), y[400:800], inputs=["v"], outputs=["f"])
+    up = ident.update(persist=store.save)
+    assert up is not None and up.kind == "dropped" and up.code == "constant_signal" and "constant" in up.reason
+    assert up.event.kind == "update.dropped" and up.document is None
+    assert ident.degraded and ident.version == 1 and ident.payload == payload
+    assert store.load("s").version == 1  # type: ignore[union-attr]
+    st = ident.status()
+    assert st["degraded"] and "constant" in st["degraded_reason"]
+    assert st["identifications"]["dropped"] == 1 and st["drop_reasons"] == {"constant_signal": 1}
+
+    strict = OnlineIdentifier(dataclasses.replace(CFG, min_r2_osa=0.9999999), stream="s")
+    strict.learn_many(t[:400], u[:400], y[:400], inputs=["v"], outputs=["f"])
+    refused = strict.update(persist=store.save)
+    assert refused is not None and refused.kind == "rejected" and "min_r2_osa" in refused.reason
+    assert strict.version == 0 and strict.model is None and store.load("s").version == 1  # type: ignore[union-attr]
+
+
+def test_a_version_is_never_handed_out_when_the_state_cannot_be_saved() -> None:
+    t, u, y = _samples(2.0)
+    ident = OnlineIdentifier(CFG, stream="s")
+    ident.learn_many(t, u, y, inputs=["v"], outputs=["f"])
+
+    def full_disk(_state: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    up = ident.update(persist=full_disk)
+    assert up is not None and up.kind == "failed" and up.code == "state_not_saved" and "No space" in up.reason
+    assert ident.version == 0 and ident.model is None and ident.payload is None
 
 
 def test_window_too_short_for_the_lags_is_dropped_with_the_reason() -> None:
     w = _window(1)
-    short = Window("s", 1, 1, w.t0_ns, w.period_ns, ("v",), ("f",), w.u[:30].copy(), w.y[:30].copy(), 0, 0, 0)
+    short = Window("s", 1, 1, w.t0_ns, w.period_ns, ("v",), ("f",), w.u[:30].copy(), w.y[:30].copy(), 0, 0)
     out = identify_window(short, StreamConfig(window_samples=30, update_every_samples=10), version=1)
     assert out.kind == "dropped" and out.code == "window_too_short"
     assert "max lag 10 and 10 neurons need >= 30 estimation" in out.reason and "lengthen window_s" in out.reason

@@ -308,13 +308,15 @@ def test_window_params_are_validated() -> None:
     assert WindowParams().samples(5_000_000) == (2000, 200)  # defaults: 10 s window, 1 s hop
 
 
-def test_notify_is_called_when_a_window_closes() -> None:
-    calls = []
-    wb = WindowBuffer("s", WindowParams(window_samples=20, hop_samples=20), notify=lambda: calls.append(1))
-    wb.append(batch(0, 0, 19))
-    assert calls == []
-    wb.append(batch(1, 19, 1))
-    assert calls == [1] and wb.has_pending
+def test_a_closing_window_is_an_event_with_the_callers_clock() -> None:
+    wb = WindowBuffer("s", WindowParams(window_samples=20, hop_samples=20))
+    wb.append(batch(0, 0, 19), now_ns=111)
+    assert not wb.has_pending and [e.kind for e in wb.drain_events()] == []
+    wb.append(batch(1, 19, 1), now_ns=222)
+    ev = wb.drain_events()
+    assert [e.kind for e in ev] == ["window.closed"] and ev[0].received_ns == 222 and ev[0].t_ns == T0 + 19 * P
+    w = wb.take()
+    assert w is not None and w.received_ns == 222 and wb.pending_windows == 0
 
 
 # -- property: whatever happens on the way, windows hold the truth ---------------------------

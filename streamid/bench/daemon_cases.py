@@ -34,11 +34,11 @@ import numpy as np
 
 from streamid.bench.kit import BenchOptions, Measurement
 from streamid.wire.codec import SampleBatch, encode
-from streamid.daemon.config import DaemonConfig, StreamConfig
+from streamid.daemon.config import DaemonConfig
+from streamid.online import StreamConfig
 from streamid.bench.load import load_run, summary
 from streamid.daemon.service import Daemon
-from streamid.online.window import WindowBuffer
-from streamid.online.update import identify_window
+from streamid.online import OnlineIdentifier, UpdateJob
 from streamid.transport import ZenohSettings
 
 __all__ = ["bench", "ingestion_rate", "realtime_run", "cold_vs_warm", "load_run"]
@@ -116,9 +116,9 @@ def ingestion_rate(batch: int = 1000, seconds: float = 100.0, seed: int = 0) -> 
         want = int(seconds * 20000) // batch * batch
         got = 0
         while time.monotonic() < deadline:
-            rt = daemon.streams.get("piezo")
-            if rt is not None:
-                got = int(rt.buffer.counters().get("samples_in", 0))
+            st = daemon.stream_status("piezo")
+            if st is not None:
+                got = int(st["samples_in"])
                 if first is None and got > 0:
                     first = time.perf_counter()
                 if got >= want:
@@ -127,8 +127,7 @@ def ingestion_rate(batch: int = 1000, seconds: float = 100.0, seed: int = 0) -> 
         last = time.perf_counter()
         out, _ = proc.communicate(timeout=60)
         pubstat = json.loads(out.strip().splitlines()[-1])
-        rt = daemon.streams["piezo"]
-        bad = rt.buffer.counters()["bad_total"]
+        bad = daemon.stream_status("piezo")["bad_total"]  # type: ignore[index]
     finally:
         daemon.stop()
     if first is None or got < want:
@@ -169,10 +168,8 @@ def realtime_run(seconds: float = 30.0, seed: int = 0, warm_generations: int = 3
                 rss.append((time.monotonic() - t0, _rss_mb()))
         out, _ = proc.communicate(timeout=30)
         time.sleep(0.5)
-        rt = daemon.streams["piezo"]
-        st = rt.status()
-        with rt.lock:
-            lat = list(rt.recent_latencies)
+        st = daemon.stream_status("piezo") or {}
+        lat = daemon.latencies("piezo")
     finally:
         daemon.stop()
     steady = [x for v, x in lat if v > 3]
@@ -192,40 +189,37 @@ def realtime_run(seconds: float = 30.0, seed: int = 0, warm_generations: int = 3
     }
 
 
-def _windows(device: str, seconds: float, cfg: StreamConfig, seed: int) -> list[Any]:
+def cold_vs_warm(seed: int = 0, updates: int = 4, quick: bool = False) -> dict[str, Any]:
+    """Cold (G=400) vs warm (G=30) on consecutive windows of the stationary piezo.
+
+    The warm chain is an :class:`~streamid.online.OnlineIdentifier`'s own; each of its
+    windows is also identified cold (``force_cold``) with the same seed for comparison.
+    """
     from streamid.sim import get_device
 
-    dev = get_device(device)
-    t, u, y = dev.simulate_seconds(seconds, seed=seed)
-    wb = WindowBuffer(device, cfg.window_params())
-    out = []
-    step = 1000
-    for k, i in enumerate(range(0, len(y), step)):
-        wb.append(SampleBatch(device, k, int(t[i]), dev.period_ns, None, {dev.input_name: u[i : i + step]},
-                              {dev.output_name: y[i : i + step]}))
-        w = wb.take()
-        if w is not None:
-            out.append(w)
-    return out
-
-
-def cold_vs_warm(seed: int = 0, updates: int = 4, quick: bool = False) -> dict[str, Any]:
-    """Cold (G=400) vs warm (G=30) on consecutive windows of the stationary piezo."""
-    cfg = StreamConfig(window_s=0.5, update_every_s=1.0, seed=seed, cold_generations=100 if quick else 400)
-    wins = _windows("piezo", 1.0 + updates, cfg, seed)
-    first = identify_window(wins[0], cfg, version=1)
+    cfg = StreamConfig(window_s=0.5, update_every_s=1.0, seed=seed, cold_generations=100 if quick else 400,
+                       max_pending_windows=updates + 2)
+    dev = get_device("piezo")
+    t, u, y = dev.simulate_seconds(1.0 + updates, seed=seed)
+    ident = OnlineIdentifier(cfg, stream="piezo")
+    ident.learn_many(t, u, y, inputs=[dev.input_name], outputs=[dev.output_name])
+    job = ident.next_job()
+    assert job is not None
+    first = job.run()
+    ident.finish(job, first)
     cold_t, cold_r2 = [first.seconds], [first.summary.metrics["r2_fr_val"]]  # type: ignore[union-attr]
     warm_t, warm_r2 = [], []
-    state, sig = first.state, first.signature
-    for k, w in enumerate(wins[1 : updates + 1], start=2):
-        warm = identify_window(w, cfg, version=k, warm_state=state, warm_signature=sig)
-        cold = identify_window(w, cfg, version=k, force_cold=True)
+    for _ in range(updates):
+        job = ident.next_job()
+        if job is None:
+            break
+        warm = job.run()
+        cold = UpdateJob(job.window, cfg, job.version, force_cold=True).run()
+        ident.finish(job, warm)
         warm_t.append(warm.seconds)
         warm_r2.append(warm.summary.metrics["r2_fr_val"])  # type: ignore[union-attr]
         cold_t.append(cold.seconds)
         cold_r2.append(cold.summary.metrics["r2_fr_val"])  # type: ignore[union-attr]
-        if warm.accepted:
-            state, sig = warm.state, warm.signature
     return {"cold_s": cold_t, "warm_s": warm_t, "cold_r2_fr_val": cold_r2, "warm_r2_fr_val": warm_r2,
             "cold_generations": cfg.cold_generations, "warm_generations": cfg.warm_generations}
 

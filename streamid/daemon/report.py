@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from streamid.online.window import Window
-from streamid.online.update import Outcome
-from streamid.viz.reports import CorrelationCurve, UpdateReport
+from streamid.online import Update
+from streamid.engine.validation import CorrelationTest
+from streamid.viz.reports import UpdateReport
 
 __all__ = ["update_report"]
 
 
-def update_report(stream: str, window: Window, out: Outcome, version: int, latency_s: float | None) -> UpdateReport:
-    """The drawing of one update (``out.summary`` must be set)."""
+def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateReport:
+    """The drawing of one update (its outcome's ``summary`` must be set)."""
+    out, window, version = up.outcome, up.window, up.version
     s = out.summary
     assert s is not None
     n_val = len(out.y_val)
@@ -21,7 +24,7 @@ def update_report(stream: str, window: Window, out: Outcome, version: int, laten
     return UpdateReport(
         stream=stream,
         version=version,
-        accepted=out.accepted,
+        accepted=up.accepted,
         warm=out.warm,
         generations=out.generations,
         window_t0_ns=window.t0_ns,
@@ -35,11 +38,23 @@ def update_report(stream: str, window: Window, out: Outcome, version: int, laten
         input_name=out.input_names[0] if out.input_names else "u",
         output_name=out.output_name,
         fitness=out.fitness,
-        correlations=tuple(CorrelationCurve(t.name, t.label, t.lags, t.values, t.band) for t in s.tests),
+        correlations=first_input_tests(s.tests),
         lags=lags,
         metrics=dict(s.metrics),
         identification_s=out.seconds,
         latency_s=latency_s,
-        note="" if out.accepted else out.reason,
+        note="" if up.accepted else up.reason,
         input_names=tuple(out.input_names),
     )
+
+
+def first_input_tests(tests: tuple[CorrelationTest, ...]) -> tuple[CorrelationTest, ...]:
+    """The tests drawn: ``ee`` and those of the first input, named by their kind (``ue``, not ``ue[force]``)."""
+    seen: set[str] = set()
+    out = []
+    for t in tests:
+        kind = t.name.split("[", 1)[0]
+        if kind not in seen:
+            seen.add(kind)
+            out.append(t if kind == t.name else dataclasses.replace(t, name=kind))
+    return tuple(out)

@@ -1,25 +1,30 @@
-"""The identification daemon: Zenoh in, windows, warm-started CoEA, models out.
+"""The identification daemon: the adapter between Zenoh, threads, disk, Rerun and :class:`OnlineIdentifier`.
 
-Threads (no forked processes: Zenoh is not fork-safe, and nothing is pickled):
+Every stream is one :class:`~streamid.online.OnlineIdentifier` (the streaming core:
+window, checks, pending queue, warm/cold policy, acceptance, versions) behind a
+lock.  The daemon only moves things in and out of it:
 
-* **Zenoh's callback threads** run the receiving path only: split the key,
-  :func:`streamid.wire.codec.decode`, :meth:`WindowBuffer.append`.  A closed window
-  joins the stream's bounded queue of pending windows and wakes a worker.
-* **Worker threads** (``daemon.workers``, default 1) take pending windows,
-  oldest first, one stream at a time each (round robin between streams), run
-  :func:`~streamid.online.update.identify_window`, save the state, publish the
-  model and only then draw it in Rerun.  Each worker owns an
-  :class:`~streamid.engine.parallel.EvalHelper` (``daemon.helper``): a fresh
-  ``python -m`` process, started before the Zenoh session, sharing memory with
-  the worker, that evaluates half of every population batch on otherwise idle
-  CPU (SCHED_IDLE: it never takes a core from ingestion).  A helper that fails
-  to start is reported once and the worker goes on alone.  A stream whose identification is still
-  running keeps at most ``max_pending_windows`` (default 1) newer windows; a
-  window closing beyond that drops the oldest (coalesced), so the backlog is
-  bounded by construction (:mod:`streamid.online.pending`).
-* **One housekeeping thread** declares the per-stream publishers and
-  queryables, publishes status every ``status_every_s`` and forwards the
-  buffers' events (gaps, resets, bad input) to the Rerun event log.
+* **Zenoh's callback threads** split the key, :func:`streamid.wire.codec.decode`
+  the payload and :meth:`~OnlineIdentifier.push` the batch (with the receive time).
+  A closed window wakes a worker.
+* **Worker threads** (``daemon.workers``, default 1) take a stream with a window
+  due, round robin between streams, :meth:`~OnlineIdentifier.next_job`, run the job
+  outside the lock (samples keep arriving meanwhile),
+  :meth:`~OnlineIdentifier.finish` it -- the new state is saved to ``--state-dir``
+  *before* an accepted model is handed out, so a version is never reused after a
+  crash -- publish the model, and only then draw the update in Rerun.  Each worker
+  owns an :class:`~streamid.engine.parallel.EvalHelper` (``daemon.helper``): a fresh
+  ``python -m`` process, started before the Zenoh session, sharing memory with the
+  worker, that evaluates half of every population batch on otherwise idle CPU
+  (SCHED_IDLE: it never takes a core from ingestion).  A helper that fails to start
+  is reported once and the worker goes on alone.
+* **One housekeeping thread** declares the per-stream publishers and queryables,
+  publishes status every ``status_every_s`` and forwards the streams' events (gaps,
+  resets, bad input: logged, at most one line per kind and stream every 10 s) to the
+  log and to the Rerun event log.
+
+Lock order: the scheduler's condition, then a stream's lock; no thread holds a
+stream's lock while it waits for anything else.
 
 :meth:`Daemon.stop` sets a stop flag seen between two generations, undeclares
 the subscriptions, joins the threads, saves the state and closes the Rerun
@@ -41,9 +46,8 @@ from streamid.wire.codec import decode
 from streamid.daemon.config import DaemonConfig
 from streamid.wire.documents import encode_json
 from streamid.daemon.memory import retain_freed_memory
-from streamid.daemon.runtime import StreamRuntime
 from streamid.daemon.state_store import StateStore
-from streamid.online.update import Outcome, Stopped, identify_window
+from streamid.online import OnlineIdentifier, Outcome, Stopped, Update, UpdateJob
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, ModelFormatError, StreamidError
 from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
@@ -53,6 +57,8 @@ __all__ = ["Daemon"]
 
 _log = logging.getLogger(__name__)
 _OWN_KINDS = ("model", "status")
+#: Bad input of one kind on one stream is logged at most once per this many seconds (the rest is counted).
+_BAD_LOG_EVERY_S = 10.0
 
 
 class Daemon:
@@ -93,7 +99,7 @@ class Daemon:
         self.bus: Bus | None = None
         self.identify = identify
         self.on_generation = on_generation
-        self._streams: dict[str, StreamRuntime] = {}
+        self._streams: dict[str, _Stream] = {}
         self._streams_lock = threading.Lock()
         self._stop = threading.Event()
         self._sched = threading.Condition()
@@ -207,29 +213,42 @@ class Daemon:
     def _save_all(self) -> None:
         if self.store is None:
             return
-        for rt in list(self._streams.values()):
-            with rt.lock:
-                if rt.version == 0:
+        for st in list(self._streams.values()):
+            with st.lock:
+                if st.ident.version == 0:
                     continue
                 try:
-                    self.store.save(rt.snapshot())
+                    self.store.save(st.ident.state(now_ns=time.time_ns()))
                 except (OSError, ValueError) as exc:
-                    _log.error("stream %s: state not saved at shutdown (%s)", rt.name, exc)
+                    _log.error("stream %s: state not saved at shutdown (%s)", st.ident.stream, exc)
 
     # ------------------------------------------------------------------ streams
     @property
-    def streams(self) -> dict[str, StreamRuntime]:
-        """The streams served so far (name -> runtime)."""
-        return dict(self._streams)
+    def streams(self) -> tuple[str, ...]:
+        """Names of the streams served so far."""
+        return tuple(self._streams)
 
-    def _ensure(self, name: str) -> StreamRuntime | None:
-        rt = self._streams.get(name)
-        if rt is not None:
-            return rt
+    def stream_status(self, name: str) -> dict[str, Any] | None:
+        """The status document of one stream, as published (None: not served)."""
+        st = self._streams.get(name)
+        return None if st is None else self._status(st)
+
+    def latencies(self, name: str) -> list[tuple[int, float]]:
+        """(version, seconds from window closed to model published) of the stream's recent updates."""
+        st = self._streams.get(name)
+        if st is None:
+            return []
+        with st.lock:
+            return list(st.recent_latencies)
+
+    def _ensure(self, name: str) -> _Stream | None:
+        st = self._streams.get(name)
+        if st is not None:
+            return st
         with self._streams_lock:
-            rt = self._streams.get(name)
-            if rt is not None:
-                return rt
+            st = self._streams.get(name)
+            if st is not None:
+                return st
             if not is_valid_stream_name(name):
                 self._global["invalid_stream_names"] += 1
                 return None
@@ -241,29 +260,38 @@ class Daemon:
                     self._warned.add("max_streams")
                     _log.warning("stream %r refused: daemon.max_streams = %d reached", name, self.config.max_streams)
                 return None
-            rt = StreamRuntime(name, self.config.for_stream(name), notify=lambda n=name: self._wake(n))
+            ident = OnlineIdentifier(self.config.for_stream(name), stream=name)
             if self.store is not None:
                 try:
-                    st = self.store.load(name)
+                    saved = self.store.load(name)
                 except ModelFormatError as exc:
                     moved = self.store.quarantine(name)
                     _log.error("stream %s: unreadable state (%s); moved to %s, starting cold", name, exc, moved)
-                    st = None
-                if st is not None:
-                    rt.restore(st)
-            self._streams[name] = rt
-            return rt
+                    saved = None
+                if saved is not None:
+                    for warning in ident.restore(saved):
+                        _log.warning("stream %s: %s", name, warning)
+                    _log.info("stream %s: resumed at version %d from %s", name, saved.version, self.store.path(name))
+            st = self._streams[name] = _Stream(ident)
+            _log.info("stream %s: %s", name, "configured" if name in self.config.streams else "discovered")
+            return st
 
-    def _declare(self, rt: StreamRuntime) -> None:
+    def _declare(self, st: _Stream) -> None:
         """Publishers and queryables of one stream (housekeeping thread or start)."""
-        bus = self.bus
-        if rt.declared or bus is None:
+        bus, name = self.bus, st.ident.stream
+        if st.declared or bus is None:
             return
-        self._pubs[f"{rt.name}/model"] = bus.publisher(model_key(rt.name), block=True)
-        self._pubs[f"{rt.name}/status"] = bus.publisher(status_key(rt.name), block=False)
-        self._subs.append(bus.queryable(model_key(rt.name), lambda _k, r=rt: r.model_payload))
-        self._subs.append(bus.queryable(status_key(rt.name), lambda _k, r=rt: encode_json(r.status(self._daemon_info()))))
-        rt.declared = True
+        self._pubs[f"{name}/model"] = bus.publisher(model_key(name), block=True)
+        self._pubs[f"{name}/status"] = bus.publisher(status_key(name), block=False)
+        def model_reply(_key: str) -> bytes | None:
+            return st.ident.payload
+
+        def status_reply(_key: str) -> bytes | None:
+            return encode_json(self._status(st))
+
+        self._subs.append(bus.queryable(model_key(name), model_reply))
+        self._subs.append(bus.queryable(status_key(name), status_reply))
+        st.declared = True
 
     def _daemon_info(self) -> dict[str, Any]:
         return {
@@ -271,6 +299,14 @@ class Daemon:
             "uptime_s": round((time.time_ns() - self._started_ns) / 1e9, 3),
             **{k: int(v) for k, v in self._global.items()},
         }
+
+    def _status(self, st: _Stream) -> dict[str, Any]:
+        with st.lock:
+            doc = st.ident.status(now_ns=time.time_ns())
+            if st.latency_s is not None:
+                doc["last"]["latency_s"] = st.latency_s
+        doc["daemon"] = self._daemon_info()
+        return doc
 
     # ------------------------------------------------------------ receiving path
     def _on_sample(self, key: str, payload: bytes) -> None:
@@ -281,24 +317,33 @@ class Daemon:
         _, stream, kind = parts
         if kind not in SAMPLE_KINDS:
             if kind not in _OWN_KINDS:
-                rt = self._streams.get(stream)
-                if rt is not None:
-                    rt.buffer.count_bad("unknown_key", f"key {key!r}: kind must be one of {', '.join(SAMPLE_KINDS)}")
+                known = self._streams.get(stream)
+                if known is not None:
+                    with known.lock:
+                        known.ident.count_bad("unknown_key", f"key {key!r}: kind must be one of {', '.join(SAMPLE_KINDS)}",
+                                              now_ns=time.time_ns())
                 else:
                     self._global["unknown_keys"] += 1
             return
-        rt = self._streams.get(stream) or self._ensure(stream)
-        if rt is None:
+        st = self._streams.get(stream) or self._ensure(stream)
+        if st is None:
             return
+        now_ns = time.time_ns()
         try:
             batch = decode(payload)
         except CodecError as exc:
-            rt.buffer.count_bad("decode", str(exc)[:300])
+            with st.lock:
+                st.ident.count_bad("decode", str(exc)[:300], now_ns=now_ns)
             return
-        if batch.stream != stream:
-            rt.buffer.count_bad("stream_mismatch", f"batch names stream {batch.stream!r} but came on {key!r}")
-            return
-        rt.buffer.append(batch, source=kind)
+        with st.lock:
+            if batch.stream != stream:
+                st.ident.count_bad("stream_mismatch", f"batch names stream {batch.stream!r} but came on {key!r}",
+                                   now_ns=now_ns)
+                return
+            st.ident.push(batch, source=kind, now_ns=now_ns)
+            due = st.ident.pending > 0
+        if due and self.identify:
+            self._wake(stream)
 
     # ------------------------------------------------------------------ workers
     def _wake(self, name: str) -> None:
@@ -308,22 +353,26 @@ class Daemon:
                 self._ready.append(name)
                 self._sched.notify()
 
-    def _next(self) -> StreamRuntime | None:
+    def _next(self) -> tuple[_Stream, UpdateJob] | None:
+        """The next stream with a window due and its job (round robin; a stream with a job out waits)."""
         with self._sched:
             end = time.monotonic() + 0.2
             while not self._stop.is_set():
                 for _ in range(len(self._ready)):
                     name = self._ready.popleft()
-                    rt = self._streams.get(name)
-                    if rt is None:
+                    st = self._streams.get(name)
+                    if st is None:
                         self._ready_set.discard(name)
                         continue
-                    if rt.busy:  # another worker has it; it re-queues when done
+                    with st.lock:
+                        busy = st.ident.busy
+                        job = None if busy else st.ident.next_job()
+                    if busy:  # another worker has it; it re-queues when done
                         self._ready.append(name)
                         continue
                     self._ready_set.discard(name)
-                    rt.busy = True
-                    return rt
+                    if job is not None:
+                        return st, job
                 left = end - time.monotonic()
                 if left <= 0:
                     return None
@@ -332,82 +381,79 @@ class Daemon:
 
     def _worker_loop(self, helper: EvalHelper | None = None) -> None:
         while not self._stop.is_set():
-            rt = self._next()
-            if rt is None:
+            nxt = self._next()
+            if nxt is None:
                 continue
+            st, job = nxt
             try:
-                self._process(rt, helper)
+                self._process(st, job, helper)
             except Stopped:
                 return
             except Exception:  # noqa: BLE001 - one stream's bug must not stop the others
-                _log.error("stream %s: worker error\n%s", rt.name, traceback.format_exc())
+                _log.error("stream %s: worker error\n%s", st.ident.stream, traceback.format_exc())
             finally:
-                with self._sched:
-                    rt.busy = False
-                if rt.buffer.has_pending:
-                    self._wake(rt.name)
+                with st.lock:
+                    st.ident.abandon(job)  # (a no-op when finished)
+                    again = st.ident.pending > 0
+                if again:
+                    self._wake(st.ident.stream)
 
-    def _process(self, rt: StreamRuntime, helper: EvalHelper | None = None) -> None:
-        window = rt.buffer.take()
-        if window is None:
-            return
+    def _process(self, st: _Stream, job: UpdateJob, helper: EvalHelper | None = None) -> None:
+        name, window = st.ident.stream, job.window
         try:
-            out = identify_window(
-                window,
-                rt.cfg,
-                version=rt.version + 1,
-                warm_state=rt.coea_state,
-                warm_signature=rt.signature,
-                force_cold=rt.force_cold,
-                stop=self._stop,
-                on_generation=self.on_generation,
-                helper=helper,
-            )
+            out = job.run(stop=self._stop, on_generation=self.on_generation, helper=helper)
         except Stopped:
             raise
         except Exception as exc:  # noqa: BLE001 - an engine bug is a failed update, not a dead daemon
-            _log.error("stream %s: identification raised\n%s", rt.name, traceback.format_exc())
+            _log.error("stream %s: identification raised\n%s", name, traceback.format_exc())
             out = Outcome("failed", f"identification raised {type(exc).__name__}: {exc}", "exception")
-        published = rt.apply(window, out, self.store)
+        persist = self.store.save if self.store is not None else None
+        with st.lock:
+            up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
         latency_s = None
-        if published is not None:
-            pub = self._pubs.get(f"{rt.name}/model")
+        if up.accepted:
+            pub = self._pubs.get(f"{name}/model")
             if pub is None:
-                self._declare(rt)
-                pub = self._pubs.get(f"{rt.name}/model")
-            if pub is not None:
-                pub.put(published.payload)
-            latency_s = (time.monotonic_ns() - window.closed_monotonic_ns) / 1e9
-            with rt.lock:
-                rt.last["latency_s"] = latency_s
-                rt.recent_latencies.append((published.version, latency_s))
-        elif out.kind != "accepted":
-            _log.info("stream %s: window %d %s: %s", rt.name, window.number, out.kind, out.reason)
+                self._declare(st)
+                pub = self._pubs.get(f"{name}/model")
+            if pub is not None and up.payload is not None:
+                pub.put(up.payload)
+            latency_s = (time.time_ns() - window.received_ns) / 1e9
+            with st.lock:
+                st.latency_s = latency_s
+                st.recent_latencies.append((up.version, latency_s))
+            m = up.metrics
+            _log.info("stream %s: window %d identified, model v%d published (%s, R² validation OSA %.4f FR %.4f, "
+                      "%.2f s, latency %.2f s)", name, window.number, up.version, "warm" if out.warm else "cold",
+                      m.get("r2_osa_val", float("nan")), m.get("r2_fr_val", float("nan")), out.seconds, latency_s)
+        else:
+            _log.info("stream %s: window %d %s, model v%d kept: %s", name, window.number, up.kind, up.version, up.reason)
         if self.viz is not None:
-            self._draw(rt, window, out, published.version if published else rt.version, latency_s)
+            self._draw(name, up, latency_s)
 
-    def _draw(self, rt: StreamRuntime, window: Any, out: Outcome, version: int, latency_s: float | None) -> None:
+    def _draw(self, name: str, up: Update, latency_s: float | None) -> None:
         from streamid.daemon.report import update_report  # viz types only when drawing
 
-        self.viz.add_stream(rt.name)  # idempotent: a discovered stream gets its tab at its first update
-        if out.summary is None:
-            self.viz.log_event(rt.name, f"window {window.number} {out.kind}: {out.reason}", level="WARN",
-                               t_ns=window.t_end_ns)
+        assert self.viz is not None
+        self.viz.add_stream(name)  # idempotent: a discovered stream gets its tab at its first update
+        if up.outcome.summary is None:
+            self.viz.log_event(name, f"window {up.window.number} {up.kind}: {up.reason}", level="WARN",
+                               t_ns=up.window.t_end_ns)
             return
-        self.viz.log_update(update_report(rt.name, window, out, version, latency_s))
+        self.viz.log_update(update_report(name, up, latency_s))
 
     # -------------------------------------------------------------- housekeeping
     def _housekeeping_loop(self) -> None:
         next_status = 0.0
         every = self.config.status_every_s
         while not self._stop.wait(0.05):
-            for rt in list(self._streams.values()):
-                if not rt.declared:
+            for st in list(self._streams.values()):
+                if not st.declared:
                     try:
-                        self._declare(rt)
+                        self._declare(st)
                     except Exception as exc:  # noqa: BLE001
-                        _log.error("stream %s: declarations failed (%s)", rt.name, exc)
-                self._forward_events(rt)
+                        _log.error("stream %s: declarations failed (%s)", st.ident.stream, exc)
+                self._forward_events(st)
             now = time.monotonic()
             if now >= next_status:
                 next_status = now + every
@@ -415,26 +461,55 @@ class Daemon:
 
     def publish_status(self) -> None:
         """Put the status of every stream on its status key."""
-        info = self._daemon_info()
-        for rt in list(self._streams.values()):
-            pub = self._pubs.get(f"{rt.name}/status")
+        for st in list(self._streams.values()):
+            pub = self._pubs.get(f"{st.ident.stream}/status")
             if pub is None:
                 continue
             try:
-                pub.put(encode_json(rt.status(info)))
+                pub.put(encode_json(self._status(st)))
             except Exception as exc:  # noqa: BLE001
-                _log.debug("status of %s not published: %s", rt.name, exc)
+                _log.debug("status of %s not published: %s", st.ident.stream, exc)
 
-    def _forward_events(self, rt: StreamRuntime) -> None:
-        events = rt.buffer.drain_events()
+    def _forward_events(self, st: _Stream) -> None:
+        """The stream's events to the log (bad input rate-limited) and to Rerun's event log."""
+        with st.lock:
+            events = st.ident.drain_events()
+            last_t = st.ident.counters().get("last_t_ns")
         if not events:
             return
-        for ev in events[-20:]:
-            _log.info("%s", ev.message)
-        if self.viz is not None:
-            last_t = rt.buffer.counters().get("last_t_ns")
-            for ev in events[-20:]:
+        name = st.ident.stream
+        shown = [ev for ev in events if not ev.kind.startswith(("update.", "window."))]  # updates: see _process
+        now = time.monotonic()
+        for ev in events:
+            if ev.kind.startswith("window."):
+                _log.debug("%s", ev.message)
+            elif ev.kind.startswith("bad."):
+                key = (name, ev.kind)
+                if now >= st.bad_log_next.get(key, 0.0):
+                    st.bad_log_next[key] = now + _BAD_LOG_EVERY_S
+                    extra = st.bad_suppressed.pop(key, 0)
+                    _log.warning("%s%s", ev.message, f" ({extra} more of this kind not logged)" if extra else "")
+                else:
+                    st.bad_suppressed[key] = st.bad_suppressed.get(key, 0) + 1
+            elif not ev.kind.startswith("update."):
+                _log.info("%s", ev.message)
+        if self.viz is not None and shown:
+            for ev in shown[-20:]:
                 level = "WARN" if ev.kind.startswith(("bad", "reset", "gap", "unaligned")) else "INFO"
-                self.viz.log_event(rt.name, ev.message, level=level, t_ns=last_t if isinstance(last_t, int) else None)
-            if len(events) > 20:
-                self.viz.log_event(rt.name, f"... and {len(events) - 20} more events", level="WARN")
+                self.viz.log_event(name, ev.message, level=level, t_ns=last_t if isinstance(last_t, int) else None)
+            if len(shown) > 20:
+                self.viz.log_event(name, f"... and {len(shown) - 20} more events", level="WARN")
+
+
+class _Stream:
+    """The daemon's hold on one stream: its :class:`OnlineIdentifier` behind a lock, and what only the daemon knows."""
+
+    def __init__(self, ident: OnlineIdentifier) -> None:
+        self.ident = ident
+        self.lock = threading.Lock()  # every call into ident holds it (Zenoh callbacks, workers, housekeeping)
+        self.declared = False
+        self.latency_s: float | None = None
+        #: (version, window closed -> published seconds) of recent updates (bounded)
+        self.recent_latencies: deque[tuple[int, float]] = deque(maxlen=4096)
+        self.bad_log_next: dict[tuple[str, str], float] = {}
+        self.bad_suppressed: dict[tuple[str, str], int] = {}

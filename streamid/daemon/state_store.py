@@ -20,20 +20,16 @@ files are JSON, parsed with :func:`json.loads`.
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from streamid.errors import ConfigError, ModelFormatError
+from streamid.online.snapshot import STATE_FORMAT, StreamState
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
 __all__ = ["STATE_FORMAT", "StreamState", "StateStore", "atomic_write_text"]
-
-STATE_FORMAT = "streamid.daemon-state/1"
 _SUFFIX = ".json"
 
 
@@ -63,80 +59,6 @@ def atomic_write_text(path: Path, text: str) -> None:
         pass
     finally:
         os.close(dfd)
-
-
-@dataclass(frozen=True)
-class StreamState:
-    """What is saved of one stream.
-
-    Attributes
-    ----------
-    stream
-        Stream name.
-    version
-        Version of the last published model (the next one is ``version + 1``).
-    signature
-        Facts the warm start depends on (signal names, period, lag bounds).
-    model_message
-        The last published model message (a JSON object), or None.
-    coea_state
-        The engine's final populations as its own JSON text, or None.
-    saved_unix_ns
-        When it was written.
-    """
-
-    stream: str
-    version: int
-    signature: dict[str, Any] = field(default_factory=dict)
-    model_message: dict[str, Any] | None = None
-    coea_state: str | None = None
-    saved_unix_ns: int = 0
-
-    def to_json(self) -> str:
-        """The document written to disk (never NaN: ``allow_nan=False``)."""
-        return json.dumps(
-            {
-                "format": STATE_FORMAT,
-                "stream": self.stream,
-                "version": self.version,
-                "signature": self.signature,
-                "model_message": self.model_message,
-                "coea_state": self.coea_state,
-                "saved_unix_ns": self.saved_unix_ns or time.time_ns(),
-            },
-            allow_nan=False,
-            separators=(",", ":"),
-        )
-
-    @classmethod
-    def from_json(cls, text: str, *, source: str = "<state>") -> StreamState:
-        """Parse a state document.
-
-        Raises
-        ------
-        ModelFormatError
-            If ``text`` is not a ``streamid.daemon-state/1`` document.
-        """
-        try:
-            doc = json.loads(text)
-        except (json.JSONDecodeError, RecursionError, TypeError) as exc:
-            raise ModelFormatError(f"{source}: a daemon state file must be JSON; {exc}") from exc
-        if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT:
-            got = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-            raise ModelFormatError(f"{source}: expected a document with format {STATE_FORMAT!r}; got {got!r}")
-        stream, version = doc.get("stream"), doc.get("version")
-        if not is_valid_stream_name(stream):
-            raise ModelFormatError(f"{source}: 'stream' must be a stream name ({STREAM_NAME_RULE}); got {stream!r}")
-        if isinstance(version, bool) or not isinstance(version, int) or version < 0:
-            raise ModelFormatError(f"{source}: 'version' must be an integer >= 0; got {version!r}")
-        sig, msg, co = doc.get("signature", {}), doc.get("model_message"), doc.get("coea_state")
-        if not isinstance(sig, dict) or not (msg is None or isinstance(msg, dict)) or not (co is None or isinstance(co, str)):
-            raise ModelFormatError(
-                f"{source}: 'signature' must be an object, 'model_message' an object or null and "
-                "'coea_state' a string or null"
-            )
-        saved = doc.get("saved_unix_ns", 0)
-        return cls(stream, version, sig, msg, co, saved if isinstance(saved, int) else 0)
 
 
 class StateStore:

@@ -47,7 +47,7 @@ from streamid.engine.regressors import Normalisation, as_data
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError
 
-__all__ = ["Result", "RunSummary", "free_run_r2", "identify", "identify_each", "refit_weights"]
+__all__ = ["Result", "RunSummary", "free_run_r2", "identify", "identify_each", "refit_weights", "select_model"]
 
 
 @dataclass(frozen=True)
@@ -170,6 +170,39 @@ def free_run_r2(
     return out
 
 
+def select_model(
+    run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], selection: str, *, n_search: int | None = None
+) -> tuple[Model, float]:
+    """The model of a finished run by the selection rule, and its score (higher is better).
+
+    The one final-model choice of streamid: :func:`identify` and the online
+    updates (:mod:`streamid.online.update`) both call it.
+
+    * ``"fitness"``: the run's best pair (lowest one-step-ahead error, the paper's
+      choice); score = -fitness.
+    * ``"fr_est"``: of the best pair and the final population, the highest
+      free-run R^2 on ``u[:n_search], y[:n_search]``.
+    * ``"holdout_fr"``: the same, scored over the held-out tail ``[n_search:]``,
+      simulated from the samples just before it.
+
+    ``n_search`` defaults to all the data.
+    """
+    best = run.best_model()
+    if selection == "fitness":
+        return best, -float(best.metrics["fitness"])
+    n = len(y) if n_search is None else int(n_search)
+    cands = [best, *run.population_models()]
+    with one_blas_thread():
+        if selection == "fr_est":
+            scores = free_run_r2(cands, u[:n], y[:n])
+        elif selection == "holdout_fr":
+            scores = free_run_r2(cands, u, y, score_from=n)
+        else:
+            raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr'; got {selection!r}")
+    k = int(np.argmax(scores))
+    return cands[k], float(scores[k])
+
+
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
@@ -198,18 +231,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     else:
         run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve()
     evaluations += run.evaluations
-    best = run.best_model()
-    with one_blas_thread():
-        if cfg.selection == "fitness":
-            model, score = best, -float(best.metrics["fitness"])
-        else:
-            cands = [best, *run.population_models()]
-            if cfg.selection == "fr_est":
-                scores = free_run_r2(cands, u[:n_search], y[:n_search])
-            else:  # holdout_fr: free run over the held-out tail, from the samples just before it
-                scores = free_run_r2(cands, u, y, score_from=n_search)
-            k = int(np.argmax(scores))
-            model, score = cands[k], float(scores[k])
+    model, score = select_model(run, u, y, cfg.selection, n_search=n_search)
     return {
         "seed": job["seed"],
         "model": model.to_json(indent=None),

@@ -17,24 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from streamid.engine.validation import correlation_tests, r2
+from streamid.engine.validation import CorrelationTest, correlation_tests, r2
 from streamid.errors import DataError
 
-__all__ = ["CorrelationCurve", "ValidationSummary", "summarise"]
-
-#: Engine test names for the first input -> the daemon's short keys.
-_TEST_KEYS = {"ee": "ee", "ue[0]": "ue", "e_eu[0]": "e_eu", "u2_e[0]": "u2_e", "u2_e2[0]": "u2_e2"}
-
-
-@dataclass(frozen=True)
-class CorrelationCurve:
-    """One correlation test of the first input, ready to draw."""
-
-    name: str
-    label: str
-    lags: np.ndarray
-    values: np.ndarray
-    band: float
+__all__ = ["ValidationSummary", "summarise"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,7 +30,7 @@ class ValidationSummary:
     metrics: dict[str, float]
     osa_val: np.ndarray
     fr_val: np.ndarray
-    tests: tuple[CorrelationCurve, ...] = field(default=())
+    tests: tuple[CorrelationTest, ...] = field(default=())
 
     @property
     def finite(self) -> bool:
@@ -78,13 +64,10 @@ def summarise(
         "r2_osa_val": _r2(y_val[L:], osa_v[L:]),
         "r2_fr_val": _r2(y_val[L:], fr_v[L:]),
     }
-    curves: list[CorrelationCurve] = []
+    tests: tuple[CorrelationTest, ...] = ()
     if np.isfinite(osa_v).all():
-        rep = correlation_tests(y_val[L:] - osa_v[L:], u_val[L:], corr_lags)
+        rep = correlation_tests(y_val[L:] - osa_v[L:], u_val[L:], corr_lags, input_names=model.input_names)
         metrics["correlation_fraction_inside"] = float(np.mean([t.fraction_inside for t in rep.tests]))
         metrics["correlation_tests_passed"] = float(sum(t.passed for t in rep.tests))
-        for t in rep.tests:
-            key = _TEST_KEYS.get(t.name)
-            if key is not None:
-                curves.append(CorrelationCurve(key, t.formula, np.asarray(t.lags), np.asarray(t.values), t.band))
-    return ValidationSummary(metrics, osa_v, fr_v, tuple(curves))
+        tests = tuple(rep.tests)
+    return ValidationSummary(metrics, osa_v, fr_v, tests)

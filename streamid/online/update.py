@@ -1,64 +1,75 @@
-"""Identification of one closed window, off the receiving path.
+"""One online update as a pure computation: an :class:`UpdateJob` in, an :class:`Outcome` out.
 
-:func:`identify_window` is a pure function of a :class:`~streamid.online.window.Window`
-and the stream's settings: it splits the window (the newest
-``validation_fraction`` is held out), runs the coevolution generation by
-generation -- cold, or warm-started from the previous final populations, which
-the engine re-evaluates on the new data -- checks the model on the validation
-part, and returns an :class:`Outcome`.  The model is the run's best pair (lowest
-one-step-ahead error, the paper's choice) or, with the engine setting
-``selection = "fr_est"``, the one of the best pair and the final population
-with the highest free-run R^2 on the estimation part (as
-:func:`~streamid.engine.identify.identify` chooses; validation data are never
-looked at).  It never raises for bad data or a
-failed identification: those are outcomes (``dropped``, ``failed``,
-``rejected``), counted by the service, which keeps the previous model.
+:meth:`OnlineIdentifier.next_job <streamid.online.OnlineIdentifier.next_job>`
+takes the oldest pending window and everything the run depends on (the
+settings, the version the model would get, the warm-start populations, whether
+to start cold) into a frozen :class:`UpdateJob`.  :meth:`UpdateJob.run` touches
+no identifier state, so a caller runs it on any thread (the daemon's workers)
+while samples keep arriving; :meth:`OnlineIdentifier.finish
+<streamid.online.OnlineIdentifier.finish>` then decides acceptance and numbers
+the version.
 
-It stops between two generations when ``stop`` is set (SIGINT/SIGTERM).
-``on_generation(stream, progress)``, when given, is called after every
-generation with the engine's :class:`~streamid.engine.coevolution.Progress`;
-an exception it raises aborts that identification exactly as an engine error
-would (the fault-injection tests use it to make real identifications fail).
+A run splits the window (the newest ``validation_fraction`` is held out), runs
+the coevolution generation by generation -- cold, or warm-started from the
+previous final populations, which the engine re-evaluates on the new data --
+chooses the model with the engine's one selection rule
+(:func:`~streamid.engine.identify.select_model`: ``"fitness"``, the paper's,
+or ``"fr_est"``; validation data are never looked at) and computes its
+validation figures (:mod:`streamid.online.summary`).  It never raises for bad
+data or a failed identification: those are outcomes (``dropped``,
+``failed``).  It stops between two generations when ``stop`` is set, raising
+:class:`Stopped`.  ``on_generation(stream, progress)``, when given, is called
+after every generation; an exception it raises fails that run like an engine
+error (the fault-injection tests use it).
 """
 
 from __future__ import annotations
 
-import threading
 import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from streamid.daemon.config import StreamConfig
-from streamid.online.summary import ValidationSummary, summarise
-from streamid.online.window import Window
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
-from streamid.engine.identify import free_run_r2
+from streamid.engine.identify import select_model
+from streamid.engine.settings import CoEAConfig
 from streamid.errors import StreamidError
+from streamid.online.stream_config import StreamConfig
+from streamid.online.summary import ValidationSummary, summarise
+from streamid.online.window_types import Window
 
-__all__ = ["Outcome", "Stopped", "identify_window", "signature_of", "rng_for"]
+__all__ = ["Outcome", "Stopped", "UpdateJob", "identify_window", "signature_of", "rng_for", "MIN_SPAN"]
 
 
 #: Smallest range (max - min) of a signal over a window part: the correlation tests use fourth powers of
 #: the signals, which underflow float64 below about 1e-77; below this the window is dropped, not identified.
 MIN_SPAN = 1e-60
 
+_ENGINE_ERRORS = (StreamidError, ArithmeticError, ValueError, np.linalg.LinAlgError)
+
 
 class Stopped(Exception):
-    """The daemon is stopping: the identification was abandoned between generations."""
+    """The caller asked to stop: the identification was abandoned between generations."""
+
+
+class StopFlag(Protocol):
+    """What :meth:`UpdateJob.run` polls between generations (e.g. a ``threading.Event``)."""
+
+    def is_set(self) -> bool: ...
 
 
 @dataclass(frozen=True, eq=False)
 class Outcome:
-    """What became of one window.
+    """What one run made of a window.
 
-    ``kind`` is ``"accepted"`` (a model to publish), ``"rejected"`` (a model
-    that failed validation), ``"failed"`` (the identification raised) or
-    ``"dropped"`` (the window could not be identified: constant signal, too
-    short...).  ``reason`` says why for all but ``accepted``.
+    ``kind`` is ``"identified"`` (a candidate model with its validation figures,
+    to be judged by :meth:`~streamid.online.OnlineIdentifier.finish`),
+    ``"failed"`` (the identification raised) or ``"dropped"`` (the window could
+    not be identified: constant signal, too short...).  ``reason`` says why for
+    the last two, ``code`` is a short machine-readable form of it.
     """
 
     kind: str
@@ -77,10 +88,6 @@ class Outcome:
     input_names: tuple[str, ...] = ()
     u_val: np.ndarray = field(default_factory=lambda: np.empty((0, 1)))
     y_val: np.ndarray = field(default_factory=lambda: np.empty(0))
-
-    @property
-    def accepted(self) -> bool:
-        return self.kind == "accepted"
 
 
 def signature_of(window: Window, cfg: StreamConfig, output: str) -> dict[str, Any]:
@@ -101,6 +108,56 @@ def rng_for(cfg: StreamConfig, stream: str, version: int) -> np.random.Generator
     return np.random.default_rng([cfg.seed, zlib.crc32(stream.encode("utf-8")), int(version)])
 
 
+@dataclass(frozen=True, eq=False)
+class UpdateJob:
+    """Everything one update needs, frozen when it was taken from the identifier.
+
+    Attributes
+    ----------
+    window
+        The closed window to identify.
+    config
+        The stream's settings.
+    version
+        The version the model gets if it is accepted (also seeds the run).
+    warm_state, warm_signature
+        The previous run's final populations and what they were fitted to.
+    force_cold
+        Start cold whatever the populations (after repeated failures).
+    """
+
+    window: Window
+    config: StreamConfig
+    version: int
+    warm_state: CoEAState | None = None
+    warm_signature: dict[str, Any] | None = None
+    force_cold: bool = False
+
+    def run(
+        self,
+        *,
+        stop: StopFlag | None = None,
+        on_generation: Callable[[str, Any], None] | None = None,
+        helper: EvalHelper | None = None,
+    ) -> Outcome:
+        """Identify the window; pure computation (see the module docstring).
+
+        ``helper`` (an :class:`~streamid.engine.parallel.EvalHelper` the caller
+        owns) evaluates half of every population batch; the outcome is the same
+        without it.
+
+        Raises
+        ------
+        Stopped
+            If ``stop`` was set during the run.
+        """
+        return identify_window(
+            self.window, self.config, version=self.version, warm_state=self.warm_state,
+            warm_signature=self.warm_signature, force_cold=self.force_cold, stop=stop,
+            on_generation=on_generation, helper=helper,
+        )
+
+
 def _pick_output(window: Window, cfg: StreamConfig) -> tuple[int, str] | str:
     names = window.output_names
     if cfg.output is None:
@@ -108,6 +165,20 @@ def _pick_output(window: Window, cfg: StreamConfig) -> tuple[int, str] | str:
     if cfg.output not in names:
         return f"configured output {cfg.output!r} is not among the stream's outputs {list(names)}"
     return names.index(cfg.output), cfg.output
+
+
+def _unusable(names_parts: list[tuple[str, str, np.ndarray]]) -> str | None:
+    """Why a part of the window cannot be normalised (None: every signal has a usable range)."""
+    for name, part, a in names_parts:
+        span = float(a.max() - a.min())
+        if not span > 0.0:
+            why = f"{name} is constant over the {part} part ({a[0]:g}): zero range"
+        elif not span >= MIN_SPAN:  # fourth powers (correlation tests) would underflow float64
+            why = f"{name} spans only {span:.3g} over the {part} part, less than {MIN_SPAN:g}: too small for float64"
+        else:
+            continue
+        return f"{why}, no normalisation possible; waiting for a window with excitation"
+    return None
 
 
 def identify_window(
@@ -118,20 +189,11 @@ def identify_window(
     warm_state: CoEAState | None = None,
     warm_signature: dict[str, Any] | None = None,
     force_cold: bool = False,
-    stop: threading.Event | None = None,
+    stop: StopFlag | None = None,
     on_generation: Callable[[str, Any], None] | None = None,
     helper: EvalHelper | None = None,
 ) -> Outcome:
-    """Identify ``window``; ``version`` is the version the model would get.
-
-    ``helper`` (an :class:`~streamid.engine.parallel.EvalHelper` this worker owns)
-    evaluates half of every population batch; the outcome is the same without it.
-
-    Raises
-    ------
-    Stopped
-        If ``stop`` was set during the run.
-    """
+    """Identify ``window`` (the body of :meth:`UpdateJob.run`); ``version`` is the version the model would get."""
     t_start = time.perf_counter()
     picked = _pick_output(window, cfg)
     if isinstance(picked, str):
@@ -152,7 +214,7 @@ def identify_window(
         "n_validation": n_val,
         "coalesced_before": int(window.coalesced_before),
     }
-    common = {"window_meta": meta, "output_name": out_name, "input_names": window.input_names}
+    common: dict[str, Any] = {"window_meta": meta, "output_name": out_name, "input_names": window.input_names}
     max_lag = max(cfg.max_lag_y, cfg.max_lag_u)
     need_est = max_lag + 2 * cfg.neurons
     if n_est < need_est or n_val < max_lag + 3:
@@ -165,18 +227,12 @@ def identify_window(
             **common,
         )
     u_est, y_est, u_val, y_val = u[:n_est], y[:n_est], u[n_est:], y[n_est:]
-    for name, part, a in [(f"input {s!r}", "estimation", u_est[:, i]) for i, s in enumerate(window.input_names)] + [
-        (f"output {out_name!r}", "estimation", y_est), (f"output {out_name!r}", "validation", y_val)
-    ]:
-        span = float(a.max() - a.min())
-        if not span > 0.0:
-            why = f"{name} is constant over the {part} part ({a[0]:g}): zero range"
-        elif not span >= MIN_SPAN:  # fourth powers (correlation tests) would underflow float64
-            why = f"{name} spans only {span:.3g} over the {part} part, less than {MIN_SPAN:g}: too small for float64"
-        else:
-            continue
-        return Outcome("dropped", f"{why}, no normalisation possible; waiting for a window with excitation",
-                       "constant_signal", **common)
+    why = _unusable(
+        [(f"input {s!r}", "estimation", u_est[:, i]) for i, s in enumerate(window.input_names)]
+        + [(f"output {out_name!r}", "estimation", y_est), (f"output {out_name!r}", "validation", y_val)]
+    )
+    if why is not None:
+        return Outcome("dropped", why, "constant_signal", **common)
     sig = signature_of(window, cfg, out_name)
     warm = warm_state is not None and not force_cold and warm_signature == sig
     engine_cfg = cfg.coea_config(cold=not warm)
@@ -196,49 +252,28 @@ def identify_window(
                 raise Stopped
             if on_generation is not None:
                 on_generation(window.stream, progress)
-        model = co.best_model()
-        if engine_cfg.selection == "fr_est":  # choose by free run on the estimation part, as identify() does
-            cands = [model, *co.population_models()]
-            scores = free_run_r2(cands, u_est, y_est)
-            k = int(np.argmax(scores))
-            model = cands[k].with_metrics(selection="fr_est", selection_score=float(scores[k]))
+        model, score = select_model(co, u_est, y_est, engine_cfg.selection)
+        if engine_cfg.selection != "fitness":
+            model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
         state = co.state()
+        fitness = np.asarray(co.history, dtype=np.float64)
+        summary = summarise(model, u_est, y_est, u_val, y_val)
     except Stopped:
         raise
-    except (StreamidError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+    except _ENGINE_ERRORS as exc:
         return Outcome(
-            "failed", f"identification failed: {type(exc).__name__}: {exc}", "engine_error", warm=warm, signature=sig, **common
+            "failed", f"identification failed: {type(exc).__name__}: {exc}", "engine_error", warm=warm, signature=sig,
+            **common,
         )
-    fitness = np.asarray(co.history, dtype=np.float64)
-    try:
-        summary = summarise(model, u_est, y_est, u_val, y_val)
-    except (StreamidError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-        return Outcome(
-            "failed", f"validation failed to run: {type(exc).__name__}: {exc}", "engine_error", warm=warm, signature=sig, **common
-        )
-    seconds = time.perf_counter() - t_start
-    m = summary.metrics
-    reasons = []
-    if not summary.finite:
-        reasons.append("non-finite predictions or metrics")
-    if not m.get("r2_osa_val", -np.inf) >= cfg.min_r2_osa:
-        reasons.append(f"validation R² OSA {m.get('r2_osa_val', float('nan')):.4g} < min_r2_osa {cfg.min_r2_osa:g}")
-    if not m.get("r2_fr_val", -np.inf) >= cfg.min_r2_fr:
-        reasons.append(f"validation R² FR {m.get('r2_fr_val', float('nan')):.4g} < min_r2_fr {cfg.min_r2_fr:g}")
-    kind = "rejected" if reasons else "accepted"
-    if not reasons:
-        model = model.with_metrics(**{k: v for k, v in m.items() if np.isfinite(v)})
     return Outcome(
-        kind,
-        "; ".join(reasons),
-        "validation" if reasons else "",
+        "identified",
         model=model,
         state=state,
         summary=summary,
         warm=warm,
         generations=engine_cfg.generations,
         fitness=fitness,
-        seconds=seconds,
+        seconds=time.perf_counter() - t_start,
         signature=sig,
         u_val=u_val,
         y_val=y_val,
@@ -253,7 +288,7 @@ class _WarmMismatch(Exception):
 def _start(
     u: np.ndarray,
     y: np.ndarray,
-    engine_cfg: Any,
+    engine_cfg: CoEAConfig,
     rng: np.random.Generator,
     warm: CoEAState | None,
     window: Window,

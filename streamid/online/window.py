@@ -32,15 +32,15 @@ column holds it.  Faults are detected on that grid and never used across:
   and y on different sample clocks never make the stream reset back and forth.
 
 Nothing here raises on bad data: every refusal increments a counter in
-:attr:`WindowBuffer.counters` and appends a bounded event.
+:meth:`WindowBuffer.counters` and appends a bounded event.  The buffer is
+single-threaded and has no clock: a caller that shares it between threads
+holds its own lock (the daemon does), and passes its clock reading as
+``now_ns`` where a time is recorded.
 """
 
 from __future__ import annotations
 
-import threading
-import time
 from collections import Counter, deque
-from collections.abc import Callable
 
 import numpy as np
 
@@ -65,7 +65,7 @@ _LIVE_BATCHES = 64  # a source that sent nothing in this many batches no longer 
 
 
 class WindowBuffer:
-    """Bounded, time-aligned window buffer of one stream (thread-safe).
+    """Bounded, time-aligned window buffer of one stream (single-threaded, no clock).
 
     Parameters
     ----------
@@ -73,21 +73,12 @@ class WindowBuffer:
         Stream name (for windows and messages).
     params
         Window geometry and checks.
-    notify
-        Called (outside the lock) whenever a new window becomes pending.
     """
 
-    def __init__(
-        self,
-        stream: str,
-        params: WindowParams,
-        *,
-        notify: Callable[[], None] | None = None,
-    ) -> None:
+    def __init__(self, stream: str, params: WindowParams) -> None:
         self.stream = stream
         self.params = params
-        self._notify = notify
-        self._lock = threading.Lock()
+        self._now_ns = 0  # the caller's clock reading of the call in progress
         self._events: deque[Event] = deque(maxlen=_EVENTS_MAX)
         self._counts: Counter[str] = Counter()
         self._bad: Counter[str] = Counter()
@@ -131,71 +122,86 @@ class WindowBuffer:
         """(window, hop, ring capacity) in samples; zeros before the period is known."""
         return self._w, self._h, self._cap
 
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """The stream's output signals, in model order (empty before the first batch with outputs)."""
+        return self._outputs
+
+    @property
+    def pending_windows(self) -> int:
+        """How many closed windows wait to be taken."""
+        return len(self._queue)
+
     def take(self) -> Window | None:
         """Remove and return the oldest pending window (None if there is none)."""
-        with self._lock:
-            return self._queue.pop()
+        return self._queue.pop()
+
+    def recent(self, n: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The newest ``n`` complete samples as ``(u (n, inputs), y (n, outputs))`` copies; None if fewer are held."""
+        complete = self._complete()
+        if n < 1 or not self._inputs or not self._outputs or complete - self._start < n:
+            return None
+        block = cut_block(self._ring, complete, n)
+        n_in = len(self._inputs)
+        return block[:n_in].T.copy(), block[n_in:].T.copy()
 
     def counters(self) -> dict[str, object]:
         """A snapshot of the counters (JSON-ready)."""
-        with self._lock:
-            out: dict[str, object] = {k: int(v) for k, v in sorted(self._counts.items())}
-            out["bad"] = dict(sorted(self._bad.items()))
-            out["bad_total"] = int(sum(self._bad.values()))
-            out["resets"] = dict(sorted(self._resets.items()))
-            out["epoch"] = self._epoch
-            out["period_ns"] = self._period
-            out["window_samples"] = self._w
-            out["hop_samples"] = self._h
-            out["buffered_samples"] = self._complete() - self._start if self._heads else 0
-            out["pending"] = bool(self._queue)
-            out["pending_windows"] = len(self._queue)
-            out["pending_bytes"] = self._queue.nbytes
-            out["pending_windows_peak"] = self._queue.peak
-            out["pending_bytes_peak"] = self._queue.peak_bytes
-            out["max_pending_windows"] = self._queue.limit
-            out["pending_bytes_max"] = self._queue.limit * self._w * len(self._rows) * 8
-            out["inputs"] = list(self._inputs)
-            out["outputs"] = list(self._outputs)
-            out["last_t_ns"] = self._last_t_ns
-            out["last_bad"] = dict(self._last_bad)
-            return out
+        out: dict[str, object] = {k: int(v) for k, v in sorted(self._counts.items())}
+        out["bad"] = dict(sorted(self._bad.items()))
+        out["bad_total"] = int(sum(self._bad.values()))
+        out["resets"] = dict(sorted(self._resets.items()))
+        out["epoch"] = self._epoch
+        out["period_ns"] = self._period
+        out["window_samples"] = self._w
+        out["hop_samples"] = self._h
+        out["buffered_samples"] = self._complete() - self._start if self._heads else 0
+        out["pending"] = bool(self._queue)
+        out["pending_windows"] = len(self._queue)
+        out["pending_bytes"] = self._queue.nbytes
+        out["pending_windows_peak"] = self._queue.peak
+        out["pending_bytes_peak"] = self._queue.peak_bytes
+        out["max_pending_windows"] = self._queue.limit
+        out["pending_bytes_max"] = self._queue.limit * self._w * len(self._rows) * 8
+        out["inputs"] = list(self._inputs)
+        out["outputs"] = list(self._outputs)
+        out["last_t_ns"] = self._last_t_ns
+        out["last_bad"] = dict(self._last_bad)
+        return out
 
     def drain_events(self) -> list[Event]:
-        """Remove and return the events recorded since the last call."""
-        with self._lock:
-            ev = list(self._events)
-            self._events.clear()
-            return ev
+        """Remove and return the events recorded since the last call (at most the newest 256)."""
+        ev = list(self._events)
+        self._events.clear()
+        return ev
 
-    def count_bad(self, kind: str, message: str = "") -> None:
+    def count_bad(self, kind: str, message: str = "", *, now_ns: int = 0) -> None:
         """Count a bad message found before the buffer (e.g. a decode error)."""
-        with self._lock:
-            self._bad_locked(kind, message)
+        self._now_ns = now_ns
+        self._refuse(kind, message)
 
-    def append(self, batch: BatchLike, source: str = "samples") -> int:
+    def append(self, batch: BatchLike, source: str = "samples", *, now_ns: int = 0) -> int:
         """Append one batch; returns how many samples were written.
 
         ``source`` names the key the batch came on (``samples``, ``u`` or
-        ``y``); sequence numbers and continuity are tracked per source.  Never
-        raises on bad data: refusals are counted.
+        ``y``); sequence numbers and continuity are tracked per source.
+        ``now_ns`` is the caller's clock reading, stored in the windows this
+        batch closes and in the events it raises.  Never raises on bad data:
+        refusals are counted.
         """
-        emitted = False
-        with self._lock:
-            written = self._append_locked(batch, source)
-            if written:
-                emitted = self._maybe_close()
-        if emitted and self._notify is not None:
-            self._notify()
+        self._now_ns = now_ns
+        written = self._append(batch, source)
+        if written:
+            self._maybe_close()
         return written
 
     # ---------------------------------------------------------------- helpers
     def _event(self, kind: str, message: str) -> None:
-        self._events.append(Event(time.monotonic_ns(), kind, f"{self.stream}: {message}"))
+        self._events.append(Event(kind, f"{self.stream}: {message}", self._last_t_ns, self._now_ns))
 
-    def _bad_locked(self, kind: str, message: str) -> None:
+    def _refuse(self, kind: str, message: str) -> None:
         self._bad[kind] += 1
-        self._last_bad = {"kind": kind, "message": message or kind, "unix_ns": time.time_ns()}
+        self._last_bad = {"kind": kind, "message": message or kind, "received_ns": self._now_ns}
         self._event(f"bad.{kind}", message or kind)
 
     def _period_conflict(self, source: str, period: int, seq: int) -> bool:
@@ -208,7 +214,7 @@ class WindowBuffer:
         )
         if not others:
             return False
-        self._bad_locked(
+        self._refuse(
             "period_mismatch",
             f"{source} batch seq {seq} has period_ns={period} but {', '.join(others)} batches have period_ns="
             f"{self._period}; u and y must share one sample clock (refused until every source agrees)",
@@ -231,7 +237,7 @@ class WindowBuffer:
             if fixed is not None:
                 missing = [s for s in fixed if s not in part]
                 if missing:
-                    self._bad_locked("missing_signal", f"batch lacks configured signal(s) {missing}; it has {sorted(part)}")
+                    self._refuse("missing_signal", f"batch lacks configured signal(s) {missing}; it has {sorted(part)}")
                     return None
                 chosen = fixed
             else:
@@ -287,7 +293,7 @@ class WindowBuffer:
         self._start = 0
         self._next_close = self._w
 
-    def _append_locked(self, batch: BatchLike, source: str) -> int:
+    def _append(self, batch: BatchLike, source: str) -> int:
         self._counts["batches_in"] += 1
         n = len(batch)
         if n == 0:
@@ -300,7 +306,7 @@ class WindowBuffer:
             elif n >= 2:
                 period = estimate_period(np.asarray(batch.t_ns, dtype=np.int64))
         if not isinstance(period, (int, np.integer)) or period <= 0:
-            self._bad_locked(
+            self._refuse(
                 "period", f"period_ns must be an integer > 0 (or t_ns given to estimate it); got {period!r}"
             )
             return 0
@@ -308,7 +314,7 @@ class WindowBuffer:
         if period != self._period:
             w, _ = self.params.samples(period)
             if w > self.params.max_window_samples:
-                self._bad_locked(
+                self._refuse(
                     "period",
                     f"period_ns={period} makes the window {w} samples, more than max_window_samples="
                     f"{self.params.max_window_samples}",
@@ -322,15 +328,15 @@ class WindowBuffer:
         lim = self.params.max_abs_value
         for s, a in zip(names, arrays, strict=True):
             if a.shape != (n,):
-                self._bad_locked("shape", f"signal {s!r} has shape {a.shape}, expected ({n},)")
+                self._refuse("shape", f"signal {s!r} has shape {a.shape}, expected ({n},)")
                 return 0
             hi = a.max()
             lo = a.min()
             if not (hi <= lim and lo >= -lim):
                 if not (np.isfinite(hi) and np.isfinite(lo)):
-                    self._bad_locked("nonfinite", f"signal {s!r} holds NaN or infinity (batch seq {batch.seq})")
+                    self._refuse("nonfinite", f"signal {s!r} holds NaN or infinity (batch seq {batch.seq})")
                 else:
-                    self._bad_locked(
+                    self._refuse(
                         "magnitude", f"signal {s!r} reaches {max(abs(hi), abs(lo)):.3g}, beyond max_abs_value={lim:g}"
                     )
                 return 0
@@ -356,14 +362,15 @@ class WindowBuffer:
         if batch.t_ns is None:
             runs = [((t0 - self._anchor + period // 2) // period, 0, n)]
         else:
-            runs = self._runs(np.asarray(batch.t_ns, dtype=np.int64), period, batch.seq)
-            if runs is None:
+            grid = self._runs(np.asarray(batch.t_ns, dtype=np.int64), period, batch.seq)
+            if grid is None:
                 return 0
+            runs = grid
         written = 0
         for i, (k0, off, length) in enumerate(runs):
             got = self._accept_run(source, int(batch.seq), k0, off, length, names, arrays, first=i == 0)
             if got == _RESTART:  # the publisher's clock went back: restart the grid at this batch
-                self._anchor = self._anchor + k0 * period  # type: ignore[operator]
+                self._anchor = self._anchor + k0 * period
                 runs_again = [(k - k0, o, m) for k, o, m in runs]
                 for j, (k1, off1, len1) in enumerate(runs_again):
                     written += self._accept_run(source, int(batch.seq), k1, off1, len1, names, arrays, first=j == 0)
@@ -377,7 +384,7 @@ class WindowBuffer:
     def _runs(self, t_ns: np.ndarray, period: int, seq: int) -> list[tuple[int, int, int]] | None:
         runs = grid_runs(t_ns, self._anchor, period)  # type: ignore[arg-type]
         if runs is None:
-            self._bad_locked("nonmonotonic", f"batch seq {seq}: explicit t_ns not strictly increasing on the sample grid")
+            self._refuse("nonmonotonic", f"batch seq {seq}: explicit t_ns not strictly increasing on the sample grid")
         return runs
 
     def _accept_run(
@@ -396,13 +403,13 @@ class WindowBuffer:
                 self._event("gap", f"{source}: {k0 - exp} samples missing before batch seq {seq}")
             elif k0 < exp:
                 if recent is not None and (seq, k0) in recent:  # the same batch again, however old
-                    self._bad_locked("duplicate", f"{source}: batch seq {seq} was already received")
+                    self._refuse("duplicate", f"{source}: batch seq {seq} was already received")
                     return 0
                 if k0 + n <= exp - self._cap:
                     self._full_reset("restart", f"{source}: time went back {exp - k0} samples (publisher restarted?)")
                     return _RESTART
                 if k0 + n <= exp:
-                    self._bad_locked("out_of_order", f"{source}: batch seq {seq} lies before the expected position")
+                    self._refuse("out_of_order", f"{source}: batch seq {seq} lies before the expected position")
                     return 0
                 else:
                     self._counts["overlap_samples"] += exp - k0
@@ -500,11 +507,14 @@ class WindowBuffer:
                 output_names=self._outputs,
                 u=block[:n_in].T.copy(),
                 y=block[n_in:].T.copy(),
-                closed_monotonic_ns=time.monotonic_ns(),
-                closed_unix_ns=time.time_ns(),
+                received_ns=self._now_ns,
                 coalesced_before=0,  # set when taken (see PendingWindows.pop)
             )
             coalesced += self._queue.push(closed0 + i + 1, window)
             self._counts["windows_emitted"] += 1
+            self._event("window.closed", f"window {self._number} closed ({self._w} samples)")
+        if coalesced:
+            self._event("window.coalesced", f"{coalesced} window(s) coalesced: identification is behind "
+                        f"(max_pending_windows={self._queue.limit})")
         self._counts["windows_coalesced"] += coalesced
         return bool(keep)

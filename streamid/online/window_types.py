@@ -29,13 +29,20 @@ MAX_PENDING_WINDOWS = 1000
 class BatchLike(Protocol):
     """What the buffer reads from a batch (:class:`streamid.wire.codec.SampleBatch`)."""
 
-    stream: str
-    seq: int
-    t0_ns: int
-    period_ns: int
-    t_ns: np.ndarray | None
-    inputs: Mapping[str, np.ndarray]
-    outputs: Mapping[str, np.ndarray]
+    @property
+    def stream(self) -> str: ...
+    @property
+    def seq(self) -> int: ...
+    @property
+    def t0_ns(self) -> int: ...
+    @property
+    def period_ns(self) -> int: ...
+    @property
+    def t_ns(self) -> np.ndarray | None: ...
+    @property
+    def inputs(self) -> Mapping[str, np.ndarray]: ...
+    @property
+    def outputs(self) -> Mapping[str, np.ndarray]: ...
 
     def __len__(self) -> int: ...
 
@@ -113,9 +120,14 @@ class WindowParams:
 
     def samples(self, period_ns: int) -> tuple[int, int]:
         """Window and hop lengths in samples for a sample period (ns)."""
-        w = self.window_samples if self.window_samples is not None else round(self.window_s * 1e9 / period_ns)
-        h = self.hop_samples if self.hop_samples is not None else round(self.hop_s * 1e9 / period_ns)
+        w = self.window_samples if self.window_samples is not None else round(_seconds(self.window_s) * 1e9 / period_ns)
+        h = self.hop_samples if self.hop_samples is not None else round(_seconds(self.hop_s) * 1e9 / period_ns)
         return max(int(w), 2), max(int(h), 1)
+
+
+def _seconds(v: float | None) -> float:
+    assert v is not None  # __post_init__ sets seconds whenever samples are not given
+    return float(v)
 
 
 def _one_of(a: str, va: object, b: str, vb: object) -> None:
@@ -158,6 +170,9 @@ class Window:
     ``u`` has shape (n, n_inputs), ``y`` shape (n, n_outputs), both C-contiguous
     float64 copies owned by the window.  ``epoch`` changes when the stream was
     reset for a period or signal change (warm starts do not cross epochs).
+    ``received_ns`` is the caller's clock reading passed with the batch that
+    closed the window (``now_ns`` of :meth:`~streamid.online.OnlineIdentifier.push`;
+    the daemon passes Unix time), 0 when none was given: the core has no clock.
     """
 
     stream: str
@@ -169,8 +184,7 @@ class Window:
     output_names: tuple[str, ...]
     u: np.ndarray
     y: np.ndarray
-    closed_monotonic_ns: int
-    closed_unix_ns: int
+    received_ns: int
     coalesced_before: int
 
     @property
@@ -190,8 +204,18 @@ class Window:
 
 @dataclass(frozen=True)
 class Event:
-    """Something worth a line in the event log (gap, reset, refused batch)."""
+    """Something that happened to a stream, as a value (never only a log line).
 
-    monotonic_ns: int
+    ``kind`` is dotted: ``gap``, ``unaligned``, ``reset.<why>`` (``schema``,
+    ``period``, ``restart``), ``bad.<why>`` (a refused batch: ``nonfinite``,
+    ``duplicate``, ``decode``...), ``window.closed``, ``window.coalesced``, and
+    the outcome of an update: ``update.accepted``, ``update.rejected``,
+    ``update.failed``, ``update.dropped``.  ``t_ns`` is stream time (the newest
+    complete sample, None before the first) and ``received_ns`` the caller's
+    clock reading given with the call that raised it (0: none given).
+    """
+
     kind: str
     message: str
+    t_ns: int | None = None
+    received_ns: int = 0

@@ -1,0 +1,188 @@
+"""OnlineIdentifier: online identification as a library, with no Zenoh, no threads and no clock."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from streamid import OnlineIdentifier, StreamConfig
+from streamid.errors import DataError
+from streamid.online import StreamState, Update, UpdateJob
+from streamid.sim import get_device
+from streamid.wire.codec import SampleBatch
+from streamid.transport.updates import parse_model_update
+
+# 200 Hz damper, 2 s windows (400 samples), one every 2 s: consecutive windows share no sample
+CFG = StreamConfig(window_s=2.0, update_every_s=2.0, cold_generations=40, warm_generations=10, neurons=6,
+                   max_lag_y=3, max_lag_u=3, max_pending_windows=16)
+NAMES = {"inputs": ["velocity_cm_s"], "outputs": ["force_N"]}
+
+
+def _model(up: Update, number: int | None = None) -> str | None:
+    """The update's model as JSON (the document also holds the run's wall time, which differs run to run)."""
+    if up.model is None:
+        return None
+    doc = up.model.to_dict()
+    if number is not None:
+        doc["window"]["number"] = number
+    return json.dumps(doc)
+
+
+@pytest.fixture(scope="module")
+def damper() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t, u, y = get_device("mr_damper").simulate_seconds(8.2, seed=3)
+    return t[:1600], u[:1600], y[:1600]  # four whole windows
+
+
+def test_samples_in_versioned_models_out(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper")
+    events = ident.learn_many(t, u, y, **NAMES, now_ns=42)
+    assert [e.kind for e in events] == ["window.closed"] * 4 and all(e.received_ns == 42 for e in events)
+    assert ident.pending == 4 and ident.version == 0 and ident.model is None and ident.predict_one() is None
+    ups = ident.update_all(now_ns=1000)
+    assert [u.window.number for u in ups] == [1, 2, 3, 4] and ident.pending == 0  # every window, in order
+    accepted = [u for u in ups if u.accepted]
+    assert accepted and [u.version for u in accepted] == list(range(1, len(accepted) + 1))
+    assert [u.outcome.warm for u in ups] == [False, True, True, True]
+    last = accepted[-1]
+    assert ident.version == last.version and ident.payload == last.payload and ident.model is not None
+    doc = parse_model_update(last.payload)  # the document a subscriber gets
+    assert doc.stream == "damper" and doc.version == last.version and doc.published_unix_ns == 1000
+    assert doc.window_closed_unix_ns == 42 and last.event.kind == "update.accepted"
+    assert ident.model.input_names == ("velocity_cm_s",) and ident.model.output_name == "force_N"
+    st = ident.status(now_ns=7)
+    assert st["version"] == last.version and st["samples_in"] == len(t) and st["unix_ns"] == 7
+    assert st["identifications"]["accepted"] == len(accepted) and st["windows"]["closed"] == 4
+
+
+def test_same_seed_same_models_whatever_the_batching(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    whole = OnlineIdentifier(CFG, stream="damper")
+    whole.learn_many(t, u, y, **NAMES)
+    a = [_model(x) for x in whole.update_all()]
+    batched = OnlineIdentifier(CFG, stream="damper")
+    p = int(t[1] - t[0])
+    for seq, i in enumerate(range(0, len(t), 37)):  # SampleBatch in odd sizes, as a publisher would send
+        batched.push(SampleBatch("damper", seq, int(t[i]), p, None, {"velocity_cm_s": u[i:i + 37]},
+                                 {"force_N": y[i:i + 37]}))
+    b = [_model(x) for x in batched.update_all()]
+    assert len(a) == 4 and a == b and all(x is not None for x in a)
+
+
+def test_learn_one_equals_learn_many(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    n = 800
+    many = OnlineIdentifier(CFG, stream="damper")
+    many.learn_many(t[:n], u[:n], y[:n])
+    one = OnlineIdentifier(CFG, stream="damper")
+    for k in range(n):  # the first sample alone cannot tell the period: it waits for the second
+        one.learn_one(int(t[k]), u[k], y[k])
+    assert one.pending == many.pending == 2
+    assert [_model(x) for x in one.update_all()] == [_model(x) for x in many.update_all()]
+
+
+def test_state_round_trip_resumes_exactly(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    half = 800  # two whole windows
+    ref = OnlineIdentifier(CFG, stream="damper")
+    ref.learn_many(t, u, y, **NAMES)
+    ref_ups = ref.update_all()
+
+    first = OnlineIdentifier(CFG, stream="damper")
+    first.learn_many(t[:half], u[:half], y[:half], **NAMES)
+    first.update_all()
+    state = StreamState.from_json(first.state(now_ns=5).to_json())  # through its JSON document
+    assert state.version == first.version and state.saved_unix_ns == 5
+    resumed = OnlineIdentifier.from_state(state, CFG)
+    assert resumed.version == first.version and resumed.payload == first.payload
+    resumed.learn_many(t[half:], u[half:], y[half:], **NAMES)
+    later = resumed.update_all()
+    # the resumed identifier's windows hold the same samples and warm-start from the same populations;
+    # only the window numbers differ (a resumed identifier counts its windows from 1)
+    assert [x.window.number for x in later] == [1, 2] and [x.window.number for x in ref_ups[2:]] == [3, 4]
+    assert [_model(x, number=0) for x in later] == [_model(x, number=0) for x in ref_ups[2:]]
+    assert [x.version for x in later] == [x.version for x in ref_ups[2:]]
+    with pytest.raises(ValueError, match="stream 'other'"):
+        OnlineIdentifier(CFG, stream="other").restore(state)
+
+
+def test_predict_one_and_simulate_use_the_current_model(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper")
+    with pytest.raises(DataError, match="no model yet"):
+        ident.simulate(u[:50], y[:10])
+    ident.learn_many(t[:400], u[:400], y[:400], **NAMES)
+    up = ident.update()
+    assert up is not None and up.accepted
+    m = ident.model
+    assert m is not None
+    k = 410
+    ident.learn_many(t[400:k], u[400:k], y[400:k], **NAMES)
+    expected = m.predict_osa(np.r_[u[:k], u[k - 1]], np.r_[y[:k], 0.0])[-1]  # y(k) from samples up to k-1
+    assert ident.predict_one() == pytest.approx(expected, rel=1e-12)
+    sim = ident.simulate(u[400:600], y[400:600])
+    assert sim.shape == (200,) and np.allclose(sim, m.simulate(u[400:600], y[400:600]))
+
+
+def test_the_caller_chooses_the_thread(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper")
+    ident.learn_many(t[:800], u[:800], y[:800], **NAMES)
+    job = ident.next_job()
+    assert isinstance(job, UpdateJob) and job.version == 1 and ident.busy and ident.next_job() is None
+    box = {}
+    worker = threading.Thread(target=lambda: box.setdefault("out", job.run()))
+    worker.start()
+    ident.learn_many(t[800:1200], u[800:1200], y[800:1200], **NAMES)  # samples keep arriving meanwhile
+    worker.join(60)
+    up = ident.finish(job, box["out"])
+    assert up.version == 1 and not ident.busy and ident.pending == 2
+    with pytest.raises(ValueError, match="next_job"):
+        ident.finish(job, box["out"])  # a job is finished once
+    stop = threading.Event()
+    stop.set()
+    from streamid.online import Stopped
+
+    with pytest.raises(Stopped):
+        ident.update(stop=stop)
+    assert not ident.busy and ident.pending == 1  # the abandoned window is gone, the next one waits
+
+
+def test_bad_input_gaps_and_refusals_come_back_as_values(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper")
+    ident.learn_many(t[:100], u[:100], y[:100], **NAMES)
+    bad = u[100:150].copy()
+    bad[3] = np.nan
+    ev = ident.learn_many(t[100:150], bad, y[100:150], **NAMES)
+    assert [e.kind for e in ev] == ["bad.nonfinite"] and "NaN" in ev[0].message
+    ev = ident.learn_many(t[200:250], u[200:250], y[200:250], **NAMES)  # 100 samples lost on the way
+    assert [e.kind for e in ev] == ["gap"] and "missing" in ev[0].message
+    st = ident.status()
+    assert st["bad"] == {"nonfinite": 1} and st["gaps"] == 1 and st["gap_samples"] == 100
+    assert [e.kind for e in ident.drain_events()] == ["bad.nonfinite", "gap"] and ident.drain_events() == []
+    flat = dataclasses.replace(CFG, min_r2_osa=1.0)  # no model reaches R^2 = 1 on a noisy window
+    strict = OnlineIdentifier(flat, stream="damper")
+    strict.learn_many(t[:400], u[:400], y[:400], **NAMES)
+    up = strict.update()
+    assert up is not None and up.kind == "rejected" and "min_r2_osa" in up.reason and strict.degraded
+    assert strict.version == 0 and up.model is not None and up.document is None
+
+
+def test_bad_arguments_name_the_value_and_the_form() -> None:
+    ident = OnlineIdentifier(CFG, stream="damper")
+    with pytest.raises(DataError, match=r"u must have shape \(3,\) or \(3, channels\)"):
+        ident.learn_many(np.arange(3), np.zeros(4), np.zeros(3))
+    with pytest.raises(DataError, match="integer nanoseconds"):
+        ident.learn_many(np.array([0.5, 1.5]), np.zeros(2), np.zeros(2))
+    with pytest.raises(DataError, match=r"2 u name\(s\)"):
+        ident.learn_many(np.arange(3), np.zeros(3), np.zeros(3), inputs=["a", "b"])
+    from streamid.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="stream name"):
+        OnlineIdentifier(CFG, stream="bad name")
