@@ -56,7 +56,7 @@ class Regressor:
 
 def _lag_runs(lags: Sequence[int]) -> str:
     """``[1, 2, 3, 6, 7]`` -> ``t-1..t-3,t-6,t-7``: runs of three or more consecutive lags collapse with ``..``."""
-    vals = sorted(set(int(v) for v in lags))
+    vals = sorted({int(v) for v in lags})
     parts: list[str] = []
     i = 0
     while i < len(vals):
