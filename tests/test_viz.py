@@ -14,7 +14,8 @@ import pytest
 from conftest import free_tcp_port
 
 from streamid.errors import ConfigError
-from streamid.viz.rerun_view import CorrelationCurve, UpdateReport, Viz, VizSettings, parse_rerun_url, screenshot
+from streamid.engine.validation import CorrelationTest
+from streamid.viz.rerun_view import UpdateReport, Viz, VizSettings, parse_rerun_url, screenshot
 from streamid.viz.figures import CANVAS, Axis, Series, figure, fitness_figure, log_ticks, nice_ticks, tick_text
 
 RERUN = str(Path(sys.executable).parent / "rerun")
@@ -32,7 +33,7 @@ def report(version: int, n_val: int = 60, *, stream: str = "s", end_offset_ns: i
     y = np.tanh(u) + 0.01 * rng.normal(size=n_val)
     lags = np.arange(0, 11)
     corr = tuple(
-        CorrelationCurve(k, k, lags, np.r_[1.0, 0.05 * rng.normal(size=10)], 1.96 / np.sqrt(n_val))
+        CorrelationTest(k, k, tuple(lags.tolist()), tuple(np.r_[1.0, 0.05 * rng.normal(size=10)].tolist()), 1.96 / np.sqrt(n_val))
         for k in ("ee", "ue", "e_eu", "u2_e", "u2_e2")
     )
     gens = 10 if version == 1 else 5
@@ -112,7 +113,8 @@ def test_rrd_file_holds_every_diagnostic_and_verifies(tmp_path: Path) -> None:
     expected = np.where(np.abs(ee.values) > ee.band, ee.values, 0.0)
     assert np.allclose(outside, expected) and np.count_nonzero(expected) >= 1  # lag 0 (= 1.0) at least
     model = _latest(chunks, "/streams/s/model", "TextDocument:text")
-    assert "v3" in model[0] and "inside ±95 %" in model[0]
+    assert "v3" in model[0] and "f(t) = F[f(t-1) v(t-1,t-2)]" in model[0]  # the one lag vocabulary
+    assert f"ee FAIL: lag 0 value 1 outside ±{ee.strict_band:.3g} (99.9 % band)" in model[0]  # the reason of a failure
 
 
 def _blueprint_rows(rrd: Path) -> dict[str, dict[str, object]]:

@@ -14,27 +14,21 @@ from typing import Any
 
 import numpy as np
 
+from streamid.engine.regressors import format_lags
+from streamid.engine.validation import TESTS, CorrelationTest
 from streamid.errors import ConfigError
 
 __all__ = [
     "VizSettings",
     "UpdateReport",
-    "CorrelationCurve",
     "parse_rerun_url",
     "model_markdown",
     "fmt_metric",
     "TEST_LABELS",
 ]
 
-#: The five residual correlation tests (Billings & Voon), by the engine's short names.
-TEST_LABELS = {
-    "ee": "φ_ξξ(τ)",
-    "ue": "φ_uξ(τ)",
-    "e_eu": "φ_ξ(ξu)(τ)",
-    "u2_e": "φ_(u²)'ξ(τ)",
-    "u2_e2": "φ_(u²)'ξ²(τ)",
-}
-_TEST_SHORT = {"ee": "ξξ", "ue": "uξ", "e_eu": "ξ(ξu)", "u2_e": "(u²)'ξ", "u2_e2": "(u²)'ξ²"}
+#: The five residual correlation tests (Billings & Voon): the engine's names and formulas (``ee: φ_ee(τ) = δ(τ)``).
+TEST_LABELS = {name: f"{name}: {formula}" for name, (formula, _) in TESTS.items()}
 
 
 def parse_rerun_url(url: str) -> tuple[str, int]:
@@ -117,17 +111,6 @@ class VizSettings:
 
 
 @dataclass(frozen=True)
-class CorrelationCurve:
-    """One residual correlation test: values at lags and the ±band of 95 % confidence."""
-
-    name: str
-    label: str
-    lags: np.ndarray
-    values: np.ndarray
-    band: float
-
-
-@dataclass(frozen=True)
 class UpdateReport:
     """Everything drawn for one identification update of a stream.
 
@@ -151,7 +134,7 @@ class UpdateReport:
     input_name: str
     output_name: str
     fitness: np.ndarray
-    correlations: tuple[CorrelationCurve, ...]
+    correlations: tuple[CorrelationTest, ...]
     lags: Mapping[str, Any]
     metrics: Mapping[str, float]
     identification_s: float
@@ -166,21 +149,17 @@ def fmt_metric(v: float | None) -> str:
 
 
 def model_markdown(r: UpdateReport) -> str:
-    """The newest model as Markdown: version, R², lags, and the share of lags inside each test's band."""
+    """The newest model as Markdown: version, R², lags, and each correlation test's verdict (with the reason of a failure)."""
     lags = r.lags
-    parts = [f"{r.output_name}(t−{', '.join(str(x) for x in lags.get('y', [])) or '·'})"]
-    names = r.input_names or (r.input_name,)
-    for i, lu in enumerate(lags.get("u", [])):
-        nm = names[i] if i < len(names) else f"u{i}"
-        parts.append(f"{nm}(t−{', '.join(str(x) for x in lu) or '·'})")
+    u_lags = list(lags.get("u", []))
+    names = list(r.input_names or (r.input_name,))
+    names += [f"u{i}" for i in range(len(names), len(u_lags))]
     m = r.metrics
-    inside = []
+    verdicts = []
     for c in r.correlations:
-        v = np.abs(np.asarray(c.values, dtype=np.float64))
-        if v.size:
-            share = float(np.mean(v <= c.band))
-            mark = "**" if share < 0.95 else ""
-            inside.append(f"{_TEST_SHORT.get(c.name, c.name)} {mark}{share:.0%}{mark}")
+        if len(c.values):
+            v = c.verdict()
+            verdicts.append(f"- **{v}**" if not c.passed else f"- {v}")
     lines = [
         f"**{r.stream} v{r.version}** · {'warm' if r.warm else 'cold'} · G={r.generations} · "
         f"{r.identification_s:.2f} s{'' if r.accepted else ' · **rejected**'}",
@@ -188,8 +167,8 @@ def model_markdown(r: UpdateReport) -> str:
         f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
         f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})",
         "",
-        "lags: " + " · ".join(parts),
+        f"model: {r.output_name}(t) = F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]",
     ]
-    if inside:
-        lines += ["", "inside ±95 %: " + " · ".join(inside)]
+    if verdicts:
+        lines += ["", "correlation tests (validation residual):", *verdicts]
     return "\n".join(lines)

@@ -68,7 +68,6 @@ from streamid.viz.figures import COL_FR, COL_MEASURED, COL_OSA, CANVAS, Figure, 
 from streamid.viz.screenshot import render, rerun_cli
 from streamid.viz.reports import (
     TEST_LABELS as _TEST_LABELS,
-    CorrelationCurve,
     UpdateReport,
     VizSettings,
     fmt_metric as _f,
@@ -76,7 +75,7 @@ from streamid.viz.reports import (
     parse_rerun_url,
 )
 
-__all__ = ["VizSettings", "UpdateReport", "CorrelationCurve", "Viz", "parse_rerun_url", "screenshot", "rerun_cli"]
+__all__ = ["VizSettings", "UpdateReport", "Viz", "parse_rerun_url", "screenshot", "rerun_cli"]
 
 _log = logging.getLogger(__name__)
 
