@@ -25,7 +25,8 @@ from typing import TYPE_CHECKING
 from streamid.errors import StreamidError
 
 if TYPE_CHECKING:
-    from streamid.daemon.config import DaemonConfig, StreamConfig
+    from streamid.daemon.config import DaemonConfig
+    from streamid.online.stream_config import StreamConfig
     from streamid.daemon.service import Daemon
     from streamid.engine.coevolution import CoEAState, Coevolution
     from streamid.engine.identify import Result, identify
@@ -57,7 +58,7 @@ _EXPORTS = {
     "OnlineIdentifier": "streamid.online.identifier",
     "Daemon": "streamid.daemon.service",
     "DaemonConfig": "streamid.daemon.config",
-    "StreamConfig": "streamid.daemon.config",
+    "StreamConfig": "streamid.online.stream_config",
     "SampleBatch": "streamid.wire.codec",
     "ModelSubscriber": "streamid.transport.client",
     "latest_model": "streamid.transport.client",

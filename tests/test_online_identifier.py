@@ -186,3 +186,21 @@ def test_bad_arguments_name_the_value_and_the_form() -> None:
 
     with pytest.raises(ConfigError, match="stream name"):
         OnlineIdentifier(CFG, stream="bad name")
+
+
+def test_the_readme_example_runs_and_every_window_gets_a_model() -> None:
+    """examples/online_identifier.py, shown in the README: 30 s of damper in 6 s windows -> versions 1..5."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parent.parent / "examples" / "online_identifier.py"
+    out = subprocess.run([sys.executable, str(example)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert [ln.split()[:2] for ln in lines[:5]] == [[str(v), "accepted"] for v in range(1, 6)]
+    assert all(float(ln.split()[-1]) > 0.5 for ln in lines[:5])  # free runs that track the damper
+    assert "velocity -> force" in out.stdout and "velocity(t-" in out.stdout
+    readme = (example.parent.parent / "README.md").read_text(encoding="utf-8")
+    body = "\n".join(example.read_text(encoding="utf-8").splitlines()[2:])  # without the docstring
+    assert body.strip() in readme, "the README's online example must be examples/online_identifier.py verbatim"
