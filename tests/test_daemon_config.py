@@ -122,4 +122,30 @@ def test_cli_refuses_a_bad_config_at_start(tmp_path: Path) -> None:
     assert out.returncode == 2
     assert "unknown key 'defaults.warm_generation'" in out.stderr and "warm_generations" in out.stderr
     ok = subprocess.run([*STREAMID, "daemon", "--print-config"], capture_output=True, text=True, timeout=60)
-    assert ok.returncode == 0 and '"cold_generations": 400' in ok.stdout
+    assert ok.returncode == 0 and "cold_generations = 400" in ok.stdout
+
+
+def test_print_config_is_every_effective_setting_as_toml_read_back_the_same(tmp_path: Path) -> None:
+    import sys
+
+    from streamid.daemon.config import to_toml
+
+    src = tmp_path / "c.toml"
+    src.write_text('[daemon]\nstreams = ["a", "b"]\nworkers = 2\n[streams.a]\nwindow_s = 0.5\n'
+                   '[streams.a.engine]\nde_f = 0.5\nselection = "fr_est"\n')
+    config = load_config(src)
+    text = to_toml(config)
+    for key in ("[daemon]", "workers = 2", "[defaults]", "window_s = 10.0", "update_every_s = 1.0",
+                "[defaults.engine]", "de_f = 0.6", "[streams.a]", "window_s = 0.5", "[streams.a.engine]",
+                'selection = "fr_est"', "retain_memory = true"):
+        assert key in text, key
+    again = tmp_path / "again.toml"
+    again.write_text(text)
+    reread = load_config(again)
+    assert reread.workers == 2 and reread.streams == ("a", "b")
+    assert reread.for_stream("a").coea_config(cold=True) == config.for_stream("a").coea_config(cold=True)
+    assert reread.for_stream("a").window_params() == config.for_stream("a").window_params()
+    assert to_toml(reread) == text  # a fixed point
+    out = subprocess.run([sys.executable, "-m", "streamid", "daemon", "--config", str(src), "--print-config"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout == text, out.stderr

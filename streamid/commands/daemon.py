@@ -52,15 +52,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     sinks.add_argument("--no-rerun", action="store_true", help="no diagnostics at all")
     p.add_argument("--state-dir", metavar="DIR", help="save models and populations here; resume warm from them")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
-    p.add_argument("--print-config", action="store_true", help="print the effective per-stream defaults and exit")
+    p.add_argument("--print-config", action="store_true", help="print every effective setting as TOML that --config reads back, and exit")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v info, -vv debug)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
-    from streamid.daemon.config import load_config
+    from streamid.daemon.config import load_config, to_toml
     from streamid.daemon.service import Daemon
     from streamid.commands.zenoh_flags import settings_from_args
 
@@ -70,8 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.stream:
         config = config.with_streams(tuple(args.stream))
     if args.print_config:
-        print(json.dumps({"defaults": config.defaults.to_dict(),
-                          "streams": {n: c.to_dict() for n, c in config.overrides}}, indent=1))
+        print(to_toml(config), end="")
         return 0
     if args.duration is not None and not args.duration > 0:
         raise ConfigError(f"--duration must be a number of seconds > 0; got {args.duration}")

@@ -33,6 +33,7 @@ value found.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import tomllib
 from collections.abc import Mapping
@@ -45,7 +46,7 @@ from streamid.online.stream_config import ENGINE_RESERVED, StreamConfig
 from streamid.errors import ConfigError
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
-__all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping"]
+__all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping", "to_toml"]
 
 @dataclass(frozen=True)
 class DaemonConfig:
@@ -276,3 +277,43 @@ def load_config(path: str | Path | None) -> DaemonConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML ({exc})") from exc
     return config_from_mapping(data, str(p))
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a TOML basic string is a JSON string for these names
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML form for {type(v).__name__}")
+
+
+def _stream_table(cfg: StreamConfig) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Every effective setting of a stream, and its effective engine settings (the ``engine`` table)."""
+    plain = cfg.to_dict()
+    plain.pop("engine", None)
+    if cfg.window_s is None and cfg.window_samples is None:
+        plain["window_s"] = cfg.window_params().window_s
+    if cfg.update_every_s is None and cfg.update_every_samples is None:
+        plain["update_every_s"] = cfg.window_params().hop_s
+    order = [f.name for f in fields(StreamConfig)]
+    plain = {k: plain[k] for k in sorted(plain, key=order.index)}
+    engine = cfg.coea_config(cold=True).to_dict()
+    return plain, {k: v for k, v in engine.items() if k not in ENGINE_RESERVED and v is not None}
+
+
+def to_toml(config: DaemonConfig) -> str:
+    """Every effective setting as a TOML file that :func:`load_config` reads back to the same configuration."""
+    lines = ["# streamid daemon: every effective setting (paste into a --config file)", "", "[daemon]"]
+    for f in fields(DaemonConfig):
+        if f.name not in ("defaults", "overrides"):
+            lines.append(f"{f.name} = {_toml_value(getattr(config, f.name))}")
+    tables = [("defaults", config.defaults), *((f"streams.{n}", c) for n, c in config.overrides)]
+    for name, cfg in tables:
+        plain, engine = _stream_table(cfg)
+        lines += ["", f"[{name}]", *(f"{k} = {_toml_value(v)}" for k, v in plain.items())]
+        lines += ["", f"[{name}.engine]", *(f"{k} = {_toml_value(v)}" for k, v in engine.items())]
+    return "\n".join(lines) + "\n"
