@@ -65,7 +65,7 @@ def wait_version(ep: str, version: int, timeout_s: float = 30.0) -> int:
 def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
     ep = endpoint()
     rrd = tmp_path / "d.rrd"
-    daemon = start_daemon(tmp_path, ep, "--rrd", str(rrd))
+    daemon = start_daemon(tmp_path, ep, "--rrd", str(rrd), "-v")
     watch = subprocess.Popen([*STREAMID, "watch", "--connect", ep, "--stream", "mr_damper", "--count", "2",
                               "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -82,11 +82,15 @@ def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
         lines = [ln for ln in wout.splitlines() if ln.startswith("mr_damper v")]
         assert len(lines) == 2, wout
         assert "mr_damper v1 cold G=60" in lines[0] and "R2 val OSA 0.9" in lines[0] and "age" in lines[0]
-        assert " warm G=15 " in lines[1] and "velocity_cm_s:[" in lines[1]
+        assert " warm G=15 " in lines[1] and "velocity_cm_s(t-" in lines[1]
         daemon.send_signal(signal.SIGTERM)
         _, err = daemon.communicate(timeout=20)
         assert daemon.returncode == 0, err
         stopped = [ln for ln in err.splitlines() if "stopped in" in ln]
+        # -v: the daemon says what it does (stream found, each window identified and its model published)
+        assert "stream mr_damper: configured" in err or "stream mr_damper: discovered" in err, err[-2000:]
+        assert "stream mr_damper: window 1 identified, model v1 published (cold, R² validation OSA 0." in err
+        assert "model v2 published (warm, R² validation OSA" in err
         assert stopped and float(stopped[0].split("stopped in")[1].split()[0]) < 2.0
     finally:
         for p in (daemon, watch):
