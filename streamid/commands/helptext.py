@@ -15,6 +15,8 @@ __all__ = ["plain", "plain_parser"]
 
 _ROLE = re.compile(r":(?:class|func|meth|mod|data|attr|exc|obj):`~?(?:[\w.]*\.)?([^`]+)`")
 _LITERAL = re.compile(r"``([^`]+)``")
+#: The reST literal-block marker at the end of a line (two colons).
+_LITERAL_MARK = re.compile(r":{2}$")
 _UNDERLINE = re.compile(r"^\s*([-=~^])\1{2,}\s*$")
 
 
@@ -29,9 +31,9 @@ def plain(text: str | None) -> str | None:
         if _UNDERLINE.match(line) and out and out[-1].strip():
             out[-1] = out[-1].rstrip() + ":"
             continue
-        if line.strip() == "::":
+        if _LITERAL_MARK.fullmatch(line.strip()):  # a line that is only the reST literal-block marker
             continue
-        if line.rstrip().endswith("::"):
+        if _LITERAL_MARK.search(line.rstrip()):  # "Example::" -> "Example:"
             line = line.rstrip()[:-1]
         out.append(line)
     return "\n".join(out)

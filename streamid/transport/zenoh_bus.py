@@ -175,13 +175,15 @@ def explain_open_error(message: str, settings: ZenohSettings) -> str:
     if "Unable to connect" in text:
         eps = ", ".join(settings.connect) or "the connect endpoints"
         return (
-            f"cannot connect to {eps}: nothing answers there (mode {settings.mode or 'from the config file'}); "
-            "start `streamid daemon` or `streamid router` there, or point --connect at where one listens"
+            f"cannot open zenoh session: cannot connect to {eps}: nothing answers there, or it refused this session "
+            f"(mode {settings.mode or 'from the config file'}; with access control or TLS, check the credentials and "
+            "certificates of --zenoh-config); start `streamid daemon` or `streamid router` there, or point --connect "
+            "at where one listens"
         )
     if "Can not create a new" in text and "listener" in text:
         eps = ", ".join(settings.listen) or "the listen endpoint"
         return f"cannot listen on {eps} ({text}); choose another endpoint with --listen, e.g. --listen tcp/127.0.0.1:7448"
-    return f"cannot open a zenoh session ({text}); listen {list(settings.listen)}, connect {list(settings.connect)}, mode {settings.mode}"
+    return f"cannot open zenoh session ({text}); listen {list(settings.listen)}, connect {list(settings.connect)}, mode {settings.mode}"
 
 
 Callback = Callable[[str, bytes], None]
