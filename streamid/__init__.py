@@ -103,4 +103,5 @@ def __getattr__(name: str) -> object:
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+    """The public names (what ``from streamid import *`` gives), not the module's own imports."""
+    return sorted(__all__)
