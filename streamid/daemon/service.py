@@ -474,7 +474,6 @@ class Daemon:
         """The stream's events to the log (bad input rate-limited) and to Rerun's event log."""
         with st.lock:
             events = st.ident.drain_events()
-            last_t = st.ident.counters().get("last_t_ns")
         if not events:
             return
         name = st.ident.stream
@@ -496,7 +495,7 @@ class Daemon:
         if self.viz is not None and shown:
             for ev in shown[-20:]:
                 level = "WARN" if ev.kind.startswith(("bad", "reset", "gap", "unaligned")) else "INFO"
-                self.viz.log_event(name, ev.message, level=level, t_ns=last_t if isinstance(last_t, int) else None)
+                self.viz.log_event(name, ev.message, level=level, t_ns=ev.t_ns)  # stream time of the event
             if len(shown) > 20:
                 self.viz.log_event(name, f"... and {len(shown) - 20} more events", level="WARN")
 
