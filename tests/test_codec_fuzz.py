@@ -13,7 +13,7 @@ from streamid.wire.codec import CodecError, SampleBatch, decode, encode
 FUZZ = settings(max_examples=400, deadline=None)
 
 names = st.text(
-    alphabet=st.characters(min_codepoint=32, blacklist_categories=("Cs",), blacklist_characters="\x7f"),
+    alphabet=st.characters(min_codepoint=32, blacklist_categories=("Cs", "Cc", "Cf", "Zl", "Zp", "Co")),
     min_size=1, max_size=12,
 )
 streams = st.from_regex(r"[A-Za-z0-9_.\-]{1,20}", fullmatch=True).filter(lambda s: s not in (".", ".."))

@@ -1,10 +1,13 @@
-"""``streamid watch``: print model updates live (version, lags, R^2, age).
+"""``streamid watch``: print model updates live (version, lags, R^2, age, why accepted).
 
 Connects to the daemon (``tcp/127.0.0.1:7447`` by default), prints the current
-model of every watched stream at once (from the daemon's queryable), then one
-line per new model; with ``--every S`` the age of the current models is
-re-printed every S seconds, and degraded streams are reported from their
-status.  Stops on Ctrl-C, after ``--count`` updates or after ``--duration``.
+model of every output of every watched stream at once (from the daemon's
+queryable), then one line per new model with why it was accepted ("accepted:
+better than v12 by 0.013"); with ``--rejected`` also the challengers that were
+not; with ``--every S`` the age of the current models is re-printed every S
+seconds, and degraded streams are reported from their status.  Stops on Ctrl-C,
+after ``--count`` updates or after ``--duration``.  Names and reasons that came
+from the network are shown escaped (control, format and bidi characters as \\uXXXX).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import time
 from typing import Any
 
 from streamid.errors import ConfigError
+from streamid.wire.names import printable
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -37,23 +41,59 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--count", type=int, metavar="N", help="exit after N model updates")
     p.add_argument("--duration", type=float, metavar="S",
                    help="exit after S seconds (with code 1 if no model was received by then)")
+    p.add_argument("--rejected", action="store_true",
+                   help="also print the rejected challengers (streamid/<stream>/rejected) and why")
     p.add_argument("--json", action="store_true", help="print each update as one JSON line")
     p.set_defaults(func=run)
 
 
+def _r2(v: Any) -> str:
+    return f"{v:.4f}" if isinstance(v, (int, float)) and not isinstance(v, bool) else "n/a"
+
+
+def decision_text(up: Any) -> str:
+    """Why ``up`` was accepted or rejected, in a few words ("" when its daemon did not say); not escaped."""
+    d = getattr(up, "decision", None)
+    if d is None:
+        return ""
+    word = "accepted" if d.accepted else "rejected"
+    c = d.champion
+    fr = up.metrics.get("r2_fr_val")
+    by = None
+    if c is not None and isinstance(fr, float) and c.r2_fr_val is not None:
+        by = fr - c.r2_fr_val
+    if d.code == "first":
+        return f"{word}: first model"
+    if c is not None and d.code == "better":
+        return f"{word}: better than v{c.version}" + (f" by {by:.3f}" if by is not None else "") + " (FR R2)"
+    if c is not None and d.code == "not_better":
+        margin = f", margin {d.margin:g}" if d.margin is not None else ""
+        return f"{word}: not better than v{c.version}" + (f" ({by:+.3f}{margin})" if by is not None else "")
+    if c is not None and d.code == "champion_invalid":
+        return f"{word}: champion v{c.version} no longer valid on current data, FR R2 {_r2(c.r2_fr_val)} -> {_r2(fr)}"
+    reason = d.reason if len(d.reason) <= 200 else d.reason[:197] + "..."
+    return f"{word} ({d.code}): {reason}"
+
+
 def format_update(up: Any, now_ns: int | None = None) -> str:
-    """One line: stream, version, lags, validation R^2, age."""
+    """One line: stream, version, output and lags, validation R^2, age, and why it was accepted or rejected.
+
+    Everything that came from the network is escaped (:func:`streamid.wire.names.printable`).
+    """
     now_ns = time.time_ns() if now_ns is None else now_ns
     m = up.metrics
     age = max(0.0, (now_ns - up.published_unix_ns) / 1e9) if up.published_unix_ns else float("nan")
-
-    def f(v: Any) -> str:
-        return f"{v:.4f}" if isinstance(v, (int, float)) else "n/a"
-
-    return (
-        f"{up.stream} v{up.version} {'warm' if up.warm else 'cold'} G={up.generations} "
-        f"{up.model.output_name}(t) = F[{up.model.lags_text()}] R2 val OSA {f(m.get('r2_osa_val'))} FR {f(m.get('r2_fr_val'))} "
-        f"ident {up.identification_s:.2f}s age {age:.1f}s"
+    output = getattr(up, "output", None) or up.model.output_name
+    head = f"{up.stream} v{up.version}" if getattr(up, "accepted", True) else \
+        f"{up.stream} challenger rejected (serving v{up.version})"
+    why = decision_text(up)
+    origin = getattr(up, "origin", None)
+    return printable(
+        f"{head} {'warm' if up.warm else 'cold'} G={up.generations} "
+        f"{output}(t) = F[{up.model.lags_text()}] R2 val OSA {_r2(m.get('r2_osa_val'))} FR {_r2(m.get('r2_fr_val'))} "
+        f"ident {up.identification_s:.2f}s age {age:.1f}s" + (f"; {why}" if why else "")
+        + (f" [daemon {origin.daemon}]" if origin is not None and not getattr(up, "accepted", True) else ""),
+        2000,
     )
 
 
@@ -81,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
             print(text, flush=True)
 
     def on_update(up: Any) -> None:
-        emit(json.dumps(up.document) if args.json else format_update(up))
+        emit(json.dumps(up.document) if args.json else format_update(up))  # json.dumps escapes non-ASCII
         seen[0] += 1
         if args.count is not None and seen[0] >= args.count:
             stop.set()
@@ -91,17 +131,20 @@ def run(args: argparse.Namespace) -> int:
             st = parse_status(payload)
         except ModelFormatError:
             return
-        name, bad = st.get("stream", key), bool(st.get("degraded"))
+        name, bad = str(st.get("stream", key)), bool(st.get("degraded"))
         prev = degraded.get(name)
+        if prev is None and len(degraded) >= 10_000:  # bounded: one entry per stream seen
+            return
         degraded[name] = bad
         if bad and prev is not True:
-            emit(f"{name} DEGRADED: {st.get('degraded_reason', '')}")
+            emit(printable(f"{name} DEGRADED: {st.get('degraded_reason', '')}", 2000))
         elif not bad and prev is True:
-            emit(f"{name} healthy again (model v{st.get('version')})")
+            emit(printable(f"{name} healthy again (model v{st.get('version')})", 2000))
 
     settings = settings_from_args(args)
     where = ", ".join(settings.connect) or ", ".join(f"listening on {e}" for e in settings.listen) or "the --zenoh-config endpoints"
     timed_out = False
+    skipped: dict[str, int] = {}
     end = None if args.duration is None else time.monotonic() + args.duration
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -112,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
                       file=sys.stderr, flush=True)
             skey = f"{PREFIX}/*/status" if args.stream == "*" else status_key(args.stream)
             bus.subscribe(skey, on_status)
-            with ModelSubscriber(bus, args.stream, on_update) as sub:
+            with ModelSubscriber(bus, args.stream, on_update, include_rejected=args.rejected) as sub:
                 if not sub.latest:
                     print(f"streamid watch: waiting for models on {args.stream!r} ...", file=sys.stderr, flush=True)
                 next_age = time.monotonic() + args.every if args.every else None
@@ -123,11 +166,16 @@ def run(args: argparse.Namespace) -> int:
                         break
                     if next_age is not None and now >= next_age:
                         next_age = now + args.every
-                        for up in list(sub.latest.values()):
-                            emit(format_update(up))
+                        for name in sorted(sub.latest):
+                            for up in sub.latest_per_output(name).values():
+                                emit(format_update(up))
+                skipped = {k: v for k, v in sub.skipped.items() if v}
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+    if skipped:
+        print(f"streamid watch: skipped {sum(skipped.values())} invalid model updates ("
+              + ", ".join(f"{k}: {v}" for k, v in skipped.items()) + ")", file=sys.stderr, flush=True)
     if timed_out and seen[0] == 0:
         print(f"streamid watch: no model received from {where} in {args.duration:g} s", file=sys.stderr, flush=True)
         return 1

@@ -14,8 +14,14 @@ tells the two ways of getting nothing apart: :class:`~streamid.errors.NoDaemonEr
 (reachable, but no model of that stream yet); ``default=None`` returns None for both.
 
 Each update is a :class:`~streamid.transport.updates.ModelUpdate`: the engine's
-:class:`~streamid.engine.Model` rebuilt from the published JSON, its version,
-the window it was fitted on and its validation metrics.
+:class:`~streamid.engine.Model` rebuilt from the published JSON, its version, the
+output it predicts, why it was accepted, the window it was fitted on and its
+validation metrics.  A stream with several outputs has one current model per output
+(:func:`latest_models`, :meth:`ModelSubscriber.latest_per_output`).
+
+Nothing a remote party publishes makes a client raise: a malformed document, one on
+a key of another stream, or one of the wrong kind is skipped, counted and warned
+about (at most one warning per reason every ``warn_every_s`` seconds).
 """
 
 from __future__ import annotations
@@ -25,21 +31,32 @@ import threading
 import time
 from collections.abc import Callable
 from types import TracebackType
-from typing import Union
+from typing import Any, Union
 
-from streamid.transport.updates import ModelUpdate, parse_model_update
-from streamid.wire.documents import parse_status
 from streamid.errors import ConfigError, ModelFormatError, NoDaemonError, NoModelYetError
-from streamid.wire.keys import PREFIX, check_stream_name, model_key, status_key
+from streamid.transport.updates import ModelUpdate, is_newer, parse_model_update, recency
 from streamid.transport.zenoh_bus import Bus, ZenohSettings, _Handle
+from streamid.wire.documents import parse_status
+from streamid.wire.keys import PREFIX, check_stream_name, model_key, parse_key, rejected_key, status_key
+from streamid.wire.names import printable
 
-__all__ = ["ModelSubscriber", "ModelUpdate", "NoDaemonError", "NoModelYetError", "Target", "latest_model", "latest_status"]
+__all__ = [
+    "ModelSubscriber",
+    "ModelUpdate",
+    "NoDaemonError",
+    "NoModelYetError",
+    "Target",
+    "latest_model",
+    "latest_models",
+    "latest_status",
+]
 
 _log = logging.getLogger(__name__)
 
-
 #: Where to reach the daemon: an endpoint string, settings, or an open session.
 Target = Union[str, ZenohSettings, Bus]
+#: Why a received document was skipped (the keys of ``ModelSubscriber.skipped``).
+SKIP_REASONS = ("malformed", "key_mismatch", "kind_mismatch")
 
 
 def _open(bus_or_settings: Target) -> tuple[Bus, bool]:
@@ -60,6 +77,72 @@ def _where(bus: Bus) -> str:
     return ", ".join(s.connect) or ", ".join(f"listening on {e}" for e in s.listen) or "the --zenoh-config endpoints"
 
 
+class _Skips:
+    """Skipped documents: counted per reason, one warning per reason at most every ``every_s`` seconds."""
+
+    def __init__(self, every_s: float) -> None:
+        self.every_s = every_s
+        self.counts: dict[str, int] = {r: 0 for r in SKIP_REASONS}
+        self._last_warn: dict[str, float] = {}
+        self._quiet: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def skip(self, reason: str, key: str, message: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            self.counts[reason] = self.counts.get(reason, 0) + 1
+            last = self._last_warn.get(reason)
+            if last is not None and now - last < self.every_s:
+                self._quiet[reason] = self._quiet.get(reason, 0) + 1
+                return
+            self._last_warn[reason] = now
+            quiet = self._quiet.pop(reason, 0)
+        more = f" ({quiet} more skipped since the last warning)" if quiet else ""
+        _log.warning("model update on %s skipped (%s): %s%s", printable(key, 200), reason, message, more)
+
+    def snapshot(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self.counts)
+
+    def total(self) -> int:
+        return sum(self.snapshot().values())
+
+
+def _check(key: str, payload: bytes, skips: _Skips) -> ModelUpdate | None:
+    """The update in ``payload`` received on ``key``, or None (skipped, counted, warned) if it is not a valid one."""
+    try:
+        k_stream, kind = parse_key(key)
+    except ConfigError as exc:
+        skips.skip("key_mismatch", key, str(exc))
+        return None
+    if kind not in ("model", "rejected"):
+        skips.skip("kind_mismatch", key, f"model updates come on streamid/<stream>/model or /rejected, not {kind!r}")
+        return None
+    try:
+        up = parse_model_update(payload)
+    except ModelFormatError as exc:
+        skips.skip("malformed", key, str(exc))
+        return None
+    except Exception as exc:  # noqa: BLE001 - a parser bug must not kill Zenoh's thread nor the caller
+        skips.skip("malformed", key, f"{type(exc).__name__}: {printable(exc, 300)}")
+        return None
+    if up.stream != k_stream:
+        skips.skip("key_mismatch", key, f"the document names stream {up.stream!r} but came on the key of {k_stream!r}")
+        return None
+    if up.accepted != (kind == "model"):
+        skips.skip("kind_mismatch", key, f"a document with accepted={str(up.accepted).lower()} on the {kind!r} key "
+                   "(accepted models come on /model, rejected challengers on /rejected)")
+        return None
+    return up
+
+
+def _pick(models: dict[str, ModelUpdate], output: str | None) -> ModelUpdate | None:
+    """The model of ``output``; None: the only one, or the first output in name order."""
+    if output is not None:
+        return models.get(output)
+    return models[min(models)] if models else None
+
+
 class ModelSubscriber:
     """Hand every new model of a stream to ``callback``.
 
@@ -72,20 +155,34 @@ class ModelSubscriber:
     stream
         Stream name, or ``"*"`` for every stream.
     callback
-        ``callback(update: ModelUpdate)``, called on a Zenoh thread, in
-        increasing version order per stream (older or repeated versions are
-        skipped).  An exception it raises is logged, never propagated.
+        ``callback(update: ModelUpdate)``, called on a Zenoh thread, one at a time, with
+        each new accepted model in order per (stream, output): an update is delivered if it
+        is newer than the last one of its output (:func:`~streamid.transport.updates.is_newer`:
+        a higher version, or a later daemon life), older or repeated ones are skipped.  An
+        exception it raises is logged, never propagated.
     fetch_latest
-        Query the current model at start, so a late subscriber gets it at once.
+        Query the current models at start, so a late subscriber gets them at once.
     latest_timeout_s
         How long that first query waits.
+    include_rejected
+        Also deliver the rejected challengers (``update.accepted`` False, published on
+        ``streamid/<stream>/rejected``), as they come.
+    warn_every_s
+        At most one warning per skip reason in this many seconds.
 
     Attributes
     ----------
     latest : dict
-        Newest update per stream.
-    errors : int
-        Payloads that were not valid model updates (skipped).
+        Newest accepted update per stream (of any output; see :meth:`latest_per_output`).
+    skipped : dict
+        Documents skipped per reason: ``malformed`` (not a valid model update),
+        ``key_mismatch`` (naming another stream than its key), ``kind_mismatch``
+        (an accepted model on the rejected key or the other way round).
+    stale : int
+        Valid updates not newer than the current one of their output (e.g. a query reply
+        that repeats a version already received).
+    rejected : int
+        Rejected challengers delivered.
     """
 
     def __init__(
@@ -96,54 +193,94 @@ class ModelSubscriber:
         *,
         fetch_latest: bool = True,
         latest_timeout_s: float = 1.0,
+        include_rejected: bool = False,
+        warn_every_s: float = 10.0,
     ) -> None:
         if stream != "*":
             check_stream_name(stream)
         self.stream = stream
         self.callback = callback
+        self.include_rejected = include_rejected
         self.latest: dict[str, ModelUpdate] = {}
-        self.errors = 0
+        self.stale = 0
+        self.rejected = 0
+        self._models: dict[tuple[str, str], ModelUpdate] = {}
+        self._skips = _Skips(warn_every_s)
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._order = threading.RLock()
+        self._subs: list[_Handle] = []
         self._bus, self._owned = _open(settings)
         key = f"{PREFIX}/*/model" if stream == "*" else model_key(stream)
         try:
-            self._sub: _Handle | None = self._bus.subscribe(key, self._on_payload)
+            self._subs.append(self._bus.subscribe(key, self._on_payload))
+            if include_rejected:
+                rkey = f"{PREFIX}/*/rejected" if stream == "*" else rejected_key(stream)
+                self._subs.append(self._bus.subscribe(rkey, self._on_payload))
             if fetch_latest:
-                for _k, payload in self._bus.get(key, timeout_s=latest_timeout_s):
+                for _k, payload in self._bus.get(key, timeout_s=latest_timeout_s, all_replies=True):
                     self._on_payload(_k, payload)
         except BaseException:
             self.close()
             raise
 
-    def _on_payload(self, key: str, payload: bytes) -> None:
-        try:
-            up = parse_model_update(payload)
-        except ModelFormatError as exc:
-            with self._lock:
-                self.errors += 1
-            _log.warning("invalid model update on %s skipped: %s", key, exc)
-            return
-        with self._order:  # one delivery at a time, in version order
-            with self._cond:
-                prev = self.latest.get(up.stream)
-                if prev is not None and up.version <= prev.version:
-                    return
-                self.latest[up.stream] = up
-                self._cond.notify_all()
-            try:
-                self.callback(up)
-            except Exception:  # noqa: BLE001 - the user's callback must not kill zenoh's thread
-                _log.exception("ModelSubscriber callback failed on version %d of %s", up.version, up.stream)
+    @property
+    def skipped(self) -> dict[str, int]:
+        return self._skips.snapshot()
 
-    def wait_for_version(self, version: int, timeout_s: float, stream: str | None = None) -> ModelUpdate | None:
-        """Block until a model of at least ``version`` arrived (None on timeout)."""
+    @property
+    def errors(self) -> int:
+        """Payloads skipped for any reason (the sum of :attr:`skipped`)."""
+        return self._skips.total()
+
+    def _deliver(self, up: ModelUpdate) -> None:
+        try:
+            self.callback(up)
+        except Exception:  # noqa: BLE001 - the user's callback must not kill zenoh's thread
+            _log.exception("ModelSubscriber callback failed on version %d of %s (output %s)", up.version,
+                           up.stream, printable(up.output, 80))
+
+    def _on_payload(self, key: str, payload: bytes) -> None:
+        up = _check(key, payload, self._skips)
+        if up is None:
+            return
+        with self._order:  # one delivery at a time, in order per (stream, output)
+            if not up.accepted:
+                if self.include_rejected:
+                    with self._lock:
+                        self.rejected += 1
+                    self._deliver(up)
+                return
+            with self._cond:
+                prev = self._models.get((up.stream, up.output))
+                if not is_newer(up, prev):
+                    self.stale += 1
+                    return
+                self._models[(up.stream, up.output)] = up
+                if is_newer(up, self.latest.get(up.stream)):
+                    self.latest[up.stream] = up
+                self._cond.notify_all()
+            self._deliver(up)
+
+    def latest_per_output(self, stream: str | None = None) -> dict[str, ModelUpdate]:
+        """The newest accepted model of each output of ``stream`` (default: the subscribed one), by output name."""
+        name = stream or self.stream
+        with self._lock:
+            return {out: up for (s, out), up in sorted(self._models.items()) if s == name}
+
+    def current(self, stream: str | None = None, output: str | None = None) -> ModelUpdate | None:
+        """The newest accepted model of ``output`` (None: the only output, or the first in name order)."""
+        return _pick(self.latest_per_output(stream), output)
+
+    def wait_for_version(
+        self, version: int, timeout_s: float, stream: str | None = None, output: str | None = None
+    ) -> ModelUpdate | None:
+        """Block until a model of at least ``version`` arrived (of ``output`` if given; None on timeout)."""
         name = stream or self.stream
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while True:
-                up = self.latest.get(name)
+                up = self.latest.get(name) if output is None else self._models.get((name, output))
                 if up is not None and up.version >= version:
                     return up
                 left = deadline - time.monotonic()
@@ -152,11 +289,9 @@ class ModelSubscriber:
                 self._cond.wait(left)
 
     def close(self) -> None:
-        """Undeclare the subscription (and close the session if it was opened here)."""
-        sub = getattr(self, "_sub", None)
-        if sub is not None:
-            sub.close()
-            self._sub = None
+        """Undeclare the subscriptions (and close the session if it was opened here)."""
+        while self._subs:
+            self._subs.pop().close()
         if self._owned:
             self._bus.close()
 
@@ -169,7 +304,9 @@ class ModelSubscriber:
         self.close()
 
 
-def _query(settings: Target, key: str, timeout_s: float, *, probe: dict[str, object] | None = None) -> list[tuple[str, bytes]]:
+def _query(
+    settings: Target, key: str, timeout_s: float, *, probe: dict[str, object] | None = None, all_replies: bool = False
+) -> list[tuple[str, bytes]]:
     """Query ``key`` until a reply or ``timeout_s``; ``probe`` receives ``reachable`` and ``where``."""
     if not timeout_s > 0:
         raise ConfigError(f"timeout_s must be > 0 seconds; got {timeout_s!r}")
@@ -178,7 +315,7 @@ def _query(settings: Target, key: str, timeout_s: float, *, probe: dict[str, obj
         deadline = time.monotonic() + timeout_s
         while True:  # declarations propagate asynchronously: retry until the deadline
             left = deadline - time.monotonic()
-            got = bus.get(key, timeout_s=max(0.05, min(left, 0.5)))
+            got = bus.get(key, timeout_s=max(0.05, min(left, 0.5)), all_replies=all_replies)
             if got or deadline - time.monotonic() <= 0:
                 if probe is not None:
                     probe["reachable"] = bool(got) or bus.wait_connected(0.0)
@@ -194,10 +331,45 @@ class _Raise:
     """Marker: no ``default`` given to :func:`latest_model`."""
 
 
+def _fetch(settings: Target, stream: str, timeout_s: float) -> tuple[dict[str, ModelUpdate], dict[str, object]]:
+    """The current accepted model of each output of ``stream`` from the replies of a query on its model key."""
+    check_stream_name(stream)
+    probe: dict[str, object] = {}
+    skips = _Skips(60.0)
+    best: dict[str, ModelUpdate] = {}
+    for key, payload in _query(settings, model_key(stream), timeout_s, probe=probe, all_replies=True):
+        up = _check(key, payload, skips)
+        if up is None:
+            continue
+        prev = best.get(up.output)
+        if prev is None or recency(up) > recency(prev):
+            best[up.output] = up
+    return best, probe
+
+
+def _nothing(stream: str, output: str | None, timeout_s: float, probe: dict[str, object],
+             models: dict[str, ModelUpdate]) -> Exception:
+    where = probe.get("where", "the endpoint")
+    if not probe.get("reachable"):
+        return NoDaemonError(
+            f"no daemon reachable at {where}: nothing answered within {timeout_s:g} s "
+            "(start `streamid daemon`, or pass the endpoint it listens on)"
+        )
+    if output is not None and models:
+        return NoModelYetError(
+            f"no model of output {output!r} of stream {stream!r} at {where}; outputs with a model: "
+            f"{', '.join(printable(o, 80) for o in sorted(models))} (pass output=None or one of these)"
+        )
+    return NoModelYetError(
+        f"no model of stream {stream!r} yet at {where}: the network answers, but no model was published "
+        f"within {timeout_s:g} s (is a device publishing on streamid/{stream}/samples? a first model takes one window)"
+    )
+
+
 def latest_model(
-    settings: Target, stream: str, timeout_s: float = 2.0, *, default: object = _Raise
+    settings: Target, stream: str, timeout_s: float = 2.0, *, output: str | None = None, default: object = _Raise
 ) -> ModelUpdate | None:
-    """The current model of ``stream`` from the daemon's queryable.
+    """The current model of ``stream`` (of one of its outputs) from the daemon's queryable.
 
     Parameters
     ----------
@@ -208,49 +380,53 @@ def latest_model(
         The stream's name.
     timeout_s
         How long to wait for an answer.
+    output
+        Which output's model (a stream with several outputs has one model per output);
+        None: the only one, or the first in name order.  :func:`latest_models` gives all.
     default
         Returned instead of raising when there is no model (either reason); e.g. ``default=None``.
+
+    Only accepted models are returned; replies that are malformed or name another stream
+    are skipped (counted in the log warning).  Of several replies for one output (e.g.
+    from two daemon lives), the one of the latest life wins, then the highest version.
 
     Raises
     ------
     NoDaemonError
         Nothing is reachable at the endpoint (no daemon, router or peer) within ``timeout_s``.
     NoModelYetError
-        The network is reachable but no model of ``stream`` was published yet.
+        The network is reachable but no model of ``stream`` (or of ``output``) was published yet.
     """
-    if stream != "*":
-        check_stream_name(stream)
-    best: ModelUpdate | None = None
-    probe: dict[str, object] = {}
-    for key, payload in _query(settings, model_key(stream), timeout_s, probe=probe):
-        try:
-            up = parse_model_update(payload)
-        except ModelFormatError as exc:
-            _log.warning("invalid model update from %s skipped: %s", key, exc)
-            continue
-        if best is None or up.version > best.version:
-            best = up
-    if best is not None:
-        return best
+    models, probe = _fetch(settings, stream, timeout_s)
+    up = _pick(models, output)
+    if up is not None:
+        return up
     if default is not _Raise:
         return default  # type: ignore[return-value]
-    where = probe.get("where", "the endpoint")
-    if not probe.get("reachable"):
-        raise NoDaemonError(
-            f"no daemon reachable at {where}: nothing answered within {timeout_s:g} s "
-            "(start `streamid daemon`, or pass the endpoint it listens on)"
-        )
-    raise NoModelYetError(
-        f"no model of stream {stream!r} yet at {where}: the network answers, but no model was published "
-        f"within {timeout_s:g} s (is a device publishing on streamid/{stream}/samples? a first model takes one window)"
-    )
+    raise _nothing(stream, output, timeout_s, probe, models)
 
 
-def latest_status(settings: Target, stream: str, timeout_s: float = 2.0) -> dict | None:
+def latest_models(settings: Target, stream: str, timeout_s: float = 2.0, *, default: Any = _Raise) -> dict[str, ModelUpdate]:
+    """The current model of every output of ``stream``, by output name (see :func:`latest_model`).
+
+    Raises
+    ------
+    NoDaemonError, NoModelYetError
+        As :func:`latest_model`, unless ``default`` is given (returned instead).
+    """
+    models, probe = _fetch(settings, stream, timeout_s)
+    if models:
+        return dict(sorted(models.items()))
+    if default is not _Raise:
+        return default
+    raise _nothing(stream, None, timeout_s, probe, models)
+
+
+def latest_status(settings: Target, stream: str, timeout_s: float = 2.0) -> dict[str, Any] | None:
     """The current status document of ``stream`` (None if none within ``timeout_s``)."""
     for key, payload in _query(settings, status_key(stream), timeout_s):
         try:
             return parse_status(payload)
         except ModelFormatError as exc:
-            _log.warning("invalid status from %s skipped: %s", key, exc)
+            _log.warning("invalid status from %s skipped: %s", printable(key, 200), exc)
     return None

@@ -384,16 +384,18 @@ class Bus:
                 return False
             time.sleep(0.01)
 
-    def get(self, key_expr: str, timeout_s: float = 1.0) -> list[tuple[str, bytes]]:
+    def get(self, key_expr: str, timeout_s: float = 1.0, *, all_replies: bool = False) -> list[tuple[str, bytes]]:
         """Query ``key_expr``; return the successful replies as ``(key, payload)``.
 
-        Waits at most ``timeout_s``; error replies are skipped.
+        Waits at most ``timeout_s``; error replies are skipped.  Zenoh keeps one reply per
+        key by default; ``all_replies=True`` keeps every one (e.g. one per output on a model key).
         """
         self._check_open()
         if not timeout_s > 0:
             raise ConfigError(f"timeout_s must be > 0 seconds; got {timeout_s!r}")
         try:
-            replies = self._session.get(key_expr, timeout=float(timeout_s))
+            replies = self._session.get(key_expr, timeout=float(timeout_s),
+                                        consolidation=zenoh.ConsolidationMode.NONE if all_replies else None)
         except zenoh.ZError as exc:
             raise TransportError(f"get on {key_expr!r} failed ({exc})") from exc
         out: list[tuple[str, bytes]] = []

@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.errors import CodecError
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name, samples_key, u_key, y_key
+from streamid.wire.names import MAX_NAME_BYTES, UNSAFE_RULE, printable, unsafe_char
 from streamid.wire.protobuf import U64_MASK, fields, len_field, packed, signed, utf8, varint
 
 __all__ = [
@@ -58,8 +59,6 @@ SCHEMA_NAME = "streamid.SampleBatch"
 #: MCAP schema encoding and message encoding.
 SCHEMA_ENCODING = "protobuf"
 MESSAGE_ENCODING = "protobuf"
-#: Longest accepted channel name, in UTF-8 bytes.
-MAX_NAME_BYTES = 256
 
 #: The schema source, as shipped in ``streamid/data/sample_batch.proto``.
 PROTO_SOURCE = """\
@@ -111,10 +110,16 @@ def _check_name(name: object, role: str) -> str:
         raw = name.encode("utf-8")
     except UnicodeEncodeError as exc:
         raise CodecError(f"{role} channel name must be valid UTF-8 text; got {name!r}") from exc
-    if not raw or len(raw) > MAX_NAME_BYTES or any(ord(c) < 32 or ord(c) == 127 for c in name):
+    if not raw or len(raw) > MAX_NAME_BYTES:
         raise CodecError(
-            f"{role} channel name must be 1 to {MAX_NAME_BYTES} UTF-8 bytes without control "
-            f"characters; got {name!r}"
+            f"{role} channel name must be 1 to {MAX_NAME_BYTES} UTF-8 bytes with {UNSAFE_RULE}; "
+            f"got {len(raw)} bytes: '{printable(name, 80)}'"
+        )
+    bad = unsafe_char(name)
+    if bad is not None:
+        raise CodecError(
+            f"{role} channel name '{printable(name, 300)}' holds U+{ord(bad[1]):04X} at position {bad[0]}: "
+            f"channel names are 1 to {MAX_NAME_BYTES} UTF-8 bytes with {UNSAFE_RULE}"
         )
     return name
 

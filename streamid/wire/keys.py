@@ -2,13 +2,14 @@
 
 Every stream lives under ``streamid/<stream>/``:
 
-========================  =====================================================
-``streamid/<s>/samples``  sample batches carrying inputs and outputs together
-``streamid/<s>/u``        sample batches carrying inputs only (e.g. from a DAC)
-``streamid/<s>/y``        sample batches carrying outputs only (e.g. a sensor)
-``streamid/<s>/model``    identified models (JSON, ``streamid.model/1``)
-``streamid/<s>/status``   stream status (JSON)
-========================  =====================================================
+==========================  =====================================================
+``streamid/<s>/samples``    sample batches carrying inputs and outputs together
+``streamid/<s>/u``          sample batches carrying inputs only (e.g. from a DAC)
+``streamid/<s>/y``          sample batches carrying outputs only (e.g. a sensor)
+``streamid/<s>/model``      accepted models (JSON, ``streamid.model-update/1``)
+``streamid/<s>/rejected``   rejected challengers (JSON, ``streamid.model-update/1``)
+``streamid/<s>/status``     stream status (JSON, ``streamid.status/1``)
+==========================  =====================================================
 
 A stream name is one Zenoh chunk: 1-128 characters from ``A-Z a-z 0-9 _ - .``
 (no ``/``, no wildcard), so it is also a safe file-name component.
@@ -24,6 +25,7 @@ __all__ = [
     "PREFIX",
     "KINDS",
     "SAMPLE_KINDS",
+    "DOCUMENT_KINDS",
     "STREAM_NAME_RULE",
     "ALL_SAMPLES",
     "check_stream_name",
@@ -33,15 +35,18 @@ __all__ = [
     "u_key",
     "y_key",
     "model_key",
+    "rejected_key",
     "status_key",
     "parse_key",
 ]
 
 PREFIX = "streamid"
 #: Every kind of key under a stream.
-KINDS: tuple[str, ...] = ("samples", "u", "y", "model", "status")
+KINDS: tuple[str, ...] = ("samples", "u", "y", "model", "rejected", "status")
 #: The kinds that carry sample batches.
 SAMPLE_KINDS: tuple[str, ...] = ("samples", "u", "y")
+#: The kinds that carry the daemon's JSON documents (model updates and status).
+DOCUMENT_KINDS: tuple[str, ...] = ("model", "rejected", "status")
 #: Key expressions matching every sample batch of every stream.
 ALL_SAMPLES: tuple[str, ...] = tuple(f"{PREFIX}/*/{k}" for k in SAMPLE_KINDS)
 
@@ -91,6 +96,11 @@ def y_key(stream: str) -> str:
 def model_key(stream: str) -> str:
     """Key of published models: ``streamid/<stream>/model``."""
     return stream_key(stream, "model")
+
+
+def rejected_key(stream: str) -> str:
+    """Key of rejected challengers (``"accepted": false`` model updates): ``streamid/<stream>/rejected``."""
+    return stream_key(stream, "rejected")
 
 
 def status_key(stream: str) -> str:
