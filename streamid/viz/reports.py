@@ -25,10 +25,24 @@ __all__ = [
     "model_markdown",
     "fmt_metric",
     "TEST_LABELS",
+    "SERIES_STYLES",
 ]
 
 #: The five residual correlation tests (Billings & Voon): the engine's names and formulas (``ee: φ_ee(τ) = δ(τ)``).
 TEST_LABELS = {name: f"{name}: {formula}" for name, (formula, _) in TESTS.items()}
+
+#: Colour and legend name of each time series under ``streams/<stream>/`` (sent once per stream and file, static).
+SERIES_STYLES: dict[str, tuple[tuple[int, int, int], str]] = {
+    "validation/measured": ((230, 230, 230), "measured"),
+    "validation/osa": ((66, 150, 250), "one step ahead"),
+    "validation/free_run": ((250, 140, 40), "free run"),
+    "residual/osa": ((66, 150, 250), "one step ahead"),
+    "residual/free_run": ((250, 140, 40), "free run"),
+    "history/r2_osa": ((66, 150, 250), "R² one step ahead (validation)"),
+    "history/r2_fr": ((250, 140, 40), "R² free run (validation)"),
+    "history/identification_s": ((120, 200, 120), "identification time [s]"),
+    "history/latency_s": ((200, 120, 200), "window closed -> model published [s]"),
+}
 
 
 def parse_rerun_url(url: str) -> tuple[str, int]:
@@ -66,13 +80,20 @@ class VizSettings:
         How often the viewer link of ``connect`` is checked.
     application_id, recording_id
         Rerun identifiers.
-    rrd_rotate_mb, rrd_keep
-        When the ``.rrd`` file passes this size it is closed (footer written) and
-        continued in ``<stem>.001.rrd``, ``<stem>.002.rrd``...; only the newest
-        ``rrd_keep`` files are kept (default: 16 files of 64 MB).  A file sink
-        keeps per-chunk metadata in memory for its footer (about a quarter of
-        the file's size here): rotation bounds that memory on an endless run.
-        None: one file, never rotated.
+    rrd_rotate_mb, rrd_rotate_s
+        Close the ``.rrd`` (footer written) and continue in ``<stem>.001.rrd``,
+        ``<stem>.002.rrd``... once it passes ``rrd_rotate_mb`` or, if set, once it
+        is ``rrd_rotate_s`` old and something was drawn into it (see
+        :mod:`streamid.viz.rrd_files`).  A file sink keeps per-chunk metadata in
+        memory for its footer (about a quarter of the file's size here): rotation
+        bounds that memory on an endless run; rotating by time bounds what a
+        SIGKILL leaves without a footer to the newest ``rrd_rotate_s`` (the
+        ``streamid daemon`` command rotates every 5 s).  ``rrd_rotate_mb`` None:
+        one file, never rotated (``rrd_rotate_s`` is then ignored).
+    rrd_keep, rrd_max_mb
+        Keep at most this many segments and this many MB in all (default 4096
+        segments, 1024 MB); the oldest are removed first and counted
+        (:attr:`streamid.viz.rerun_view.Viz.file_stats`).
     max_points
         Longest series drawn per update (validation part and input-output plane
         are decimated by a stride beyond it).
@@ -87,7 +108,9 @@ class VizSettings:
     application_id: str = "streamid"
     recording_id: str | None = None
     rrd_rotate_mb: float | None = 64.0
-    rrd_keep: int = 16
+    rrd_rotate_s: float | None = None
+    rrd_keep: int = 4096
+    rrd_max_mb: float | None = 1024.0
     max_points: int = 1000
 
     def __post_init__(self) -> None:
@@ -99,6 +122,11 @@ class VizSettings:
             raise ConfigError(f"--rerun-serve must be a TCP port 1-65535; got {self.serve_port!r}")
         if self.rrd_rotate_mb is not None and not self.rrd_rotate_mb > 0:
             raise ConfigError(f"rrd_rotate_mb must be a size in MB > 0 or None; got {self.rrd_rotate_mb!r}")
+        if self.rrd_rotate_s is not None and not self.rrd_rotate_s > 0:
+            raise ConfigError(f"rrd_rotate_s (--rrd-rotate-s) must be a number of seconds > 0 or None; "
+                              f"got {self.rrd_rotate_s!r}")
+        if self.rrd_max_mb is not None and not self.rrd_max_mb > 0:
+            raise ConfigError(f"rrd_max_mb must be a size in MB > 0 or None; got {self.rrd_max_mb!r}")
         if not (isinstance(self.rrd_keep, int) and self.rrd_keep >= 1):
             raise ConfigError(f"rrd_keep must be an integer >= 1; got {self.rrd_keep!r}")
         if not (isinstance(self.max_points, int) and self.max_points >= 10):

@@ -36,27 +36,21 @@ stream's newest update at or before it.  The blueprint lays each stream out as
 a tab (in the order the streams were declared) and the time panel follows the
 newest data.  :func:`screenshot` renders an ``.rrd`` with the real viewer.
 
-Sinks: an ``.rrd`` file (footer written on :meth:`Viz.close`; continued in
-``<stem>.001.rrd``... once it passes ``rrd_rotate_mb``, because a file sink keeps
-per-chunk metadata in memory for its footer), a served gRPC endpoint bound to
-127.0.0.1 with a memory limit, and/or a viewer to connect to.  Each sink has
-its own recording stream (same recording id), so a file can be rotated without
-touching the served endpoint.  The SDK's gRPC client buffers
-without bound while it cannot reach a viewer, so the connection is probed with
-a plain TCP connect first: a viewer that is absent or goes away is reported once
-(a warning) and the live link is dropped -- identification and the file sink go
-on; the link is re-made when the viewer comes back.
+Sinks (:mod:`streamid.viz.sinks`): an ``.rrd`` file (footer written on
+:meth:`Viz.close`; continued in ``<stem>.001.rrd``... by size or time, old
+segments removed past stated bounds: :mod:`streamid.viz.rrd_files`), a served
+gRPC endpoint bound to 127.0.0.1 with a memory limit, and/or a viewer to
+connect to (probed first; dropped and re-made as it goes and comes).  Each sink
+has its own recording stream (same recording id), so a file can be rotated
+without touching the served endpoint.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 import os
-import socket
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -65,8 +59,11 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from streamid.viz.figures import COL_FR, COL_MEASURED, COL_OSA, CANVAS, Figure, fitness_figure, plane_figure, validation_figures
+from streamid.viz.rrd_files import RepairReport, repair
+from streamid.viz.sinks import Link, Sinks
 from streamid.viz.screenshot import render, rerun_cli
 from streamid.viz.reports import (
+    SERIES_STYLES,
     TEST_LABELS as _TEST_LABELS,
     UpdateReport,
     VizSettings,
@@ -75,9 +72,7 @@ from streamid.viz.reports import (
     parse_rerun_url,
 )
 
-__all__ = ["VizSettings", "UpdateReport", "Viz", "parse_rerun_url", "screenshot", "rerun_cli"]
-
-_log = logging.getLogger(__name__)
+__all__ = ["VizSettings", "UpdateReport", "Viz", "parse_rerun_url", "screenshot", "rerun_cli", "repair_rrd"]
 
 _COL_MEASURED, _COL_OSA, _COL_FR = COL_MEASURED, COL_OSA, COL_FR
 _COL_BAND = (150, 150, 150, 50)
@@ -114,11 +109,6 @@ class _Link:
             self.rec.set_sinks(rr.FileSink(path))
 
 
-def _rotated_path(path: str, index: int) -> str:
-    p = Path(path)
-    return str(p.with_name(f"{p.stem}.{index:03d}{p.suffix or '.rrd'}"))
-
-
 class Viz:
     """Rerun diagnostics of the daemon (thread-safe, never raises on a sink failure).
 
@@ -135,126 +125,45 @@ class Viz:
         self._streams: dict[str, None] = {}  # declared streams, in order (an ordered set)
         self._cold: dict[str, tuple[int, np.ndarray]] = {}  # latest cold run's (version, fitness) per stream
         self._time_kind: str | None = None
-        self._warned: set[str] = set()
         self._closed = False
-        self._file: _Link | None = None
-        self._serve: _Link | None = None
-        self._live: _Link | None = None
-        self._files: deque[str] = deque()
-        self._rotations = 0
-        self._next_probe = 0.0
-        if settings.rrd is not None:
-            try:
-                self._file = _Link(settings, self._rid, "file", settings.rrd)
-                self._files.append(settings.rrd)
-            except Exception as exc:  # noqa: BLE001 - an unwritable path must not stop identification
-                self._warn_once("file", f"rerun file {settings.rrd!r} could not be opened ({exc}); no .rrd is written")
-        if settings.serve_port is not None:
-            try:
-                self._serve = _Link(settings, self._rid, "serve")
-            except Exception as exc:  # noqa: BLE001 - a port in use must not stop identification
-                self._warn_once("serve", f"rerun endpoint on port {settings.serve_port} could not be served ({exc})")
-        self._probe(force=True)
 
-    # ---------------------------------------------------------------- sinks
-    def _warn_once(self, key: str, message: str) -> None:
-        if key not in self._warned:
-            self._warned.add(key)
-            _log.warning("%s", message)
+        def open_link(kind: str, path: str | None) -> Link:
+            return _Link(settings, self._rid, kind, path)
 
-    def _probe(self, *, force: bool = False) -> None:
-        """Check the viewer link of ``connect``; make or drop it."""
-        url = self.settings.connect
-        if url is None:
-            return
-        now = time.monotonic()
-        if not force and now < self._next_probe:
-            return
-        self._next_probe = now + self.settings.probe_every_s
-        host, port = parse_rerun_url(url)
-        try:
-            with socket.create_connection((host, port), timeout=0.2):
-                up = True
-        except OSError:
-            up = False
-        if up and self._live is None:
-            try:
-                self._live = _Link(self.settings, self._rid, "live")
-            except Exception as exc:  # noqa: BLE001
-                self._warn_once("live", f"rerun viewer at {url} refused the connection ({exc}); continuing without it")
-                return
-            self._warned.discard("live")
-            _log.info("streaming diagnostics to the rerun viewer at %s", url)
-            self._send_all_styles(self._live)
-            self._send_blueprint_to(self._live)
-        elif not up:
-            if self._live is not None:
-                self._warn_once("live", f"rerun viewer at {url} went away; identification continues without it")
-                self._drop_live()
-            else:
-                self._warn_once("live", f"no rerun viewer at {url}; identification continues without it")
+        self._sinks = Sinks(settings, open_link, self._greet)
+        self._warn_once = self._sinks.warn_once
+        self._sinks.open()
 
-    def _drop_live(self) -> None:
-        live, self._live = self._live, None
-        if live is None:
-            return
-        # the SDK waits up to 5 s for a lost viewer: never on the caller's thread
-        threading.Thread(target=_quiet_disconnect, args=(live.rec,), daemon=True, name="rerun-drop").start()
-
-    def _links(self) -> list[_Link]:
-        self._probe()
-        return [lk for lk in (self._file, self._serve, self._live) if lk is not None]
-
-    def _maybe_rotate(self) -> None:
-        """Continue the .rrd in a new file once it passed ``rrd_rotate_mb`` (footer written)."""
-        lim, old = self.settings.rrd_rotate_mb, self._file
-        if lim is None or old is None or old.path is None:
-            return
-        try:
-            if os.path.getsize(old.path) < lim * 1e6:
-                return
-        except OSError:
-            return
-        self._rotations += 1
-        path = _rotated_path(self.settings.rrd or old.path, self._rotations)
-        try:
-            new = _Link(self.settings, self._rid, "file", path)
-        except Exception as exc:  # noqa: BLE001
-            self._warn_once("rotate", f"rerun file rotation to {path!r} failed ({exc}); continuing in {old.path!r}")
-            return
-        try:
-            old.rec.log("events", rr.TextLog(f"continued in {path}"))
-            old.rec.flush(timeout_sec=1.0)
-        except Exception:  # noqa: BLE001
-            pass
-        _quiet_disconnect(old.rec)
-        self._file = new
-        self._files.append(path)
-        while len(self._files) > self.settings.rrd_keep:
-            gone = self._files.popleft()
-            try:
-                os.unlink(gone)
-            except OSError:
-                pass
-        self._send_all_styles(new)
-        self._send_blueprint_to(new)
-        new.rec.log("events", rr.TextLog(f"continued from {old.path}"))
-        _log.info("rerun diagnostics continue in %s", path)
+    @property
+    def _live(self) -> Link | None:
+        return self._sinks.live
 
     @property
     def files(self) -> list[str]:
-        """The .rrd files written so far and still kept (oldest first)."""
-        return list(self._files)
+        """The .rrd segments written so far and still kept (oldest first; the last one is open until :meth:`close`)."""
+        with self._lock:
+            return self._sinks.files()
+
+    @property
+    def file_stats(self) -> dict[str, int]:
+        """The .rrd segments: kept, their bytes, rotations so far, segments and bytes removed (empty without a file)."""
+        with self._lock:
+            return self._sinks.stats()
+
+    def _greet(self, link: Link) -> None:
+        self._send_all_styles(link)
+        self._send_blueprint_to(link)
 
     def _each(self, fn: Callable[[rr.RecordingStream], None]) -> None:
         with self._lock:
             if self._closed:
                 return
-            for lk in self._links():
+            for lk in self._sinks.links():
                 try:
                     fn(lk.rec)
                 except Exception as exc:  # noqa: BLE001 - diagnostics never stop the daemon
                     self._warn_once(f"log:{type(exc).__name__}", f"rerun logging failed ({exc}); continuing")
+            self._sinks.wrote()
 
     # ----------------------------------------------------------------- time
     def _tkind(self, t_ns: int) -> str:
@@ -281,29 +190,18 @@ class Viz:
             if stream in self._streams:
                 return
             self._streams[stream] = None
-            for lk in self._links():
+            for lk in self._sinks.links():
                 self._send_styles(lk.rec, stream)
                 self._send_blueprint_to(lk)
 
-    def _send_all_styles(self, link: _Link) -> None:
+    def _send_all_styles(self, link: Link) -> None:
         for stream in self._streams:
             self._send_styles(link.rec, stream)
 
     def _send_styles(self, rec: rr.RecordingStream, stream: str) -> None:
         base = f"streams/{stream}"
-        styles = {
-            "validation/measured": (_COL_MEASURED, "measured"),
-            "validation/osa": (_COL_OSA, "one step ahead"),
-            "validation/free_run": (_COL_FR, "free run"),
-            "residual/osa": (_COL_OSA, "one step ahead"),
-            "residual/free_run": (_COL_FR, "free run"),
-            "history/r2_osa": (_COL_OSA, "R² one step ahead (validation)"),
-            "history/r2_fr": (_COL_FR, "R² free run (validation)"),
-            "history/identification_s": ((120, 200, 120), "identification time [s]"),
-            "history/latency_s": ((200, 120, 200), "window closed -> model published [s]"),
-        }
         try:
-            for path, (col, name) in styles.items():
+            for path, (col, name) in SERIES_STYLES.items():
                 rec.log(f"{base}/{path}", rr.SeriesLines(colors=[col], names=name, widths=1.5), static=True)
         except Exception as exc:  # noqa: BLE001
             self._warn_once("styles", f"rerun styles not sent ({exc})")
@@ -363,7 +261,7 @@ class Viz:
             name=stream,
         )
 
-    def _send_blueprint_to(self, link: _Link) -> None:
+    def _send_blueprint_to(self, link: Link) -> None:
         try:
             link.rec.send_blueprint(self.blueprint())
         except Exception as exc:  # noqa: BLE001
@@ -384,9 +282,6 @@ class Viz:
     def log_update(self, r: UpdateReport) -> None:
         """Draw one identification update."""
         self._each(lambda rec: self._draw(rec, r))
-        with self._lock:
-            if not self._closed:
-                self._maybe_rotate()
 
     def _draw(self, rec: rr.RecordingStream, r: UpdateReport) -> None:
         base = f"streams/{r.stream}"
@@ -471,44 +366,15 @@ class Viz:
     def flush(self, timeout_s: float = 1.0) -> None:
         """Push buffered data to the file and served sinks (bounded wait)."""
         with self._lock:
-            for lk in (self._file, self._serve):
-                if lk is None:
-                    continue
-                try:
-                    lk.rec.flush(timeout_sec=timeout_s)
-                except Exception as exc:  # noqa: BLE001
-                    self._warn_once("flush", f"rerun flush incomplete ({exc})")
+            self._sinks.flush(timeout_s)
 
     def close(self, timeout_s: float = 1.0) -> None:
-        """Flush and disconnect every sink (writes the ``.rrd`` footer); idempotent."""
+        """Flush and disconnect every sink (writes the ``.rrd`` footer) within about ``timeout_s``; idempotent."""
         with self._lock:
             if self._closed:
                 return
-            self.flush(timeout_s)
             self._closed = True
-            links = [lk for lk in (self._file, self._serve) if lk is not None]
-            self._file = self._serve = None
-            self._drop_live()
-        if links:
-            done = threading.Event()
-
-            def _disc() -> None:
-                for lk in links:
-                    _quiet_disconnect(lk.rec)
-                done.set()
-
-            threading.Thread(target=_disc, daemon=True, name="rerun-close").start()
-            if not done.wait(max(timeout_s, 0.1)):
-                _log.warning("rerun sinks did not close within %.1f s", timeout_s)
-
-
-
-
-def _quiet_disconnect(rec: rr.RecordingStream) -> None:
-    try:
-        rec.disconnect()
-    except Exception:  # noqa: BLE001
-        pass
+        self._sinks.close(timeout_s)
 
 
 def _finite(v: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -517,15 +383,30 @@ def _finite(v: Sequence[float] | np.ndarray) -> np.ndarray:
 
 
 def screenshot(
-    rrd: str | os.PathLike[str],
+    rrd: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     png: str | os.PathLike[str],
     *,
     window_size: str = "1280x800",
     timeout_s: float = 90.0,
     settle_s: float = 4.0,
 ) -> Path:
-    """Render ``rrd`` with the real Rerun viewer, headless, into ``png`` (see :func:`streamid.viz.screenshot.render`)."""
+    """Render ``rrd`` (one .rrd or several, e.g. the segments of a recording) with the real Rerun viewer,
+    headless, into ``png`` (see :func:`streamid.viz.screenshot.render`)."""
     from rerun.experimental import ViewerClient
 
     return render(rrd, png, connect=ViewerClient.connect, window_size=window_size, timeout_s=timeout_s,
                   settle_s=settle_s)
+
+
+def count_chunks(path: str | os.PathLike[str]) -> int:
+    """Data chunks of every recording in the .rrd at ``path`` (blueprints not counted)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(Path(path))
+    return sum(len(reader.stream(store=entry).to_chunks()) for entry in reader.recordings())
+
+
+def repair_rrd(src: str | os.PathLike[str], out: str | os.PathLike[str] | None = None, *,
+               timeout_s: float = 300.0) -> RepairReport:
+    """A verified copy of a damaged .rrd (see :func:`streamid.viz.rrd_files.repair`), chunks counted by the SDK."""
+    return repair(src, out, rerun=rerun_cli(), count_chunks=count_chunks, timeout_s=timeout_s)

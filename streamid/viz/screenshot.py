@@ -17,7 +17,7 @@ import socket
 import subprocess
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +42,7 @@ def rerun_cli() -> str:
 
 
 def render(
-    rrd: str | os.PathLike[str],
+    rrd: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     png: str | os.PathLike[str],
     *,
     connect: Callable[[str], Any],
@@ -50,7 +50,9 @@ def render(
     timeout_s: float = 90.0,
     settle_s: float = 4.0,
 ) -> Path:
-    """Render ``rrd`` with the real Rerun viewer, headless, into ``png``; returns the path of the PNG.
+    """Render ``rrd`` (one .rrd, or several shown together) with the real Rerun viewer, headless, into ``png``.
+
+    Returns the path of the PNG.
 
     Starts ``rerun --headless`` (the viewer of rerun-sdk, bound to 127.0.0.1 on a
     free port), opens the recording through the viewer's control API, waits until
@@ -69,15 +71,19 @@ def render(
     Raises
     ------
     FileNotFoundError
-        If ``rrd`` or the ``rerun`` command does not exist.
+        If a file of ``rrd`` or the ``rerun`` command does not exist.
     ConfigError
         If ``window_size`` is not ``WIDTHxHEIGHT``.
     RuntimeError
         If the viewer cannot start, load the recording or render (the message says why and what to install).
     """
-    src = Path(rrd).resolve()
-    if not src.is_file():
-        raise FileNotFoundError(f"no .rrd file to render at {str(src)!r}")
+    srcs = [Path(f).resolve() for f in ([rrd] if isinstance(rrd, (str, os.PathLike)) else rrd)]
+    if not srcs:
+        raise FileNotFoundError("no .rrd file to render: give at least one")
+    for src in srcs:
+        if not src.is_file():
+            raise FileNotFoundError(f"no .rrd file to render at {str(src)!r}")
+    name = srcs[0].name if len(srcs) == 1 else f"{srcs[0].name} and {len(srcs) - 1} more"
     out = Path(png)
     if not (isinstance(window_size, str) and len(window_size.split("x")) == 2
             and all(p.isdigit() and int(p) > 0 for p in window_size.split("x"))):
@@ -98,7 +104,7 @@ def render(
             said.seek(0)
             tail = " | ".join(said.read().decode(errors="replace").strip().splitlines()[-4:])
             return RuntimeError(
-                f"the Rerun viewer could not render {src.name}: {why}. Without a GPU it needs a Vulkan software "
+                f"the Rerun viewer could not render {name}: {why}. Without a GPU it needs a Vulkan software "
                 f"rasteriser (Debian/Ubuntu: apt-get install mesa-vulkan-drivers). Viewer said: {tail or '(nothing)'}"
             )
 
@@ -115,7 +121,7 @@ def render(
                     time.sleep(0.05)
             try:
                 viewer = connect(f"rerun+http://127.0.0.1:{port}/proxy")
-                viewer.open(str(src))
+                viewer.open([str(src) for src in srcs])
                 while viewer.get_state().loading:
                     if time.monotonic() > deadline or proc.poll() is not None:
                         raise fail(f"loading the recording did not finish within {timeout_s:.0f} s")
@@ -148,7 +154,7 @@ def render(
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait(timeout=10)
     if not img.startswith(b"\x89PNG"):
-        raise RuntimeError(f"the Rerun viewer returned no PNG picture for {src.name} ({len(img)} bytes)")
+        raise RuntimeError(f"the Rerun viewer returned no PNG picture for {name} ({len(img)} bytes)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".part")
     tmp.write_bytes(img)
