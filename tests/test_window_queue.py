@@ -72,8 +72,8 @@ def test_queue_keeps_the_newest_windows_in_order_up_to_its_bound() -> None:
     assert c["pending_windows"] == 0 and c["pending_bytes"] == 0 and c["pending"] is False
 
 
-def test_default_bound_of_one_coalesces_as_before() -> None:
-    wb = make(100, 50)
+def test_a_bound_of_one_coalesces_to_the_newest() -> None:
+    wb = make(100, 50, max_pending_windows=1)
     for i in range(40):
         wb.append(batch(i, 10 * i, 10))
     c = wb.counters()
@@ -132,7 +132,7 @@ def test_max_pending_windows_is_validated(bad: object) -> None:
 
 def test_max_pending_windows_from_toml_and_print_config() -> None:
     cfg = config_from_mapping({"defaults": {"window_s": 4.0}, "streams": {"mr": {"max_pending_windows": 16}}})
-    assert cfg.defaults.max_pending_windows == 1
+    assert cfg.defaults.max_pending_windows == 1000 and cfg.defaults.max_pending_bytes == 64 * 2**20
     assert cfg.for_stream("mr").max_pending_windows == 16
     assert cfg.for_stream("mr").window_params().max_pending_windows == 16
     assert cfg.for_stream("mr").to_dict()["max_pending_windows"] == 16
@@ -175,3 +175,42 @@ def test_property_queue_accounting_and_true_windows(sizes: list[int], limit: int
     assert c.get("windows_closed", 0) == taken + c.get("windows_coalesced", 0) + c["pending_windows"]
     assert c["pending_bytes"] == c["pending_windows"] * 30 * 2 * 8
     assert np.isfinite(c["pending_bytes"])
+
+
+def _feed(wb: WindowBuffer, n_batches: int, speed: float | None) -> None:
+    """100-sample batches (0.1 s at 1 kHz) arriving at ``speed`` x real time (None: no clock given)."""
+    for i in range(n_batches):
+        now = 0 if speed is None else int(1e9 + i * 100 * P / speed)
+        wb.append(batch(i, i * 100, 100), now_ns=now)
+
+
+@pytest.mark.parametrize("speed", [None, 2.0, 1000.0])
+def test_stream_time_faster_than_the_clock_queues_every_window_in_order(speed: float | None) -> None:
+    wb = make(500, 100, max_pending_windows=1000)  # a window closes every 100 samples (the StreamConfig default bound)
+    _feed(wb, 40, speed)
+    wins = _take_all(wb)
+    c = wb.counters()
+    assert len(wins) == c["windows_closed"] == 36 and c.get("windows_coalesced", 0) == 0 and not c["live"]
+    ends = [int(check_window(w)[-1]) for w in wins]
+    assert ends == list(range(499, 4000, 100))
+
+
+def test_a_live_stream_that_falls_behind_keeps_only_the_newest_window() -> None:
+    wb = make(500, 100, max_pending_windows=1000)
+    _feed(wb, 40, 1.0)
+    c = wb.counters()
+    assert c["live"] and c["pending_windows"] == 1 and c["windows_coalesced"] == c["windows_closed"] - 1
+    assert int(check_window(_take_all(wb)[0])[-1]) == 3999  # the newest
+
+
+def test_the_byte_bound_drops_the_oldest_waiting_windows() -> None:
+    wb = make(500, 100, max_pending_windows=1000, max_pending_bytes=5 * 500 * 2 * 8)  # five windows of 500 samples x 2 signals
+    _feed(wb, 40, None)
+    c = wb.counters()
+    assert c["pending_windows"] == 5 and c["pending_bytes_peak"] <= 5 * 500 * 16 == c["pending_bytes_max"]
+    assert c["windows_coalesced"] == 31 and int(check_window(_take_all(wb)[0])[-1]) == 3599
+
+
+def test_max_pending_bytes_is_validated() -> None:
+    with pytest.raises(ConfigError, match=r"max_pending_bytes must be an integer number of bytes >= 1; got 0"):
+        StreamConfig(max_pending_bytes=0)

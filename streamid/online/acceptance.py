@@ -1,8 +1,24 @@
-"""Whether an update's candidate becomes the current model, and the :class:`Update` that says so.
+"""Whether an update's candidate (the *challenger*) replaces the served model (the *champion*).
 
-The rule (:func:`judge`): the candidate's predictions and figures on the held-out newest
-part of its window are finite, its one-step-ahead R^2 there reaches ``min_r2_osa`` and its
-free-run R^2 reaches ``min_r2_fr`` (:class:`~streamid.online.StreamConfig`).
+Both are evaluated on the same data: the held-out newest part of the window just
+identified, which neither was fitted on (the champion was fitted on an older
+window, whose estimation part ends before this window's held-out part begins).
+The rule (:func:`decide`), in order:
+
+1. The challenger must be *valid*: finite predictions and figures, one-step-ahead
+   R^2 >= ``min_r2_osa`` and free-run R^2 >= ``min_r2_fr`` (:func:`judge`).
+   Otherwise it is rejected (``validation``).
+2. With no champion yet, a valid challenger is accepted (``first``); also when the
+   champion cannot run on the current data (its signals changed: ``champion_inapplicable``).
+3. It is accepted if its free-run R^2 beats the champion's by at least
+   ``challenger_margin`` (``better``), or if the champion itself is no longer valid on
+   the current data (free-run or OSA R^2 below the floors, or not finite) and the
+   challenger's free run is better at all (``champion_invalid``).
+4. Otherwise it is rejected (``not_better``) and the champion stays, its current-data
+   figures recorded.
+
+Free-run R^2 decides because a controller or simulator consumes the model's free
+run; the one-step-ahead figure only has to pass its floor.
 """
 
 from __future__ import annotations
@@ -17,7 +33,26 @@ from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome
 from streamid.online.window_types import Event, Window
 
-__all__ = ["Update", "judge"]
+__all__ = ["Decision", "Update", "decide", "judge"]
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Why a challenger was accepted or rejected (see the module docstring)."""
+
+    accepted: bool
+    code: str
+    reason: str
+    margin: float
+    champion: dict[str, Any] | None = None  # {"version", "r2_fr_val", "r2_osa_val"} of the champion on the same data
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (non-finite figures as null)."""
+        champ = None
+        if self.champion is not None:
+            champ = {k: (v if not isinstance(v, float) or np.isfinite(v) else None) for k, v in self.champion.items()}
+        return {"accepted": self.accepted, "code": self.code, "reason": self.reason, "margin": self.margin,
+                "champion": champ}
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,7 +64,8 @@ class Update:
     kind
         ``"accepted"``, ``"rejected"``, ``"failed"`` or ``"dropped"``.
     reason, code
-        Why it was not accepted (empty when it was), in words and as a short key.
+        Why, in words and as a short key: the decision's (``first``, ``better``, ``not_better``,
+        ``validation`` ...) for an identified window, else why it failed or was dropped.
     version
         The version served after this update: the new one when accepted, else the previous.
     window
@@ -37,9 +73,17 @@ class Update:
     outcome
         The run's details: the candidate model, its validation figures, the fitness history...
     document, payload
-        The model update document (``streamid.model-update/1``) and its JSON bytes, when accepted.
+        The model update document (``streamid.model-update/1``) and its JSON bytes: the accepted model, or
+        the rejected challenger (``"accepted": false``; None if it had no finite figures).
     event
         The ``update.<kind>`` event.
+    output
+        The output the model predicts.
+    decision
+        Why it was accepted or rejected (None for failed/dropped updates).
+    saved
+        Whether the identifier's state was saved after it (False: ``persist`` failed; the model is
+        published anyway, see :meth:`~streamid.online.OnlineIdentifier.finish`).
     """
 
     kind: str
@@ -51,6 +95,9 @@ class Update:
     document: dict[str, Any] | None
     payload: bytes | None
     event: Event
+    output: str = ""
+    decision: Decision | None = None
+    saved: bool = True
 
     @property
     def accepted(self) -> bool:
@@ -82,3 +129,37 @@ def judge(outcome: Outcome, cfg: StreamConfig) -> list[str]:
     if not m.get("r2_fr_val", -np.inf) >= cfg.min_r2_fr:
         reasons.append(f"validation R² FR {m.get('r2_fr_val', float('nan')):.4g} < min_r2_fr {cfg.min_r2_fr:g}")
     return reasons
+
+
+def _fig(m: dict[str, Any] | None, key: str) -> float:
+    v = None if m is None else m.get(key)
+    return float(v) if isinstance(v, (int, float)) and np.isfinite(v) else -np.inf
+
+
+def decide(outcome: Outcome, cfg: StreamConfig, champion_version: int) -> Decision:
+    """Champion or challenger (see the module docstring); ``champion_version`` 0 means there is no champion."""
+    margin = float(cfg.challenger_margin)
+    reasons = judge(outcome, cfg)
+    champ = outcome.champion_metrics
+    champ_doc = None if champion_version == 0 or champ is None else {
+        "version": champion_version, "r2_fr_val": _fig(champ, "r2_fr_val"), "r2_osa_val": _fig(champ, "r2_osa_val")}
+    if reasons:
+        return Decision(False, "validation", "; ".join(reasons), margin, champ_doc)
+    m = outcome.summary.metrics if outcome.summary is not None else {}
+    fr, osa = _fig(m, "r2_fr_val"), _fig(m, "r2_osa_val")
+    if champion_version == 0:
+        return Decision(True, "first", f"first model (FR R² {fr:.4f}, OSA R² {osa:.4f} on held-out data)", margin)
+    if champ is None:
+        return Decision(True, "champion_inapplicable",
+                        f"champion v{champion_version} cannot run on the current signals", margin, champ_doc)
+    c_fr, c_osa = _fig(champ, "r2_fr_val"), _fig(champ, "r2_osa_val")
+    if fr >= c_fr + margin:
+        return Decision(True, "better", f"FR R² {fr:.4f} beats champion v{champion_version}'s {c_fr:.4f} on the same "
+                        f"held-out data by {fr - c_fr:.4f} >= margin {margin:g}", margin, champ_doc)
+    champion_valid = c_fr >= cfg.min_r2_fr and c_osa >= cfg.min_r2_osa
+    if not champion_valid and fr > c_fr:
+        return Decision(True, "champion_invalid", f"champion v{champion_version} no longer valid on current data "
+                        f"(FR R² {c_fr:.4f}, OSA R² {c_osa:.4f} vs floors {cfg.min_r2_fr:g}/{cfg.min_r2_osa:g}); "
+                        f"challenger FR R² {fr:.4f}", margin, champ_doc)
+    return Decision(False, "not_better", f"FR R² {fr:.4f} not better than champion v{champion_version}'s {c_fr:.4f} "
+                    f"on the same held-out data by margin {margin:g}", margin, champ_doc)

@@ -19,15 +19,22 @@ into an :class:`~streamid.online.update.UpdateJob`), :meth:`UpdateJob.run
 :meth:`~OnlineIdentifier.finish` (fast: judges the candidate, numbers the version).  At most
 one job is out at a time: each warm start continues the previous run.
 
-**Acceptance.**  A candidate is accepted when its predictions and figures on the held-out
-newest part of the window are finite, its one-step-ahead R^2 there reaches
-``min_r2_osa`` and its free-run R^2 reaches ``min_r2_fr``; it then becomes the current model
-with the next version.  Otherwise the update is *rejected* (the model is not finite or
-not good enough), *failed* (the engine raised) or *dropped* (the window cannot be
-identified: too short, constant signal, missing output), the current model stays and the
-stream is marked degraded with the reason.  After ``cold_after_failures`` failed updates in a
-row the next run starts cold; a run whose signals, period or search size differ from the
-populations' starts cold too.
+**Champion and challenger.**  Each modelled output (every output of the stream, or
+``config.output``) has a served model, its *champion*.  An update's candidate, the
+*challenger*, and the champion are evaluated on the same held-out newest part of the
+window; the challenger becomes the champion, with the next version of the stream, only by
+the rule of :mod:`streamid.online.acceptance` (valid, and better by ``challenger_margin``
+or the champion no longer valid on current data).  Otherwise the update is *rejected*
+(``code`` says why: ``not_better`` keeps a good champion, ``validation`` a challenger below
+the floors), *failed* (the engine raised) or *dropped* (the window cannot be identified:
+too short, constant signal, missing output) and the champion stays.  After
+``cold_after_failures`` failed or invalid updates in a row the next run starts cold; a run
+whose signals, period or search size differ from the populations' starts cold too.
+
+**Drift.**  Between updates, every sample pushed is predicted one step ahead by the
+champion and the residual level watched by a Page-Hinkley test
+(:mod:`streamid.online.drift`).  A ``drift`` event then makes the next identification of
+that output use only the data from the estimated change on, with ``drift_generations``.
 
 Everything that happens comes back as a value: :meth:`push` returns the
 :class:`~streamid.online.window_types.Event` s it raised (gap, reset, refused batch, window
@@ -38,8 +45,8 @@ newest 256 events are also kept for :meth:`drain_events`.  Times the caller want
 
 from __future__ import annotations
 
-from collections import Counter, deque
-from collections.abc import Callable, Sequence
+from collections import Counter
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -47,31 +54,30 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine import CoEAState, EvalHelper, Model
 from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidError
-from streamid.online.acceptance import Update, judge
-from streamid.online.arrays_in import batch_of, columns, signal_names
+from streamid.online.acceptance import Decision, Update, decide
+from streamid.online.drift import DriftSettings
+from streamid.online.head import OutputHead
+from streamid.online.intake import EVENTS_KEPT, StreamIntake
 from streamid.online.snapshot import StreamState
+from streamid.online.status import stream_status
 from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome, StopFlag, UpdateJob
-from streamid.online.window import WindowBuffer
-from streamid.online.window_types import BatchLike, Event
-from streamid.wire.documents import STATUS_FORMAT, encode_json, model_update_message
+from streamid.online.window_types import Window
+from streamid.wire.documents import encode_json, model_update_message
 from streamid.wire.keys import check_stream_name
 
-__all__ = ["OnlineIdentifier", "Update", "Persist"]
+__all__ = ["OnlineIdentifier", "Update", "Persist", "EVENTS_KEPT"]
 
-#: Events kept for :meth:`OnlineIdentifier.drain_events` (the newest; older ones are dropped, counted).
-EVENTS_KEPT = 256
-
-#: Called by :meth:`OnlineIdentifier.finish` with the state after an accepted update, before it
-#: is returned: an exception (``OSError``, ``ValueError``, ``ModelFormatError``) undoes the update.
+#: Called by :meth:`OnlineIdentifier.finish` with the state after an accepted update, before it is
+#: returned.  If it raises (``OSError``, ``ValueError``, ``ModelFormatError``) the update still stands
+#: (``Update.saved`` is False, the status says ``state_saved: false``): versions stay unique in memory.
 Persist = Callable[[StreamState], object]
 
-_UPDATE_KINDS = ("accepted", "rejected", "failed", "dropped")
-#: Samples of the first batch :meth:`OnlineIdentifier.learn_many` makes of a long record (the period is not known yet).
-_FIRST_CHUNK = 256
+#: A windows' cut after a drift is used only if it keeps at least this fraction of the window.
+_MIN_CUT_FRACTION = 0.25
 
 
-class OnlineIdentifier:
+class OnlineIdentifier(StreamIntake):
     """Online identification of one stream (single-threaded; see the module docstring).
 
     Parameters
@@ -81,6 +87,9 @@ class OnlineIdentifier:
         an update every second).
     stream
         The stream's name (``[A-Za-z0-9_.-]{1,128}``), used in windows, events and documents.
+    origin
+        Who publishes the documents (e.g. ``{"daemon": "...", "epoch_ns": ...}``): copied into each
+        model-update document so a subscriber recognises a restarted or another publisher.
 
     Examples
     --------
@@ -91,118 +100,31 @@ class OnlineIdentifier:
     >>> ident = OnlineIdentifier(cfg, stream="damper")
     >>> events = ident.learn_many(t_ns, u, y, inputs=["velocity_cm_s"], outputs=["force_N"])
     >>> [(up.kind, up.version) for up in ident.update_all()]  # doctest: +SKIP
-    [('accepted', 1), ('accepted', 2), ('accepted', 3)]
+    [('accepted', 1), ('rejected', 1), ('accepted', 2)]
     """
 
-    def __init__(self, config: StreamConfig | None = None, *, stream: str = "stream") -> None:
-        self.config = StreamConfig() if config is None else config
-        if not isinstance(self.config, StreamConfig):
-            raise ConfigError(f"config must be a StreamConfig; got {type(self.config).__name__}")
-        self.stream = check_stream_name(stream)
-        self._buffer = WindowBuffer(self.stream, self.config.window_params())
-        self._version = 0
-        self._model: Model | None = None
-        self._document: dict[str, Any] | None = None
-        self._payload: bytes | None = None
-        self._coea_state: CoEAState | None = None
-        self._signature: dict[str, Any] | None = None
-        self._failures_in_row = 0
+    def __init__(
+        self, config: StreamConfig | None = None, *, stream: str = "stream", origin: Mapping[str, Any] | None = None
+    ) -> None:
+        config = StreamConfig() if config is None else config
+        if not isinstance(config, StreamConfig):
+            raise ConfigError(f"config must be a StreamConfig; got {type(config).__name__}")
+        super().__init__(config, check_stream_name(stream))
+        self.origin = dict(origin) if origin is not None else None
+        self._drift = DriftSettings() if self.config.drift_detection else None
+        self._version = 0  # the stream's highest version handed out (one counter over all outputs)
+        self._floor = 0  # versions handed out are above this (raise_version_floor)
+        self._heads: dict[str, OutputHead] = {}
+        self._todo: list[str] = []  # outputs of the window being identified still to do
+        self._window: Window | None = None
         self._job: UpdateJob | None = None
         self._outcomes: Counter[str] = Counter()
+        self._decisions: Counter[str] = Counter()
         self._drop_reasons: Counter[str] = Counter()
         self._last: dict[str, Any] = {}
         self._degraded_reason = ""
-        self._events: deque[Event] = deque(maxlen=EVENTS_KEPT)
-        self._events_dropped = 0
-        self._seq = 0
-        self._staged: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
-
-    # ---------------------------------------------------------------- samples in
-    def push(self, batch: BatchLike, *, source: str = "samples", now_ns: int = 0) -> list[Event]:
-        """Add one batch of samples; returns the events it raised.
-
-        ``source`` is the key the batch came on (``samples``, or ``u`` / ``y`` for inputs
-        and outputs published apart, aligned by time).  ``now_ns`` is the caller's clock
-        reading (kept with the windows this batch closes).  Never raises for bad data: a
-        refused batch is a ``bad.<why>`` event and a count in :meth:`status`.
-        """
-        self._buffer.append(batch, source, now_ns=now_ns)
-        return self._collect()
-
-    def learn_many(
-        self,
-        t_ns: ArrayLike,
-        u: ArrayLike,
-        y: ArrayLike,
-        *,
-        inputs: Sequence[str] | None = None,
-        outputs: Sequence[str] | None = None,
-        period_ns: int | None = None,
-        now_ns: int = 0,
-    ) -> list[Event]:
-        """Add samples given as arrays; returns the events they raised.
-
-        Parameters
-        ----------
-        t_ns : array_like of int, shape (N,)
-            Sample times in integer nanoseconds, strictly increasing.
-        u : array_like, shape (N,) or (N, n_inputs)
-        y : array_like, shape (N,) or (N, n_outputs)
-        inputs, outputs
-            Signal names (default ``u``/``u0, u1...`` and ``y``/``y0, y1...``).
-        period_ns
-            The sample period, when ``t_ns`` alone cannot tell it (a single first sample).
-
-        Raises
-        ------
-        DataError
-            If the arrays do not have the shapes above, or names do not match the columns.
-        """
-        t = np.atleast_1d(np.asarray(t_ns))
-        if t.ndim != 1 or t.dtype.kind not in "iu":
-            raise DataError(f"t_ns must be a 1-D array of integer nanoseconds; got dtype {t.dtype} shape {t.shape}")
-        ua = columns(u, t.size, "u")
-        ya = columns(y, t.size, "y")
-        in_names = signal_names(inputs, ua.shape[1], "u")
-        out_names = signal_names(outputs, ya.shape[1], "y")
-        if t.size == 0:
-            return []
-        if self._buffer.period_ns is None and period_ns is None and t.size == 1:
-            if self._staged is None:  # one sample cannot tell the period: wait for the next
-                self._staged = (int(t[0]), ua, ya)
-                return []
-            t0, u0, y0 = self._staged
-            t, ua, ya = np.r_[t0, t], np.vstack([u0, ua]), np.vstack([y0, ya])
-        self._staged = None
-        t = t.astype(np.int64)
-        events: list[Event] = []
-        a = 0
-        while a < t.size:
-            # at most one hop per batch: a long record closes every window it spans (the ring holds
-            # one window and a hop; a larger batch would overwrite windows before they close)
-            b = a + max(2, self._buffer.lengths[1] or _FIRST_CHUNK)
-            if t.size - b == 1:
-                b += 1  # never leave one sample alone: it cannot tell the period of a new stream
-            batch = batch_of(self.stream, self._seq, t[a:b], ua[a:b], ya[a:b], in_names, out_names,
-                             period_ns or self._buffer.period_ns or 0)
-            self._seq += 1
-            events += self.push(batch, now_ns=now_ns)
-            a = b
-        return events
-
-    def learn_one(
-        self, t_ns: int, u: float | ArrayLike, y: float | ArrayLike, *, period_ns: int | None = None, now_ns: int = 0
-    ) -> list[Event]:
-        """Add one sample (``u``, ``y``: a number or one value per signal); returns the events it raised."""
-        return self.learn_many(
-            np.array([t_ns], dtype=np.int64), np.atleast_2d(np.asarray(u, dtype=np.float64).ravel()),
-            np.atleast_2d(np.asarray(y, dtype=np.float64).ravel()), period_ns=period_ns, now_ns=now_ns,
-        )
-
-    def count_bad(self, kind: str, message: str = "", *, now_ns: int = 0) -> list[Event]:
-        """Count a bad message the caller found before the samples (e.g. undecodable bytes)."""
-        self._buffer.count_bad(kind, message, now_ns=now_ns)
-        return self._collect()
+        self._state_error = ""
+        self._watched = (0, 0)  # buffer position up to which the champions' residuals were watched
 
     # ---------------------------------------------------------------- identification
     @property
@@ -216,30 +138,52 @@ class OnlineIdentifier:
         return self._job is not None
 
     def next_job(self) -> UpdateJob | None:
-        """Take the oldest pending window as an :class:`UpdateJob` (None: nothing due, or a job is out)."""
+        """Take the next (window, output) to identify as an :class:`UpdateJob` (None: nothing due, or a job is out).
+
+        A window is identified once per modelled output, one job each, before the next window is taken.
+        """
         if self._job is not None:
             return None
-        window = self._buffer.take()
-        if window is None:
-            return None
+        if not self._todo:
+            window = self._buffer.take()
+            if window is None:
+                return None
+            self._window = window
+            self._todo = [self.config.output] if self.config.output is not None else list(window.output_names)
+        assert self._window is not None
+        window, output = self._window, self._todo.pop(0)
+        head = self._head(output)
+        cut, generations = None, None
+        if head.drift_t_ns is not None and head.drift_t_ns > window.t0_ns:
+            kept = (window.t_end_ns - head.drift_t_ns) / max(1, window.t_end_ns - window.t0_ns)
+            if kept >= _MIN_CUT_FRACTION:
+                cut = head.drift_t_ns
+        if head.escalate and (cut is not None or head.drift_t_ns is None or head.drift_t_ns <= window.t0_ns):
+            generations = self.config.drift_generations
         self._job = UpdateJob(
-            window, self.config, self._version + 1, self._coea_state, self._signature,
-            force_cold=self._failures_in_row >= self.config.cold_after_failures,
+            window, self.config, self._next_version(), head.coea_state, head.signature,
+            force_cold=head.failures_in_row >= self.config.cold_after_failures, output=output,
+            champion=head.model, generations=generations, cut_t_ns=cut,
         )
         return self._job
 
     def abandon(self, job: UpdateJob) -> None:
-        """Give up a job without a result (its window is not identified; e.g. the caller stops)."""
+        """Give up a job without a result (that output of its window is not identified; e.g. the caller stops)."""
         if job is self._job:
             self._job = None
 
-    def finish(self, job: UpdateJob, outcome: Outcome, *, now_ns: int = 0, persist: Persist | None = None) -> Update:
-        """Judge a job's outcome: accept it as the next version, or refuse it with the reason.
+    def raise_version_floor(self, version: int) -> None:
+        """Hand out only versions above ``version`` from now on (e.g. the highest seen on the network after lost state)."""
+        self._floor = max(self._floor, int(version))
 
-        ``now_ns`` is recorded as the document's ``published_unix_ns``.  ``persist``, when
-        given, is called with the new :meth:`state` before an accepted update is returned; if
-        it raises ``OSError``, ``ValueError`` or ``ModelFormatError`` the update is undone and
-        returned as failed (``state_not_saved``): a version is never handed out twice.
+    def finish(self, job: UpdateJob, outcome: Outcome, *, now_ns: int = 0, persist: Persist | None = None) -> Update:
+        """Judge a job's outcome: the challenger becomes the champion with the next version, or is refused.
+
+        ``now_ns`` is recorded as the document's ``published_unix_ns``.  ``persist``, when given, is
+        called with the new :meth:`state` before an accepted update is returned; if it raises
+        ``OSError``, ``ValueError`` or ``ModelFormatError`` the update still stands, ``Update.saved`` is
+        False and :meth:`status` reports ``state_saved: false`` with the error (versions stay unique:
+        they live in memory, and a daemon restart is recognised by the documents' ``origin``).
 
         Raises
         ------
@@ -249,57 +193,91 @@ class OnlineIdentifier:
         if job is not self._job:
             raise ValueError("finish() takes the job returned by this identifier's next_job(), once")
         self._job = None
-        w = job.window
+        w, head = job.window, self._head(job.output or "")
         self._outcomes_count(outcome)
-        self._last.update(identification_s=outcome.seconds, unix_ns=now_ns)
+        self._last.update(identification_s=outcome.seconds, unix_ns=now_ns, output=head.output)
         if outcome.kind != "identified":
             if outcome.kind == "failed":
-                self._failures_in_row += 1
+                head.failures_in_row += 1
             self._last["outcome"] = outcome.kind
             return self._refuse(job, outcome, outcome.kind, outcome.reason, outcome.code or outcome.kind, now_ns)
-        reasons = judge(outcome, self.config)
-        if reasons:
-            self._failures_in_row += 1
-            self._outcomes["rejected"] += 1
-            self._last["outcome"] = "rejected"
-            return self._refuse(job, outcome, "rejected", "; ".join(reasons), "validation", now_ns)
         assert outcome.model is not None and outcome.summary is not None
+        if job.generations is not None:
+            head.escalate = False
+        if outcome.champion_metrics is not None and head.model is not None:
+            head.current = {**outcome.champion_metrics, "t_ns": outcome.t_val_ns, "window": w.number,
+                            "version": head.version}
+        decision = decide(outcome, self.config, head.version)
+        self._decisions[decision.code] += 1
         metrics = {k: float(v) for k, v in outcome.summary.metrics.items()}
         model = outcome.model.with_metrics(**{k: v for k, v in metrics.items() if np.isfinite(v)})
+        version = self._next_version() if decision.accepted else head.version
         doc = model_update_message(
-            stream=self.stream, version=job.version, model=model.to_dict(), window=outcome.window_meta,
+            stream=self.stream, version=version, model=model.to_dict(), window=outcome.window_meta,
             metrics=metrics, warm=outcome.warm, generations=outcome.generations,
             identification_s=outcome.seconds, window_closed_unix_ns=w.received_ns, published_unix_ns=now_ns,
         )
+        doc.update(output=head.output, accepted=decision.accepted, decision=decision.to_dict())
+        if self.origin is not None:
+            doc["origin"] = self.origin
         try:
-            payload = encode_json(doc)
-        except ValueError as exc:  # NaN or infinity somewhere: never handed out
-            self._failures_in_row += 1
+            payload: bytes | None = encode_json(doc)
+        except ValueError:  # NaN or infinity somewhere: never handed out
+            payload = None
+        if decision.code == "not_better":  # a good champion: the search goes on from this run's populations
+            head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
+            head.wins += 1
+        if not decision.accepted:
+            self._outcomes["rejected"] += 1
+            self._last["outcome"] = "rejected"
+            if decision.code != "not_better":
+                head.failures_in_row += 1
+            return self._refuse(job, outcome, "rejected", decision.reason, decision.code, now_ns,
+                                decision=decision, document=doc if payload else None, payload=payload)
+        if payload is None:
+            head.failures_in_row += 1
             self._outcomes["failed"] += 1
-            return self._refuse(job, outcome, "failed", f"model document not finite ({exc})", "not_finite", now_ns)
-        prev = (self._version, self._model, self._document, self._payload, self._coea_state, self._signature)
-        self._version, self._model, self._document, self._payload = job.version, model, doc, payload
-        self._coea_state, self._signature = outcome.state, dict(outcome.signature)
+            return self._refuse(job, outcome, "failed", "model document not finite", "not_finite", now_ns)
+        return self._accept(job, outcome, head, model, decision, version, doc, payload, now_ns, persist)
+
+    def _accept(self, job: UpdateJob, outcome: Outcome, head: OutputHead, model: Model, decision: Decision,
+                version: int, doc: dict[str, Any], payload: bytes, now_ns: int, persist: Persist | None) -> Update:
+        w = job.window
+        if head.model is not None:
+            head.replaced += 1
+        self._version = version
+        head.version, head.document, head.payload = version, doc, payload
+        head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
+        L = model.max_lag
+        assert outcome.summary is not None
+        e = outcome.y_val[L:] - outcome.summary.osa_val[L:]
+        head.new_champion(model, float(np.mean(e * e)) if e.size else 0.0, self._drift, w.period_ns)
+        head.since_t_ns, head.since_unix_ns = w.t_end_ns, now_ns
+        saved = True
         if persist is not None:
             try:
                 persist(self.state(now_ns=now_ns))
+                self._state_error = ""
             except (OSError, ValueError, ModelFormatError) as exc:
-                (self._version, self._model, self._document, self._payload, self._coea_state, self._signature) = prev
-                self._outcomes["failed"] += 1
-                return self._refuse(job, outcome, "failed", f"state could not be saved ({exc}); model not published",
-                                    "state_not_saved", now_ns)
+                saved = False
+                if not self._state_error:
+                    self._event("state.not_saved", f"state could not be saved ({exc}); models are still published, "
+                                "versions kept unique in memory", w.t_end_ns, now_ns)
+                self._state_error = str(exc)[:300] or type(exc).__name__
         self._outcomes["accepted"] += 1
-        self._failures_in_row = 0
         self._degraded_reason = ""
-        self._last.update(outcome="accepted", r2_osa_val=metrics.get("r2_osa_val"),
-                          r2_fr_val=metrics.get("r2_fr_val"), model_unix_ns=now_ns)
+        m = outcome.summary.metrics
+        self._last.update(outcome="accepted", r2_osa_val=m.get("r2_osa_val"), r2_fr_val=m.get("r2_fr_val"),
+                          model_unix_ns=now_ns)
         ev = self._event(
             "update.accepted",
-            f"window {w.number}: model v{job.version} accepted ({'warm' if outcome.warm else 'cold'}, "
-            f"R² validation OSA {metrics.get('r2_osa_val', float('nan')):.4f} FR {metrics.get('r2_fr_val', float('nan')):.4f})",
+            f"window {w.number}: {head.output} model v{version} accepted ({'warm' if outcome.warm else 'cold'}, "
+            f"R² validation OSA {m.get('r2_osa_val', float('nan')):.4f} FR {m.get('r2_fr_val', float('nan')):.4f}; "
+            f"{decision.code})",
             w.t_end_ns, now_ns,
         )
-        return Update("accepted", "", "", job.version, w, outcome, doc, payload, ev)
+        return Update("accepted", decision.reason, decision.code, version, w, outcome, doc, payload, ev, head.output,
+                      decision, saved)
 
     def update(
         self,
@@ -310,7 +288,7 @@ class OnlineIdentifier:
         now_ns: int = 0,
         persist: Persist | None = None,
     ) -> Update | None:
-        """Identify the oldest pending window now, on this thread (None: nothing is due)."""
+        """Identify the oldest pending window (its next output) now, on this thread (None: nothing is due)."""
         job = self.next_job()
         if job is None:
             return None
@@ -331,78 +309,101 @@ class OnlineIdentifier:
     # ---------------------------------------------------------------- the current model
     @property
     def version(self) -> int:
-        """Version of the current model (0: none yet)."""
+        """The stream's newest version (of any output; 0: none yet)."""
         return self._version
 
     @property
+    def outputs(self) -> tuple[str, ...]:
+        """The outputs modelled so far, in the stream's order."""
+        return tuple(self._heads)
+
+    @property
     def model(self) -> Model | None:
-        """The current model (the last accepted), with its validation figures in ``metrics``."""
-        return self._model
+        """The champion of the first modelled output (``config.output``, or the stream's first), or None."""
+        head = self._primary()
+        return head.model if head is not None else None
+
+    @property
+    def models(self) -> dict[str, Model]:
+        """The champion of every modelled output that has one."""
+        return {k: h.model for k, h in self._heads.items() if h.model is not None}
 
     @property
     def document(self) -> dict[str, Any] | None:
-        """The current model's update document (``streamid.model-update/1``), or None."""
-        return self._document
+        """The champion's update document (``streamid.model-update/1``) of the first modelled output, or None."""
+        head = self._primary()
+        return head.document if head is not None else None
 
     @property
     def payload(self) -> bytes | None:
         """:attr:`document` as compact JSON bytes (what the daemon publishes), or None."""
-        return self._payload
+        head = self._primary()
+        return head.payload if head is not None else None
 
-    def predict_one(self) -> float | None:
-        """One-step-ahead prediction of the next output sample from the newest samples held.
+    @property
+    def payloads(self) -> tuple[bytes, ...]:
+        """Every output's champion document as JSON bytes (what a query on the model key is answered with)."""
+        return tuple(h.payload for h in self._heads.values() if h.payload is not None)
 
-        None if there is no model yet or fewer than ``max_lag`` complete samples are held
-        since the last gap or reset.  The model's lags start at 1, so no input at the
-        predicted instant is needed.
+    def predict_one(self, output: str | None = None) -> float | None:
+        """One-step-ahead prediction of the next sample of ``output`` (default: the first modelled) from the newest samples.
+
+        None if that output has no champion yet or fewer than ``max_lag`` complete samples are held
+        since the last gap or reset.  The model's lags start at 1, so no input at the predicted
+        instant is needed.
         """
-        m = self._model
-        if m is None:
+        head = self._primary() if output is None else self._heads.get(output)
+        m = head.model if head is not None else None
+        if head is None or m is None:
             return None
         recent = self._buffer.recent(m.max_lag)
-        if recent is None:
+        names = self._buffer.output_names
+        if recent is None or head.output not in names or recent[0].shape[1] != m.n_inputs:
             return None
         u, y = recent
-        col = self._output_column(y.shape[1])
-        if col is None or u.shape[1] != m.n_inputs:
-            return None
+        col = names.index(head.output)
         u1 = np.vstack([u, u[-1:]])  # the row of the predicted instant: its values are never used (lags >= 1)
         y1 = np.r_[y[:, col], y[-1, col]]
         return float(m.predict_osa(u1, y1)[-1])
 
-    def simulate(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
-        """Free run of the current model on inputs ``u`` from ``max_lag`` measured outputs ``y_init``.
+    def simulate(self, u: ArrayLike, y_init: ArrayLike, output: str | None = None) -> NDArray[np.float64]:
+        """Free run of an output's champion on inputs ``u`` from ``max_lag`` measured outputs ``y_init``.
 
         Raises
         ------
         DataError
-            If there is no model yet, or the data do not fit it.
+            If that output has no model yet, or the data do not fit it.
         """
-        if self._model is None:
-            raise DataError("no model yet: simulate() needs an accepted update first (see update())")
-        return self._model.simulate(u, y_init)
+        head = self._primary() if output is None else self._heads.get(output)
+        if head is None or head.model is None:
+            raise DataError(f"no model yet for output {output or 'of the stream'}: simulate() needs an accepted update")
+        return head.model.simulate(u, y_init)
 
     # ---------------------------------------------------------------- state
     def state(self, *, now_ns: int = 0) -> StreamState:
-        """What :meth:`from_state` resumes from: version, model document, populations, failures.
+        """What :meth:`from_state` resumes from: version, and per output the champion, populations, failures.
 
         The window's samples are not part of it: a resumed identifier starts with an empty
         window and its first run warm-starts from the populations.
         """
+        heads = list(self._heads.values())
+        first = heads[0].snapshot() if heads else {}
         return StreamState(
             stream=self.stream,
-            version=self._version,
-            signature=dict(self._signature or {}),
-            model_message=self._document,
-            coea_state=self._coea_state.to_json() if self._coea_state is not None else None,
+            version=max(self._version, self._floor),
+            signature=first.get("signature", {}),
+            model_message=first.get("model_message"),
+            coea_state=first.get("coea_state"),
             saved_unix_ns=now_ns,
-            failures_in_row=self._failures_in_row,
+            failures_in_row=first.get("failures_in_row", 0),
+            others={h.output: h.snapshot() for h in heads[1:]},
         )
 
     @classmethod
-    def from_state(cls, state: StreamState, config: StreamConfig | None = None) -> OnlineIdentifier:
+    def from_state(cls, state: StreamState, config: StreamConfig | None = None,
+                   origin: Mapping[str, Any] | None = None) -> OnlineIdentifier:
         """A new identifier that resumes from :meth:`state` (see :meth:`restore`)."""
-        ident = cls(config, stream=state.stream)
+        ident = cls(config, stream=state.stream, origin=origin)
         ident.restore(state)
         return ident
 
@@ -410,7 +411,7 @@ class OnlineIdentifier:
         """Resume from a saved state; returns warnings about the parts that could not be used.
 
         The version always carries over (numbers never repeat).  An unreadable model document
-        leaves no current model; unusable populations make the next run start cold.
+        leaves that output without a champion; unusable populations make its next run start cold.
 
         Raises
         ------
@@ -421,95 +422,103 @@ class OnlineIdentifier:
             raise ValueError(f"state of stream {state.stream!r} cannot resume stream {self.stream!r}")
         warnings: list[str] = []
         self._version = int(state.version)
-        self._failures_in_row = int(state.failures_in_row)
-        self._model = self._document = self._payload = None
-        if state.model_message is not None:
+        self._heads.clear()
+        parts: list[tuple[dict[str, Any], str | None]] = [({"version": state.version, "signature": state.signature, "model_message": state.model_message,
+                   "coea_state": state.coea_state, "failures_in_row": state.failures_in_row}, None)]
+        parts += [(v, k) for k, v in state.others.items()]
+        for part, name in parts:
+            self._restore_head(part, name, warnings)
+        return warnings
+
+    def _restore_head(self, part: dict[str, Any], name: str | None, warnings: list[str]) -> None:
+        msg, co = part.get("model_message"), part.get("coea_state")
+        model = None
+        if isinstance(msg, dict):
             try:
-                self._payload = encode_json(state.model_message)
-                self._model = Model.from_dict(state.model_message.get("model"))
-                self._document = dict(state.model_message)
+                encode_json(msg)
+                model = Model.from_dict(msg.get("model"))
             except (ValueError, StreamidError) as exc:
-                self._model = self._document = self._payload = None
                 warnings.append(f"saved model unusable ({exc}); no current model until the next update")
-        self._coea_state, self._signature = None, None
-        if state.coea_state is not None:
+                msg = None
+        else:
+            msg = None
+        output = name or (str(msg.get("output") or (model.output_name if model else "")) if msg else "")
+        if not output:
+            if co is None:
+                return
+            output = str((part.get("signature") or {}).get("output") or "y")
+        head = self._head(output)
+        fails = part.get("failures_in_row", 0)
+        head.failures_in_row = fails if isinstance(fails, int) and fails >= 0 else 0
+        v = part.get("version", 0)
+        if model is not None and msg is not None:
+            head.version = int(msg.get("version", v) if isinstance(msg.get("version", v), int) else 0)
+            head.document, head.payload = dict(msg), encode_json(msg)
+            head.new_champion(model, 0.0, None, 1)  # no drift watch until the next champion sets its residual level
+        if isinstance(co, str):
             try:
-                self._coea_state = CoEAState.from_json(state.coea_state)
-                self._signature = dict(state.signature)
+                head.coea_state = CoEAState.from_json(co)
+                head.signature = dict(part.get("signature") or {})
             except (StreamidError, ValueError) as exc:
                 warnings.append(f"saved populations unusable ({exc}); the next run starts cold")
-        return warnings
 
     # ---------------------------------------------------------------- status and events
     @property
     def degraded(self) -> bool:
-        """Whether the last update was not accepted (the reason is in :meth:`status`)."""
+        """Whether the last update was not accepted for a fault or an invalid challenger (reason in :meth:`status`)."""
         return bool(self._degraded_reason)
-
-    def counters(self) -> dict[str, object]:
-        """The window buffer's counters (samples, batches, bad input, gaps, resets, windows...)."""
-        return self._buffer.counters()
 
     def status(self, *, now_ns: int = 0) -> dict[str, Any]:
         """The ``streamid.status/1`` document of this stream (the daemon adds its own part)."""
-        c = self._buffer.counters()
-        return {
-            "format": STATUS_FORMAT,
-            "stream": self.stream,
-            "unix_ns": now_ns,
-            "degraded": self.degraded,
-            "degraded_reason": self._degraded_reason,
-            "version": self._version,
-            "busy": self.busy,
-            "samples_in": c.get("samples_in", 0),
-            "batches_in": c.get("batches_in", 0),
-            "bad": c["bad"],
-            "bad_total": c["bad_total"],
-            "last_bad": c.get("last_bad") or None,
-            "windows": {
-                "closed": c.get("windows_closed", 0),
-                "emitted": c.get("windows_emitted", 0),
-                "coalesced": c.get("windows_coalesced", 0),
-                "dropped": int(self._outcomes.get("dropped", 0)),
-                **{k: c[k] for k in ("pending", "pending_windows", "max_pending_windows", "pending_bytes",
-                                     "pending_windows_peak", "pending_bytes_peak", "pending_bytes_max")},
-            },
-            "identifications": {k: int(self._outcomes.get(k, 0)) for k in _UPDATE_KINDS},
-            "drop_reasons": dict(self._drop_reasons),
-            "failures_in_row": self._failures_in_row,
-            "last": {k: v for k, v in self._last.items() if v is not None},
-            "gaps": c.get("gaps", 0),
-            "gap_samples": c.get("gap_samples", 0),
-            "resets": c["resets"],
-            "unaligned": c.get("unaligned", 0),
-            "samples_discarded": c.get("samples_discarded", 0),
-            "events_dropped": self._events_dropped,
-            **{k: c[k] for k in ("period_ns", "window_samples", "hop_samples", "inputs", "outputs")},
-        }
-
-    def drain_events(self) -> list[Event]:
-        """Remove and return the events kept since the last call (the newest :data:`EVENTS_KEPT`)."""
-        self._collect()
-        out = list(self._events)
-        self._events.clear()
-        return out
+        return stream_status(
+            self.stream, self._buffer.counters(), list(self._heads.values()), now_ns=now_ns,
+            degraded_reason=self._degraded_reason, version=self._version, busy=self.busy,
+            outcomes=self._outcomes, decisions=self._decisions, drop_reasons=self._drop_reasons,
+            last=self._last, events_dropped=self._events_dropped, state_error=self._state_error,
+        )
 
     # ---------------------------------------------------------------- internals
-    def _collect(self) -> list[Event]:
-        new = self._buffer.drain_events()
-        for ev in new:
-            self._keep(ev)
-        return new
+    def _next_version(self) -> int:
+        return max(self._version, self._floor) + 1
 
-    def _keep(self, ev: Event) -> None:
-        if len(self._events) == self._events.maxlen:
-            self._events_dropped += 1
-        self._events.append(ev)
+    def _head(self, output: str) -> OutputHead:
+        head = self._heads.get(output)
+        if head is None:
+            head = self._heads[output] = OutputHead(output)
+        return head
 
-    def _event(self, kind: str, message: str, t_ns: int | None, now_ns: int) -> Event:
-        ev = Event(kind, f"{self.stream}: {message}", t_ns, now_ns)
-        self._keep(ev)
-        return ev
+    def _primary(self) -> OutputHead | None:
+        if self.config.output is not None:
+            return self._heads.get(self.config.output)
+        return next(iter(self._heads.values()), None)
+
+    def _watch(self, now_ns: int) -> None:
+        """Feed the champions' one-step-ahead residuals on the samples just completed to their drift monitors."""
+        before, self._watched = self._watched, self._buffer.position
+        (epoch, complete), heads = self._watched, [h for h in self._heads.values() if h.monitor is not None]
+        if not heads or epoch != before[0] or complete <= before[1]:
+            return
+        names = self._buffer.output_names
+        for head in heads:
+            m = head.model
+            if m is None or head.monitor is None or head.output not in names:
+                continue
+            n = min(complete - before[1] + m.max_lag, self._buffer.lengths[2])
+            got = self._buffer.recent(n)
+            if got is None:
+                continue
+            e = head.residuals(got[0], got[1][:, names.index(head.output)])
+            if e is None or not e.size:
+                continue
+            t_ns = self._buffer.times_ns(complete - e.size, e.size)
+            change_ns = head.monitor.update(t_ns, e)
+            if change_ns is not None:
+                head.drift_t_ns, head.escalate = change_ns, True
+                head.drifts += 1
+                self._event("drift", f"{head.output}: champion v{head.version}'s residual level rose "
+                            f"(last block {head.monitor.last_level:+.2f} log-MSE ratio); change estimated at stream "
+                            f"time {change_ns / 1e9:.2f} s: the next identification uses data from then on with "
+                            f"{self.config.drift_generations} generations", int(t_ns[-1]), now_ns)
 
     def _outcomes_count(self, outcome: Outcome) -> None:
         if outcome.kind == "dropped":
@@ -518,16 +527,12 @@ class OnlineIdentifier:
         elif outcome.kind == "failed":
             self._outcomes["failed"] += 1
 
-    def _refuse(self, job: UpdateJob, outcome: Outcome, kind: str, reason: str, code: str, now_ns: int) -> Update:
-        self._degraded_reason = reason[:500] or kind
-        w = job.window
-        ev = self._event(f"update.{kind}", f"window {w.number} {kind}: {reason}", w.t_end_ns, now_ns)
-        return Update(kind, reason, code, self._version, w, outcome, None, None, ev)
-
-    def _output_column(self, n_outputs: int) -> int | None:
-        names = self._buffer.output_names
-        want = self.config.output
-        if want is None:
-            return 0 if n_outputs else None
-        return names.index(want) if want in names else None
-
+    def _refuse(self, job: UpdateJob, outcome: Outcome, kind: str, reason: str, code: str, now_ns: int, *,
+                decision: Decision | None = None, document: dict[str, Any] | None = None,
+                payload: bytes | None = None) -> Update:
+        if code != "not_better":
+            self._degraded_reason = reason[:500] or kind
+        w, output = job.window, job.output or ""
+        ev = self._event(f"update.{kind}", f"window {w.number} {output} {kind}: {reason}", w.t_end_ns, now_ns)
+        version = self._heads[output].version if output in self._heads else 0
+        return Update(kind, reason, code, version, w, outcome, document, payload, ev, output, decision)

@@ -1,18 +1,23 @@
 """The bounded queue of closed windows waiting for identification (one per stream).
 
-``max_pending_windows`` (a per-stream setting, default 1) bounds it:
+Two regimes, decided by how fast stream time runs against the caller's clock
+(the ``now_ns`` of the batches; :class:`~streamid.online.window.WindowBuffer`
+measures it over the last 16 windows closed):
 
-* **1** (the default, for live streams): a window that closes while another one
-  is still waiting replaces it.  The worker always gets the newest data, and a
+* **Stream time faster than the clock** (at least :data:`FAST_SPEED` x: a log
+  replayed with ``--rate 4`` or ``--max-speed``; a record given to
+  ``learn_many`` without clock readings): every window waits its turn, oldest
+  first, so every window of the log is identified, in order.
+* **A live stream** (about 1x) that falls behind: a window that closes while
+  another one waits replaces it, so the worker always gets the newest data and a
   slow identification never builds a backlog.
-* **N > 1** (e.g. a log replayed at max speed, where every window should be
-  identified): up to N closed windows wait, oldest first; when a window closes
-  with N already waiting, the oldest waiting one is dropped.
 
-Either way the windows not identified are counted as *coalesced*, and the
-queue's memory is bounded by ``N * window_samples * (inputs + outputs) * 8``
-bytes (each window is a float64 copy of its samples), reported as
-``pending_bytes`` / ``pending_bytes_max`` in the stream's status.
+Both are bounded by ``max_pending_windows`` and ``max_pending_bytes`` (per
+stream settings, default 1000 windows and 64 MiB); past them the oldest waiting
+window is dropped.  Windows not identified are counted as *coalesced*; the
+queue's memory (each window is a float64 copy of its samples) is reported as
+``pending_bytes`` (peak ``pending_bytes_peak``, bound ``pending_bytes_max``) in
+the stream's status.
 """
 
 from __future__ import annotations
@@ -24,7 +29,10 @@ import numpy as np
 
 from streamid.online.window_types import MAX_PENDING_WINDOWS, Window
 
-__all__ = ["PendingWindows", "cut_block", "due_windows", "MAX_PENDING_WINDOWS"]
+__all__ = ["PendingWindows", "cut_block", "due_windows", "FAST_SPEED", "MAX_PENDING_WINDOWS"]
+
+#: Stream time running at least this many times faster than the caller's clock queues every window.
+FAST_SPEED = 1.25
 
 
 class PendingWindows:
@@ -34,12 +42,15 @@ class PendingWindows:
     ----------
     limit
         Most windows held; pushing one more drops the oldest.
+    max_bytes
+        Most bytes of window samples held (the newest window is always kept).
     """
 
-    def __init__(self, limit: int = 1) -> None:
+    def __init__(self, limit: int = 1, max_bytes: int = 64 * 2**20) -> None:
         if not (isinstance(limit, int) and not isinstance(limit, bool) and 1 <= limit <= MAX_PENDING_WINDOWS):
             raise ValueError(f"limit must be an integer in [1, {MAX_PENDING_WINDOWS}]; got {limit!r}")
         self.limit = limit
+        self.max_bytes = max_bytes
         self._q: deque[tuple[int, Window]] = deque()
         self._last_taken = 0  # closing index (1, 2, ... over all epochs) of the last window taken
         self.nbytes = 0
@@ -52,15 +63,19 @@ class PendingWindows:
     def __bool__(self) -> bool:
         return bool(self._q)
 
-    def push(self, closed_index: int, window: Window) -> int:
-        """Add a window (``closed_index``: its rank among all windows closed); returns how many were dropped."""
+    def push(self, closed_index: int, window: Window, *, newest_only: bool = False) -> int:
+        """Add a window (``closed_index``: its rank among all windows closed); returns how many were dropped.
+
+        ``newest_only``: drop every waiting window first (a live stream that fell behind).
+        """
         dropped = 0
-        while len(self._q) >= self.limit:
+        size = _bytes(window)
+        while self._q and (newest_only or len(self._q) >= self.limit or self.nbytes + size > self.max_bytes):
             _, old = self._q.popleft()
             self.nbytes -= _bytes(old)
             dropped += 1
         self._q.append((closed_index, window))
-        self.nbytes += _bytes(window)
+        self.nbytes += size
         self.peak = max(self.peak, len(self._q))
         self.peak_bytes = max(self.peak_bytes, self.nbytes)
         return dropped

@@ -9,7 +9,12 @@ were fitted to.  The daemon writes it to ``--state-dir``
 
     {"format": "streamid.daemon-state/1", "stream": ..., "version": 7,
      "signature": {...}, "model_message": {...}, "coea_state": "...",
-     "saved_unix_ns": ..., "failures_in_row": 0}
+     "saved_unix_ns": ..., "failures_in_row": 0,
+     "others": {"<output>": {"version": 5, "signature": {...}, "model_message": {...},
+                             "coea_state": "...", "failures_in_row": 0}, ...}}
+
+The top-level model fields belong to the stream's first modelled output; ``others``
+holds the same per further output of a stream with several (absent in older files).
 """
 
 from __future__ import annotations
@@ -47,6 +52,9 @@ class StreamState:
     failures_in_row
         Updates that failed since the last accepted one (the next run starts
         cold when it reaches ``cold_after_failures``).
+    others
+        The same per further modelled output (name -> {"version", "signature", "model_message",
+        "coea_state", "failures_in_row"}).
     """
 
     stream: str
@@ -56,6 +64,7 @@ class StreamState:
     coea_state: str | None = None
     saved_unix_ns: int = 0
     failures_in_row: int = 0
+    others: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_json(self) -> str:
         """The document written to disk (never NaN: ``allow_nan=False``)."""
@@ -69,6 +78,7 @@ class StreamState:
                 "coea_state": self.coea_state,
                 "saved_unix_ns": int(self.saved_unix_ns),
                 "failures_in_row": int(self.failures_in_row),
+                **({"others": self.others} if self.others else {}),
             },
             allow_nan=False,
             separators=(",", ":"),
@@ -103,8 +113,12 @@ class StreamState:
             )
         saved = doc.get("saved_unix_ns", 0)
         fails = doc.get("failures_in_row", 0)
+        others = doc.get("others", {})
+        if not isinstance(others, dict) or not all(isinstance(v, dict) for v in others.values()):
+            raise ModelFormatError(f"{source}: 'others' must be an object of per-output objects; got {others!r:.200}")
         return cls(
             str(stream), version, sig, msg, co,
             saved if isinstance(saved, int) and not isinstance(saved, bool) else 0,
             fails if isinstance(fails, int) and not isinstance(fails, bool) and fails >= 0 else 0,
+            {str(k): dict(v) for k, v in others.items()},
         )

@@ -14,7 +14,7 @@ from typing import Any
 
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import ConfigError
-from streamid.online.window_types import WindowParams
+from streamid.online.window_types import MAX_PENDING_WINDOWS, WindowParams
 
 __all__ = ["StreamConfig", "ONLINE_SELECTIONS", "ENGINE_RESERVED"]
 
@@ -47,20 +47,39 @@ class StreamConfig:
     output
         Which output is modelled when there are several (None: the first).
     min_r2_osa, min_r2_fr
-        A new model is published only if its one-step-ahead and free-run R^2 on
-        the validation part reach these; otherwise the stream is marked degraded
-        and the previous model stays current.
+        Floors of a valid model: a challenger is published only if its
+        one-step-ahead and free-run R^2 on the held-out part reach them, and a
+        champion whose figures on current data fall below them is replaced by any
+        better challenger (:mod:`streamid.online.acceptance`).  Defaults 0.5 and
+        0.5: a model that does not explain half of the output's variance in free
+        run is not worth serving to a controller, and no system of the tuning
+        suite needs a lower floor (docs/method.md).
+    challenger_margin
+        How much higher a challenger's free-run R^2 must be than the champion's,
+        on the same held-out data, to replace a valid champion (default 0.005:
+        about the spread of R^2 between restarts on a few seconds of data, so
+        a controller is not handed a new model for a difference that is noise).
+    drift_detection
+        Watch the champion's one-step-ahead residuals on incoming data with a
+        Page-Hinkley test (:mod:`streamid.online.drift`); on a drift, the next
+        identification of that output uses only the data after the estimated
+        change and runs ``drift_generations`` generations.
+    drift_generations
+        Generations of the identification after a drift (default 100, warm
+        from the previous populations: the lag structure usually survives a
+        parameter change, the centres and weights must move).
     max_abs_value
         Samples of larger magnitude are refused as absurd.
     cold_after_failures
         After this many failed updates in a row the next run starts cold.
-    max_pending_windows
-        How many closed windows may wait while an identification runs (1 to
-        1000).  1 (default): a newer window replaces the waiting one, the right
-        choice for a live stream.  More: e.g. a log replayed at max speed gets
-        every window identified, in order, up to this many behind; beyond it
-        the oldest waiting is dropped (coalesced).  Memory bound: this many
-        times ``window_samples * (inputs + outputs) * 8`` bytes per stream.
+    max_pending_windows, max_pending_bytes
+        Bounds of the queue of closed windows waiting for identification
+        (:mod:`streamid.online.pending`).  While stream time runs faster than
+        the caller's clock (a replayed log, ``learn_many`` on a record), every
+        window waits its turn, oldest first, up to these bounds (default 1000
+        windows and 64 MiB per stream; beyond them the oldest waiting window is
+        coalesced, counted).  A live stream that falls behind keeps only the
+        newest window (coalescing the rest).  1: always only the newest.
     engine
         Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs.
     """
@@ -81,10 +100,14 @@ class StreamConfig:
     outputs: tuple[str, ...] | None = None
     output: str | None = None
     min_r2_osa: float = 0.5
-    min_r2_fr: float = -1.0
+    min_r2_fr: float = 0.5
+    challenger_margin: float = 0.005
+    drift_detection: bool = True
+    drift_generations: int = 100
     max_abs_value: float = 1e12
     cold_after_failures: int = 3
-    max_pending_windows: int = 1
+    max_pending_windows: int = MAX_PENDING_WINDOWS
+    max_pending_bytes: int = 64 * 2**20
     engine: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
@@ -99,7 +122,7 @@ class StreamConfig:
             raise ConfigError(f"validation_fraction must be a number in [0.05, 0.9]; got {self.validation_fraction!r}")
         if self.output is not None and self.outputs is not None and self.output not in self.outputs:
             raise ConfigError(f"output must be one of outputs {list(self.outputs)}; got {self.output!r}")
-        for name in ("cold_generations", "warm_generations"):
+        for name in ("cold_generations", "warm_generations", "drift_generations"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be an integer >= 1; got {getattr(self, name)!r}")
         if self.cold_after_failures < 1:
@@ -109,6 +132,11 @@ class StreamConfig:
         for name in ("min_r2_osa", "min_r2_fr"):  # R^2 never exceeds 1: no model could ever be published
             if not getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must be a number <= 1 (R^2 never exceeds 1); got {getattr(self, name)!r}")
+
+        if not (isinstance(self.challenger_margin, (int, float)) and 0.0 <= self.challenger_margin <= 1.0):
+            raise ConfigError(f"challenger_margin must be a number in [0, 1] (an R^2 difference); got {self.challenger_margin!r}")
+        if not isinstance(self.drift_detection, bool):
+            raise ConfigError(f"drift_detection must be true or false; got {self.drift_detection!r}")
 
     def window_params(self) -> WindowParams:
         """The window geometry of this stream."""
@@ -121,16 +149,17 @@ class StreamConfig:
             outputs=self.outputs,
             max_abs_value=self.max_abs_value,
             max_pending_windows=self.max_pending_windows,
+            max_pending_bytes=self.max_pending_bytes,
         )
 
-    def coea_config(self, *, cold: bool) -> CoEAConfig:
-        """The engine configuration of a cold or a warm run."""
+    def coea_config(self, *, cold: bool, generations: int | None = None) -> CoEAConfig:
+        """The engine configuration of a cold or a warm run (``generations``: an escalated budget)."""
         return CoEAConfig(
             neurons=self.neurons,
             max_lag_y=self.max_lag_y,
             max_lag_u=self.max_lag_u,
             population=self.population,
-            generations=self.cold_generations if cold else self.warm_generations,
+            generations=generations or (self.cold_generations if cold else self.warm_generations),
             **dict(self.engine),
         )
 

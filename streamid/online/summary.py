@@ -20,7 +20,7 @@ import numpy as np
 from streamid.engine.validation import CorrelationTest, correlation_tests, r2
 from streamid.errors import DataError
 
-__all__ = ["ValidationSummary", "summarise"]
+__all__ = ["ValidationSummary", "r2_or_nan", "summarise"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,7 +42,8 @@ class ValidationSummary:
         )
 
 
-def _r2(y: np.ndarray, yhat: np.ndarray) -> float:
+def r2_or_nan(y: np.ndarray, yhat: np.ndarray) -> float:
+    """R^2, NaN where it is undefined (a non-finite prediction, a constant output)."""
     try:
         return r2(y, yhat)
     except DataError:  # non-finite prediction (a diverging free run) or constant output
@@ -59,10 +60,10 @@ def summarise(
         osa_v = model.predict_osa(u_val, y_val)
         fr_e, fr_v = model.simulate_many([(u_est, y_est[:L]), (u_val, y_val[:L])])  # one recursion for both
     metrics = {
-        "r2_osa_est": _r2(y_est[L:], osa_e[L:]),
-        "r2_fr_est": _r2(y_est[L:], fr_e[L:]),
-        "r2_osa_val": _r2(y_val[L:], osa_v[L:]),
-        "r2_fr_val": _r2(y_val[L:], fr_v[L:]),
+        "r2_osa_est": r2_or_nan(y_est[L:], osa_e[L:]),
+        "r2_fr_est": r2_or_nan(y_est[L:], fr_e[L:]),
+        "r2_osa_val": r2_or_nan(y_val[L:], osa_v[L:]),
+        "r2_fr_val": r2_or_nan(y_val[L:], fr_v[L:]),
     }
     tests: tuple[CorrelationTest, ...] = ()
     if np.isfinite(osa_v).all():

@@ -25,6 +25,7 @@ error (the fault-injection tests use it).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import zlib
 from collections.abc import Callable
@@ -38,7 +39,7 @@ from streamid.engine.identify import select_model
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.stream_config import StreamConfig
-from streamid.online.summary import ValidationSummary, summarise
+from streamid.online.summary import ValidationSummary, r2_or_nan, summarise
 from streamid.online.window_types import Window
 
 __all__ = ["Outcome", "Stopped", "UpdateJob", "identify_window", "signature_of", "rng_for", "MIN_SPAN"]
@@ -88,6 +89,9 @@ class Outcome:
     input_names: tuple[str, ...] = ()
     u_val: np.ndarray = field(default_factory=lambda: np.empty((0, 1)))
     y_val: np.ndarray = field(default_factory=lambda: np.empty(0))
+    champion_metrics: dict[str, float] | None = None  # the champion on the same held-out data (None: none/can't run)
+    champion_fr_val: np.ndarray = field(default_factory=lambda: np.empty(0))
+    t_val_ns: int = 0  # stream time of the first held-out sample
 
 
 def signature_of(window: Window, cfg: StreamConfig, output: str) -> dict[str, Any]:
@@ -103,9 +107,10 @@ def signature_of(window: Window, cfg: StreamConfig, output: str) -> dict[str, An
     }
 
 
-def rng_for(cfg: StreamConfig, stream: str, version: int) -> np.random.Generator:
-    """The generator of one update: seeded by (seed, stream, version), reproducible."""
-    return np.random.default_rng([cfg.seed, zlib.crc32(stream.encode("utf-8")), int(version)])
+def rng_for(cfg: StreamConfig, stream: str, version: int, output_index: int = 0) -> np.random.Generator:
+    """The generator of one update: seeded by (seed, stream, version[, output index]), reproducible."""
+    key = [cfg.seed, zlib.crc32(stream.encode("utf-8")), int(version)] + ([output_index] if output_index else [])
+    return np.random.default_rng(key)
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,6 +129,15 @@ class UpdateJob:
         The previous run's final populations and what they were fitted to.
     force_cold
         Start cold whatever the populations (after repeated failures).
+    output
+        The output to model (None: ``config.output``, or the first).
+    champion
+        The model served for that output now: evaluated on the same held-out data.
+    generations
+        Generations of this run when it is escalated after a drift (None: the cold/warm setting).
+    cut_t_ns
+        Identify only the samples from this stream time on (after a drift: the data before the change
+        would teach the old dynamics); None: the whole window.
     """
 
     window: Window
@@ -132,6 +146,10 @@ class UpdateJob:
     warm_state: CoEAState | None = None
     warm_signature: dict[str, Any] | None = None
     force_cold: bool = False
+    output: str | None = None
+    champion: Model | None = None
+    generations: int | None = None
+    cut_t_ns: int | None = None
 
     def run(
         self,
@@ -154,17 +172,42 @@ class UpdateJob:
         return identify_window(
             self.window, self.config, version=self.version, warm_state=self.warm_state,
             warm_signature=self.warm_signature, force_cold=self.force_cold, stop=stop,
-            on_generation=on_generation, helper=helper,
+            on_generation=on_generation, helper=helper, output=self.output, champion=self.champion,
+            generations=self.generations, cut_t_ns=self.cut_t_ns,
         )
 
 
-def _pick_output(window: Window, cfg: StreamConfig) -> tuple[int, str] | str:
+def _pick_output(window: Window, cfg: StreamConfig, output: str | None = None) -> tuple[int, str] | str:
     names = window.output_names
-    if cfg.output is None:
+    want = output if output is not None else cfg.output
+    if want is None:
         return 0, names[0]
-    if cfg.output not in names:
-        return f"configured output {cfg.output!r} is not among the stream's outputs {list(names)}"
-    return names.index(cfg.output), cfg.output
+    if want not in names:
+        return f"configured output {want!r} is not among the stream's outputs {list(names)}"
+    return names.index(want), want
+
+
+def cut_window(window: Window, t_ns: int) -> Window:
+    """The part of ``window`` from stream time ``t_ns`` on (the whole window if it starts later)."""
+    k = -(-(int(t_ns) - window.t0_ns) // window.period_ns)
+    if k <= 0:
+        return window
+    k = min(k, window.n)
+    return dataclasses.replace(window, u=window.u[k:], y=window.y[k:], t0_ns=window.t0_ns + k * window.period_ns)
+
+
+def champion_figures(champion: Model | None, u_val: np.ndarray, y_val: np.ndarray) -> tuple[dict[str, float] | None, np.ndarray]:
+    """The champion's OSA and free-run R^2 and OSA mean-square error on held-out data, and its free run there."""
+    if champion is None or u_val.shape[1] != champion.n_inputs or y_val.size <= champion.max_lag + 2:
+        return None, np.empty(0)
+    L = champion.max_lag
+    with np.errstate(over="ignore", invalid="ignore"):
+        osa = champion.predict_osa(u_val, y_val)
+        fr = champion.simulate(u_val, y_val[:L])
+    e = y_val[L:] - osa[L:]
+    figs = {"r2_osa_val": r2_or_nan(y_val[L:], osa[L:]), "r2_fr_val": r2_or_nan(y_val[L:], fr[L:]),
+            "mse_osa_val": float(np.mean(e * e)) if np.isfinite(e).all() else float("nan")}
+    return figs, np.asarray(fr, dtype=np.float64)
 
 
 def _unusable(names_parts: list[tuple[str, str, np.ndarray]]) -> str | None:
@@ -192,13 +235,19 @@ def identify_window(
     stop: StopFlag | None = None,
     on_generation: Callable[[str, Any], None] | None = None,
     helper: EvalHelper | None = None,
+    output: str | None = None,
+    champion: Model | None = None,
+    generations: int | None = None,
+    cut_t_ns: int | None = None,
 ) -> Outcome:
     """Identify ``window`` (the body of :meth:`UpdateJob.run`); ``version`` is the version the model would get."""
     t_start = time.perf_counter()
-    picked = _pick_output(window, cfg)
+    picked = _pick_output(window, cfg, output)
     if isinstance(picked, str):
         return Outcome("dropped", picked, "output_missing")
     col, out_name = picked
+    if cut_t_ns is not None:
+        window = cut_window(window, cut_t_ns)
     u = window.u
     y = np.ascontiguousarray(window.y[:, col])
     n = window.n
@@ -213,6 +262,7 @@ def identify_window(
         "n_estimation": n_est,
         "n_validation": n_val,
         "coalesced_before": int(window.coalesced_before),
+        "output": out_name,
     }
     common: dict[str, Any] = {"window_meta": meta, "output_name": out_name, "input_names": window.input_names}
     max_lag = max(cfg.max_lag_y, cfg.max_lag_u)
@@ -235,14 +285,14 @@ def identify_window(
         return Outcome("dropped", why, "constant_signal", **common)
     sig = signature_of(window, cfg, out_name)
     warm = warm_state is not None and not force_cold and warm_signature == sig
-    engine_cfg = cfg.coea_config(cold=not warm)
-    rng = rng_for(cfg, window.stream, version)
+    engine_cfg = cfg.coea_config(cold=not warm, generations=generations)
+    rng = rng_for(cfg, window.stream, version, col)
     try:
         try:
             co = _start(u_est, y_est, engine_cfg, rng, warm_state if warm else None, window, out_name, meta, helper)
         except _WarmMismatch:  # the saved populations do not fit this data: start cold
             warm = False
-            engine_cfg = cfg.coea_config(cold=True)
+            engine_cfg = cfg.coea_config(cold=True, generations=generations)
             co = _start(u_est, y_est, engine_cfg, rng, None, window, out_name, meta, helper)
     except StreamidError as exc:
         return Outcome("failed", f"identification could not start: {exc}", "engine_error", signature=sig, **common)
@@ -258,6 +308,7 @@ def identify_window(
         state = co.state()
         fitness = np.asarray(co.history, dtype=np.float64)
         summary = summarise(model, u_est, y_est, u_val, y_val)
+        champ, champ_fr = champion_figures(champion, u_val, y_val)
     except Stopped:
         raise
     except _ENGINE_ERRORS as exc:
@@ -277,6 +328,9 @@ def identify_window(
         signature=sig,
         u_val=u_val,
         y_val=y_val,
+        champion_metrics=champ,
+        champion_fr_val=champ_fr,
+        t_val_ns=int(window.t0_ns + n_est * window.period_ns),
         **common,
     )
 

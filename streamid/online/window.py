@@ -6,10 +6,11 @@ time) and keeps the newest samples in a preallocated ring, one row per signal.
 Every ``hop`` new complete samples a window of the newest ``window`` samples
 *closes*: it is copied out into the stream's bounded queue of *pending* windows
 (:mod:`streamid.online.pending`), which the identification worker empties when
-it is free.  With the default bound of one, a window that closes while the
-previous one is still pending replaces it (counted as coalesced), so a slow
-identification never builds a queue; with ``max_pending_windows = N`` up to N
-wait, the oldest dropped first.  Memory stays flat on an endless stream.
+it is free.  When stream time runs faster than the caller's clock (a replayed
+log) every window waits its turn; on a live stream a window that closes while
+the previous one is still pending replaces it (counted as coalesced), so a slow
+identification never builds a queue.  Both within stated bounds (see
+:mod:`streamid.online.pending`): memory stays flat on an endless stream.
 
 Time is integer nanoseconds.  Every sample gets an integer index
 ``k = round((t_ns - anchor_ns) / period_ns)`` on the stream's sample grid; u and
@@ -44,7 +45,7 @@ from collections import Counter, deque
 
 import numpy as np
 
-from streamid.online.pending import PendingWindows, cut_block, due_windows
+from streamid.online.pending import FAST_SPEED, PendingWindows, cut_block, due_windows
 from streamid.online.window_types import (
     DEFAULT_HOP_S,
     DEFAULT_WINDOW_S,
@@ -103,8 +104,9 @@ class WindowBuffer:
         self._src_live: dict[str, int] = {}  # source -> batches_in at its last batch on the current period
         self._src_vote: dict[str, int] = {}  # source -> the other period it sends
         self._last_bad: dict[str, object] = {}
-        self._queue = PendingWindows(params.max_pending_windows)
+        self._queue = PendingWindows(params.max_pending_windows, params.max_pending_bytes)
         self._last_t_ns: int | None = None
+        self._closes: deque[tuple[int, int]] = deque(maxlen=16)  # (stream t_ns, caller's now_ns) of recent closes
 
     # ------------------------------------------------------------------ public
     @property
@@ -136,6 +138,23 @@ class WindowBuffer:
         """Remove and return the oldest pending window (None if there is none)."""
         return self._queue.pop()
 
+    @property
+    def position(self) -> tuple[int, int]:
+        """``(epoch, complete samples written in it)``: where the stream is, cheaply (no copies)."""
+        return self._epoch, (self._complete() if self._heads else 0)
+
+    def times_ns(self, first: int, n: int) -> np.ndarray:
+        """Stream times (int64 ns) of ``n`` samples of the current epoch from index ``first`` on."""
+        return int(self._anchor or 0) + (first + np.arange(n, dtype=np.int64)) * int(self._period or 0)
+
+    @property
+    def live(self) -> bool:
+        """Whether stream time runs at about the caller's clock (< ``FAST_SPEED`` x over the last windows closed)."""
+        if len(self._closes) < 2:
+            return False
+        (t0, n0), (t1, n1) = self._closes[0], self._closes[-1]
+        return n1 > n0 and (t1 - t0) < FAST_SPEED * (n1 - n0)
+
     def recent(self, n: int) -> tuple[np.ndarray, np.ndarray] | None:
         """The newest ``n`` complete samples as ``(u (n, inputs), y (n, outputs))`` copies; None if fewer are held."""
         complete = self._complete()
@@ -162,7 +181,8 @@ class WindowBuffer:
         out["pending_windows_peak"] = self._queue.peak
         out["pending_bytes_peak"] = self._queue.peak_bytes
         out["max_pending_windows"] = self._queue.limit
-        out["pending_bytes_max"] = self._queue.limit * self._w * len(self._rows) * 8
+        out["pending_bytes_max"] = min(self._queue.limit * self._w * len(self._rows) * 8, self._queue.max_bytes)
+        out["live"] = self.live
         out["inputs"] = list(self._inputs)
         out["outputs"] = list(self._outputs)
         out["last_t_ns"] = self._last_t_ns
@@ -269,6 +289,7 @@ class WindowBuffer:
         self._src_seq.clear()
         self._src_recent.clear()
         self._counts["windows_discarded"] += self._queue.clear()  # they belong to the old epoch
+        self._closes.clear()
         if self._period is None:
             self._ring = np.empty((0, 0))
             self._heads = []
@@ -292,6 +313,7 @@ class WindowBuffer:
         self._heads = [0] * len(self._rows)
         self._start = 0
         self._next_close = self._w
+        self._closes.clear()
 
     def _append(self, batch: BatchLike, source: str) -> int:
         self._counts["batches_in"] += 1
@@ -489,6 +511,9 @@ class WindowBuffer:
         if len(self._rows) != len(self._inputs) + len(self._outputs):
             return False
         n, keep = due_windows(self._next_close, complete, self._h, self._w, self._start, self._queue.limit)
+        self._closes.append((self._anchor + (self._next_close + (n - 1) * self._h) * self._period, self._now_ns))  # type: ignore[operator]
+        live = self.live
+        keep = keep[-1:] if live else keep
         self._next_close += n * self._h
         closed0 = self._counts["windows_closed"]
         self._counts["windows_closed"] += n
@@ -510,11 +535,12 @@ class WindowBuffer:
                 received_ns=self._now_ns,
                 coalesced_before=0,  # set when taken (see PendingWindows.pop)
             )
-            coalesced += self._queue.push(closed0 + i + 1, window)
+            coalesced += self._queue.push(closed0 + i + 1, window, newest_only=live)
             self._counts["windows_emitted"] += 1
             self._event("window.closed", f"window {self._number} closed ({self._w} samples)")
         if coalesced:
-            self._event("window.coalesced", f"{coalesced} window(s) coalesced: identification is behind "
-                        f"(max_pending_windows={self._queue.limit})")
+            why = ("a live stream keeps only the newest window" if live else f"bounds max_pending_windows="
+                   f"{self._queue.limit}, max_pending_bytes={self._queue.max_bytes}")
+            self._event("window.coalesced", f"{coalesced} window(s) coalesced: identification is behind ({why})")
         self._counts["windows_coalesced"] += coalesced
         return bool(keep)

@@ -86,6 +86,7 @@ class WindowParams:
     max_window_samples: int = 4_000_000
     align_slack_samples: int | None = None
     max_pending_windows: int = 1
+    max_pending_bytes: int = 64 * 2**20
 
     def __post_init__(self) -> None:
         if self.window_s is None and self.window_samples is None:
@@ -109,6 +110,9 @@ class WindowParams:
         v = self.max_pending_windows
         if not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_PENDING_WINDOWS):
             raise ConfigError(f"max_pending_windows must be an integer in [1, {MAX_PENDING_WINDOWS}]; got {v!r}")
+        v = self.max_pending_bytes
+        if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+            raise ConfigError(f"max_pending_bytes must be an integer number of bytes >= 1; got {v!r}")
         if not (isinstance(self.max_abs_value, (int, float)) and self.max_abs_value > 0):
             raise ConfigError(f"max_abs_value must be a number > 0; got {self.max_abs_value!r}")
         for name in ("inputs", "outputs"):

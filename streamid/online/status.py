@@ -1,0 +1,98 @@
+"""The ``streamid.status/1`` document of one stream, built from an identifier's parts (pure, no I/O)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from streamid.online.head import OutputHead
+from streamid.wire.documents import STATUS_FORMAT
+
+__all__ = ["stream_status", "UPDATE_KINDS"]
+
+UPDATE_KINDS = ("accepted", "rejected", "failed", "dropped")
+
+
+def _champion(head: OutputHead, now_ns: int, last_t_ns: int | None) -> dict[str, Any]:
+    cur = {k: v for k, v in head.current.items() if v is None or isinstance(v, (int, str)) or v == v}
+    return {
+        "version": head.version,
+        "age_s": (last_t_ns - head.since_t_ns) / 1e9 if head.since_t_ns is not None and last_t_ns else None,
+        "age_wall_s": (now_ns - head.since_unix_ns) / 1e9 if head.since_unix_ns and now_ns else None,
+        "wins": head.wins,
+        "current": cur or None,  # its re-validation on the newest held-out data (r2_fr_val, r2_osa_val, t_ns)
+        "at_acceptance": {k: head.model.metrics.get(k) for k in ("r2_fr_val", "r2_osa_val")} if head.model else None,
+    }
+
+
+def stream_status(
+    stream: str,
+    c: Mapping[str, Any],
+    heads: Sequence[OutputHead],
+    *,
+    now_ns: int,
+    degraded_reason: str,
+    version: int,
+    busy: bool,
+    outcomes: Counter[str],
+    decisions: Counter[str],
+    drop_reasons: Counter[str],
+    last: Mapping[str, Any],
+    events_dropped: int,
+    state_error: str,
+) -> dict[str, Any]:
+    """The status document (``c``: the window buffer's counters)."""
+    last_t_ns = c.get("last_t_ns")
+    outputs = {
+        h.output: {
+            "version": h.version,
+            "champion": _champion(h, now_ns, last_t_ns) if h.model is not None else None,
+            "losses": h.replaced,
+            "failures_in_row": h.failures_in_row,
+            "drifts": h.drifts,
+            "drift_t_ns": h.drift_t_ns,
+            "escalated": h.escalate,
+        }
+        for h in heads
+    }
+    first = heads[0] if heads else None
+    return {
+        "format": STATUS_FORMAT,
+        "stream": stream,
+        "unix_ns": now_ns,
+        "degraded": bool(degraded_reason),
+        "degraded_reason": degraded_reason,
+        "version": version,
+        "busy": busy,
+        "samples_in": c.get("samples_in", 0),
+        "batches_in": c.get("batches_in", 0),
+        "bad": c["bad"],
+        "bad_total": c["bad_total"],
+        "last_bad": c.get("last_bad") or None,
+        "windows": {
+            "closed": c.get("windows_closed", 0),
+            "emitted": c.get("windows_emitted", 0),
+            "coalesced": c.get("windows_coalesced", 0),
+            "dropped": int(outcomes.get("dropped", 0)),
+            **{k: c[k] for k in ("pending", "pending_windows", "max_pending_windows", "pending_bytes",
+                                 "pending_windows_peak", "pending_bytes_peak", "pending_bytes_max", "live")},
+        },
+        "identifications": {k: int(outcomes.get(k, 0)) for k in UPDATE_KINDS},
+        "decisions": dict(decisions),
+        "champion": outputs[first.output]["champion"] if first is not None else None,
+        "outputs": outputs,
+        "drifts": sum(h.drifts for h in heads),
+        "drop_reasons": dict(drop_reasons),
+        "failures_in_row": first.failures_in_row if first is not None else 0,
+        "state_saved": not state_error,
+        "state_error": state_error,
+        "last": {k: v for k, v in last.items() if v is not None},
+        "gaps": c.get("gaps", 0),
+        "gap_samples": c.get("gap_samples", 0),
+        "resets": c["resets"],
+        "unaligned": c.get("unaligned", 0),
+        "samples_discarded": c.get("samples_discarded", 0),
+        "events_dropped": events_dropped,
+        **{k: c[k] for k in ("period_ns", "window_samples", "hop_samples", "inputs", "outputs")},
+    }
