@@ -47,8 +47,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     sinks.add_argument("--rerun-serve", metavar="PORT", type=int,
                        help="serve diagnostics on 127.0.0.1:PORT for viewers to connect to")
     sinks.add_argument("--rrd-rotate-mb", type=float, default=64.0, metavar="MB",
-                       help="continue the .rrd in PATH.001.rrd, ... past this size, keeping the newest "
-                            "16 files (default 64; 0 = one file, never rotated)")
+                       help="continue the .rrd in PATH.001.rrd, ... past this size or --rrd-rotate-s, keeping the newest "
+                            "4096 files, 1024 MB (default 64; 0 = one file, never rotated; see streamid view)")
+    sinks.add_argument("--rrd-rotate-s", type=float, default=5.0, metavar="S", help="... and every S seconds, so a "
+                       "SIGKILL leaves at most S s without footer (default 5; 0 = by size only)")
     sinks.add_argument("--no-rerun", action="store_true", help="no diagnostics at all")
     p.add_argument("--state-dir", metavar="DIR", help="save models and populations here; resume warm from them")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
@@ -116,4 +118,4 @@ def _viz(args: argparse.Namespace) -> Any:
     if not args.rrd_rotate_mb >= 0:
         raise ConfigError(f"--rrd-rotate-mb must be a size in MB >= 0 (0 = never rotate); got {args.rrd_rotate_mb}")
     return Viz(VizSettings(rrd=rrd, connect=args.rerun_connect, serve_port=args.rerun_serve,
-                           rrd_rotate_mb=args.rrd_rotate_mb or None))
+                           rrd_rotate_mb=args.rrd_rotate_mb or None, rrd_rotate_s=args.rrd_rotate_s or None))

@@ -28,6 +28,7 @@ BUILTIN_COMMANDS: tuple[str, ...] = (
     "streamid.commands.watch",
     "streamid.commands.demo",
     "streamid.commands.router",
+    "streamid.commands.view",
 )
 
 ENTRY_POINT_GROUP = "streamid.commands"

@@ -201,8 +201,9 @@ def repair(
         ok, said = verify(tmp, rerun=rerun, timeout_s=timeout_s)
         chunks = count_chunks(tmp) if ok else 0
         if chunks == 0:
+            why = next((ln for ln in said.splitlines() if ln.strip() and "Verification failed" not in ln), said)
             raise ConfigError(f"no complete chunk could be read from {str(source)!r} ({source.stat().st_size} bytes): "
-                              f"nothing to recover" + ("" if ok else f" (rerun rrd verify: {said.splitlines()[-1]})"))
+                              f"nothing to recover" + ("" if ok else f" (the copy of its readable part: {why})"))
         dest.parent.mkdir(parents=True, exist_ok=True)
         os.replace(tmp, dest)
     finally:
