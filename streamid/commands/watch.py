@@ -13,6 +13,7 @@ from the network are shown escaped (control, format and bidi characters as \\uXX
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import signal
 import sys
@@ -87,14 +88,24 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
     head = f"{up.stream} v{up.version}" if getattr(up, "accepted", True) else \
         f"{up.stream} challenger rejected (serving v{up.version})"
     why = decision_text(up)
-    origin = getattr(up, "origin", None)
     return printable(
         f"{head} {'warm' if up.warm else 'cold'} G={up.generations} "
         f"{output}(t) = F[{up.model.lags_text()}] R2 val OSA {_r2(m.get('r2_osa_val'))} FR {_r2(m.get('r2_fr_val'))} "
-        f"ident {up.identification_s:.2f}s age {age:.1f}s" + (f"; {why}" if why else "")
-        + (f" [daemon {origin.daemon}]" if origin is not None and not getattr(up, "accepted", True) else ""),
+        f"ident {up.identification_s:.2f}s age {age:.1f}s" + (f"; {why}" if why else ""),
         2000,
     )
+
+
+def format_origin(up: Any, first: bool) -> str:
+    """The line saying which daemon publishes a stream's models (``first``: else, a new daemon life began)."""
+    o = up.origin
+    try:
+        began = datetime.datetime.fromtimestamp(o.epoch_ns / 1e9, tz=datetime.timezone.utc).isoformat(timespec="seconds")
+    except (OverflowError, OSError, ValueError):
+        began = f"{o.epoch_ns} ns"
+    what = "models from daemon" if first else "a new daemon life: models from daemon"
+    return printable(f"{up.stream}: {what} {o.daemon}, life began {began}" + ("" if first else
+                     f" (versions count from v{up.version} again)"), 500)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -114,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     seen = [0]
     degraded: dict[str, bool] = {}
+    origins: dict[str, Any] = {}
     out_lock = threading.Lock()
 
     def emit(text: str) -> None:
@@ -121,6 +133,10 @@ def run(args: argparse.Namespace) -> int:
             print(text, flush=True)
 
     def on_update(up: Any) -> None:
+        prev = origins.get(up.stream)
+        if not args.json and up.accepted and up.origin is not None and up.origin != prev and len(origins) < 10_000:
+            origins[up.stream] = up.origin
+            emit(format_origin(up, prev is None))
         emit(json.dumps(up.document) if args.json else format_update(up))  # json.dumps escapes non-ASCII
         seen[0] += 1
         if args.count is not None and seen[0] >= args.count:
