@@ -82,8 +82,10 @@ def register_simulate(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("device", choices=sorted(devices), help="device to simulate")
-    p.add_argument("output", help="MCAP file to write")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("output", nargs="?", default=None, help="MCAP file to write (or -o FILE)")
+    p.add_argument("-o", "--output", dest="output_opt", default=None, metavar="FILE",
+                   help="MCAP file to write (instead of the positional OUTPUT)")
+    p.add_argument("--duration", "--seconds", type=float, default=None, metavar="S",
                    help="record length in seconds (default: per device)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--batch-size", type=int, default=None, metavar="N",
@@ -91,18 +93,33 @@ def register_simulate(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     p.add_argument("--stream", default=None, help="stream name (default: per device)")
     p.add_argument("--split", action="store_true",
                    help="put inputs on streamid/<s>/u and outputs on streamid/<s>/y")
+    p.add_argument("--drift-at", type=float, default=None, metavar="S",
+                   help="drift: from S seconds after the start, the parameters that set the output "
+                        "level change (mr_damper: alpha, c0; piezo: d_p); the log's metadata records "
+                        "drift_at_s, drift_at_ns and drift_change")
+    p.add_argument("--drift-change", type=float, default=None, metavar="C",
+                   help="relative change of those parameters with --drift-at (default 0.2 = +20 %%)")
     p.set_defaults(func=run_simulate)
 
 
 def run_simulate(args: argparse.Namespace) -> int:
     from recorders.devices import simulate_device_log
 
+    if (args.output is None) == (args.output_opt is None):
+        raise ConfigError("give the MCAP file to write once: as OUTPUT or as -o FILE; got "
+                          + ("neither" if args.output is None else f"both {args.output!r} and {args.output_opt!r}"))
+    if args.drift_change is not None and args.drift_at is None:
+        raise ConfigError(f"--drift-change needs --drift-at S (the time of the change); got --drift-change "
+                          f"{args.drift_change!r} alone")
     info = simulate_device_log(
-        args.device, args.output, seed=args.seed, duration_s=args.duration,
-        batch_size=args.batch_size, stream=args.stream, split=args.split,
+        args.device, args.output if args.output is not None else args.output_opt, seed=args.seed,
+        duration_s=args.duration, batch_size=args.batch_size, stream=args.stream, split=args.split,
+        drift_at_s=args.drift_at, drift_change=0.2 if args.drift_change is None else args.drift_change,
     )
+    drift = (f", drift {info['drift_change']:+g} from t = {info['drift_at_ns'] / 1e9:g} s"
+             if "drift_at_ns" in info else "")
     print(
         f"simulated {info['device']}: {info['samples']} samples at {1e9 / info['period_ns']:g} Hz, "
-        f"{info['messages']} messages on stream {info['stream']!r}, seed {info['seed']} -> {info['path']}"
+        f"{info['messages']} messages on stream {info['stream']!r}, seed {info['seed']}{drift} -> {info['path']}"
     )
     return 0

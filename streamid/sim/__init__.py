@@ -18,6 +18,10 @@ Every simulator has the signature ``f(n_samples, rng) -> Trace`` (``rng`` a
 ``Trace(t_ns, u, y)``: int64 sample times from 0 in steps of the device's
 ``period_ns``, the input and the output. The global numpy RNG is never used.
 
+:func:`simulate_drift` (:mod:`.drift`) simulates the damper or the piezo with
+its output-level parameters changed by a given fraction at a given time
+(:data:`DRIFTS` says which), for testing drift detection.
+
 This registry is the only list of devices: ``streamid simulate`` (the
 ``recorders`` package) writes the log of every device that has a ``stream``,
 in batches of ``batch_size`` samples.
@@ -51,6 +55,7 @@ from streamid.sim.boucwen import (
     simulate_bouc_wen_multisine,
     simulate_bouc_wen_periodic,
 )
+from streamid.sim.drift import DRIFTS, DriftSpec, drift_start_ns, simulate_drift
 from streamid.sim.mrdamper import MRDamperParams, simulate_mr_damper
 from streamid.sim.piezo import PiezoParams, piezo_excitation, simulate_piezo, simulate_piezo_input
 from streamid.sim.reactor import (
@@ -64,14 +69,17 @@ __all__ = [
     "ALIASES",
     "BENCHMARK_PERIOD_NS",
     "DEVICES",
+    "DRIFTS",
     "BoucWenParams",
     "Device",
+    "DriftSpec",
     "MRDamperParams",
     "PiezoParams",
     "ReactorParams",
     "Trace",
     "bouc_wen_operator",
     "device_names",
+    "drift_start_ns",
     "get_device",
     "integrate_bouc_wen",
     "piezo_excitation",
@@ -79,6 +87,7 @@ __all__ = [
     "simulate_bouc_wen",
     "simulate_bouc_wen_multisine",
     "simulate_bouc_wen_periodic",
+    "simulate_drift",
     "simulate_mr_damper",
     "simulate_piezo",
     "simulate_piezo_input",
