@@ -11,6 +11,11 @@ A configuration file is optional: every setting has an embedded default, so
     workers = 1
     helper = true             # one evaluation helper process per worker (the second core, idle CPU only)
     retain_memory = true      # keep freed working memory for reuse: flat RSS (glibc)
+    max_payload_bytes = 16777216         # larger payloads are refused before decoding (16 MiB)
+    max_channels = 64                    # inputs + outputs of one batch
+    max_identification_bytes = 536870912 # a stream's buffers + one identification (512 MiB)
+    max_identification_s = 60.0          # one identification's own time; then stopped, counted
+    stream_idle_s = 60.0                 # a discovered stream without a valid sample this long gives its slot back
 
     [defaults]                # per-stream settings applied to every stream
     window_s = 10.0
@@ -74,6 +79,23 @@ class DaemonConfig:
         fixed thresholds; see :mod:`streamid.daemon.memory`), so the resident
         set stays flat instead of swinging with every identification.
         Process-wide; applied at start.
+    max_payload_bytes
+        Payloads larger than this are refused before they are decoded (counted
+        as ``bad.too_large`` on the stream, or ``payloads_too_large`` on the
+        daemon when the stream is not served).
+    max_channels
+        Inputs plus outputs one batch may carry; more is refused
+        (``bad.too_many_channels``).
+    max_identification_bytes
+        Bound of one stream's buffers plus one identification's working memory
+        (:func:`streamid.daemon.admission.stream_bytes`); a batch whose window
+        would need more is refused (``bad.too_large_window``).
+    max_identification_s
+        An identification that runs longer than this (its own time) is stopped,
+        counted (``identification_timeouts``) and reported as a failed update.
+    stream_idle_s
+        A discovered stream that received no valid sample for this long gives
+        its slot back (counted ``streams_released``; its state file stays).
     defaults
         Settings of every stream.
     overrides
@@ -87,6 +109,11 @@ class DaemonConfig:
     workers: int = 1
     helper: bool = True
     retain_memory: bool = True
+    max_payload_bytes: int = 16 * 2**20
+    max_channels: int = 64
+    max_identification_bytes: int = 512 * 2**20
+    max_identification_s: float = 60.0
+    stream_idle_s: float = 60.0
     defaults: StreamConfig = field(default_factory=StreamConfig)
     overrides: tuple[tuple[str, StreamConfig], ...] = ()
 
@@ -102,6 +129,11 @@ class DaemonConfig:
             raise ConfigError(f"daemon.status_every_s must be a number of seconds in [0.01, 3600]; got {self.status_every_s!r}")
         if not 1 <= self.workers <= 64:
             raise ConfigError(f"daemon.workers must be an integer in [1, 64]; got {self.workers!r}")
+        for key, (lo, hi) in _BOUNDS.items():
+            v = getattr(self, key)
+            whole = isinstance(v, int) or _DAEMON_KEYS[key][0] == "float"
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (whole and math.isfinite(v) and lo <= v <= hi):
+                raise ConfigError(f"daemon.{key} must be {_DAEMON_KEYS[key][1]}; got {v!r}")
 
     def for_stream(self, stream: str) -> StreamConfig:
         """Settings of ``stream`` (its override, else the defaults)."""
@@ -140,6 +172,10 @@ _STREAM_KEYS: dict[str, tuple[str, str]] = {
     "max_abs_value": ("float", "a number > 0"),
     "cold_after_failures": ("int", "an integer >= 1"),
     "max_pending_windows": ("int", "an integer in [1, 1000]"),
+    "max_pending_bytes": ("int", "an integer number of bytes >= 1"),
+    "challenger_margin": ("float", "a number in [0, 1] (an R^2 difference)"),
+    "drift_detection": ("bool", "true or false"),
+    "drift_generations": ("int", "an integer >= 1"),
     "engine": ("table", "a table of CoEAConfig fields"),
 }
 _DAEMON_KEYS: dict[str, tuple[str, str]] = {
@@ -150,6 +186,19 @@ _DAEMON_KEYS: dict[str, tuple[str, str]] = {
     "workers": ("int", "an integer in [1, 64]"),
     "helper": ("bool", "true or false"),
     "retain_memory": ("bool", "true or false"),
+    "max_payload_bytes": ("int", "an integer number of bytes in [1024, 2147483648]"),
+    "max_channels": ("int", "an integer in [2, 100000]"),
+    "max_identification_bytes": ("int", "an integer number of bytes in [1048576, 1099511627776]"),
+    "max_identification_s": ("float", "a number of seconds in [0.1, 86400]"),
+    "stream_idle_s": ("float", "a number of seconds in [0.5, 31536000]"),
+}
+#: Ranges of the [daemon] bounds (inclusive), as in the accepted forms above.
+_BOUNDS: dict[str, tuple[float, float]] = {
+    "max_payload_bytes": (1024, 2**31),
+    "max_channels": (2, 100_000),
+    "max_identification_bytes": (2**20, 2**40),
+    "max_identification_s": (0.1, 86400.0),
+    "stream_idle_s": (0.5, 365 * 86400.0),
 }
 _TOP_KEYS = ("daemon", "defaults", "streams")
 

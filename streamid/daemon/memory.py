@@ -30,6 +30,16 @@ The resident set then sits at the high-water mark of the working memory
 are still mapped and unmapped per update.  The settings are process-wide:
 :class:`~streamid.daemon.service.Daemon` applies them at start unless
 ``[daemon] retain_memory = false``.
+
+Giving memory back.  Received payloads are the exception to "keep and reuse":
+a large batch (up to ``[daemon] max_payload_bytes``, 16 MiB by default, and
+whatever Zenoh received before the size was checked) is copied two or three
+times on its way in, and those copies, below the 64 MiB threshold, stay in the
+heap.  :func:`give_back_freed_memory` (``malloc_trim(0)``) returns every free
+page of the heap to the kernel; the daemon calls it after a payload of at
+least :data:`LARGE_PAYLOAD` bytes was received or refused (at most once a
+second, from the housekeeping thread), so a burst of large payloads does not
+leave the resident set at its peak.
 """
 
 from __future__ import annotations
@@ -38,7 +48,7 @@ import ctypes
 import logging
 import platform
 
-__all__ = ["retain_freed_memory", "MMAP_THRESHOLD", "TRIM_THRESHOLD"]
+__all__ = ["retain_freed_memory", "give_back_freed_memory", "MMAP_THRESHOLD", "TRIM_THRESHOLD", "LARGE_PAYLOAD"]
 
 _log = logging.getLogger(__name__)
 
@@ -49,6 +59,8 @@ _M_ARENA_MAX = -8
 MMAP_THRESHOLD = 64 << 20
 #: free heap memory kept before any is returned to the kernel
 TRIM_THRESHOLD = 1 << 30
+#: A payload at least this large makes the daemon give free heap memory back afterwards.
+LARGE_PAYLOAD = 1 << 20
 
 
 def retain_freed_memory() -> bool:
@@ -75,3 +87,22 @@ def retain_freed_memory() -> bool:
     if not ok:
         _log.info("mallopt refused a setting: resident memory may swing with each identification")
     return ok
+
+
+def give_back_freed_memory() -> bool:
+    """Return the heap's free pages to the kernel (``malloc_trim(0)``; glibc only).
+
+    Returns
+    -------
+    bool
+        Whether glibc released any memory (False elsewhere).
+    """
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):
+        return False
+    trim.argtypes = [ctypes.c_size_t]
+    trim.restype = ctypes.c_int
+    return bool(trim(0))

@@ -7,8 +7,9 @@ lock.  The daemon only moves things in and out of it:
 * **Zenoh's callback threads** split the key, :func:`streamid.wire.codec.decode`
   the payload and :meth:`~OnlineIdentifier.push` the batch (with the receive time).
   A closed window wakes a worker.
-* **Worker threads** (``daemon.workers``, default 1) take a stream with a window
-  due, round robin between streams, :meth:`~OnlineIdentifier.next_job`, run the job
+* **Worker threads** (``daemon.workers``, default 1) take the stream whose window
+  waited longest (:mod:`streamid.daemon.scheduler`: short jobs of other streams
+  also run between the generations of a long one), :meth:`~OnlineIdentifier.next_job`, run the job
   outside the lock (samples keep arriving meanwhile),
   :meth:`~OnlineIdentifier.finish` it -- the new state is saved to ``--state-dir``
   *before* an accepted model is handed out, so a version is never reused after a
@@ -23,6 +24,12 @@ lock.  The daemon only moves things in and out of it:
   resets, bad input: logged, at most one line per kind and stream every 10 s) to the
   log and to the Rerun event log.
 
+What a remote party can make the daemon spend is bounded (:mod:`streamid.daemon.admission`):
+payload size (checked before decoding), channels per batch, one stream's buffers
+plus one identification's memory, one identification's time, and stream slots
+(a discovered stream without a valid sample for ``stream_idle_s`` gives its slot
+back).  Every refusal is counted on the stream's or the daemon's status.
+
 Lock order: the scheduler's condition, then a stream's lock; no thread holds a
 stream's lock while it waits for anything else.
 
@@ -36,8 +43,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-import traceback
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -45,9 +51,13 @@ from typing import Any
 from streamid.wire.codec import decode
 from streamid.daemon.config import DaemonConfig
 from streamid.wire.documents import encode_json
-from streamid.daemon.memory import retain_freed_memory
+from streamid.daemon.admission import check_batch, known_channels
+from streamid.daemon.memory import LARGE_PAYLOAD, give_back_freed_memory, retain_freed_memory
+from streamid.daemon.runner import JobRunner
+from streamid.daemon.slots import StreamSlot as _Stream
+from streamid.daemon.slots import forward_events
 from streamid.daemon.state_store import StateStore
-from streamid.online import OnlineIdentifier, Outcome, Stopped, Update, UpdateJob
+from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, ModelFormatError, StreamidError
 from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
@@ -57,8 +67,8 @@ __all__ = ["Daemon"]
 
 _log = logging.getLogger(__name__)
 _OWN_KINDS = ("model", "status")
-#: Bad input of one kind on one stream is logged at most once per this many seconds (the rest is counted).
-_BAD_LOG_EVERY_S = 10.0
+#: Zenoh drops a received message larger than this many times ``max_payload_bytes`` before reassembling it.
+ZENOH_MESSAGE_FACTOR = 8
 
 
 class Daemon:
@@ -102,9 +112,6 @@ class Daemon:
         self._streams: dict[str, _Stream] = {}
         self._streams_lock = threading.Lock()
         self._stop = threading.Event()
-        self._sched = threading.Condition()
-        self._ready: deque[str] = deque()
-        self._ready_set: set[str] = set()
         self._threads: list[threading.Thread] = []
         self._helpers: list[EvalHelper | None] = []
         self._subs: list[Any] = []
@@ -112,6 +119,8 @@ class Daemon:
         self._global: Counter[str] = Counter()
         self._warned: set[str] = set()
         self._started_ns = 0
+        self._large_payload = threading.Event()  # a large payload came in: give heap memory back
+        self._runner = JobRunner(self._streams, config, self._stop, self._global, self._finish, on_generation)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Daemon:
@@ -128,13 +137,13 @@ class Daemon:
             self._ensure(s)
         n_workers = self.config.workers if self.identify else 0
         self._helpers = [self._start_helper() for _ in range(n_workers)]  # before Zenoh's threads exist
-        self.bus = Bus(self.zenoh)
+        limit = self.config.max_payload_bytes
+        self.bus = Bus(self.zenoh.with_max_message_bytes(min(1 << 30, max(ZENOH_MESSAGE_FACTOR * limit, 1 << 20))))
         try:
-            if self.config.discover:
-                self._subs.append(self.bus.subscribe(f"{PREFIX}/*/*", self._on_sample))
-            else:
-                for s in self.config.streams:
-                    self._subs.append(self.bus.subscribe(f"{PREFIX}/{s}/*", self._on_sample))
+            keys = [f"{PREFIX}/*/*"] if self.config.discover else [f"{PREFIX}/{s}/*" for s in self.config.streams]
+            for key in keys:
+                self._subs.append(self.bus.subscribe(key, self._on_sample, max_payload_bytes=limit,
+                                                     on_too_large=self._on_too_large))
             for s in names:
                 self._declare(self._streams[s])
         except Exception:
@@ -142,7 +151,7 @@ class Daemon:
             self._close_helpers()
             raise
         for i in range(n_workers):
-            self._spawn(lambda i=i: self._worker_loop(self._helpers[i]), f"streamid-worker-{i}")
+            self._spawn(lambda i=i: self._runner.worker_loop(self._helpers[i]), f"streamid-worker-{i}")
         self._spawn(self._housekeeping_loop, "streamid-housekeeping")
         if self.viz is not None:
             for s in names:  # one tab per stream, in the configured order
@@ -183,8 +192,7 @@ class Daemon:
             return
         deadline = time.monotonic() + timeout_s
         self._stop.set()
-        with self._sched:
-            self._sched.notify_all()
+        self._runner.scheduler.notify_all()
         for sub in self._subs:
             try:
                 sub.close()
@@ -241,6 +249,14 @@ class Daemon:
         with st.lock:
             return list(st.recent_latencies)
 
+    def update_latencies(self, name: str) -> list[tuple[float, str, float]]:
+        """(monotonic time, kind, seconds from window closed to decided) of the stream's recent updates, every kind."""
+        st = self._streams.get(name)
+        if st is None:
+            return []
+        with st.lock:
+            return list(st.recent_updates)
+
     def _ensure(self, name: str) -> _Stream | None:
         st = self._streams.get(name)
         if st is not None:
@@ -272,7 +288,7 @@ class Daemon:
                     for warning in ident.restore(saved):
                         _log.warning("stream %s: %s", name, warning)
                     _log.info("stream %s: resumed at version %d from %s", name, saved.version, self.store.path(name))
-            st = self._streams[name] = _Stream(ident)
+            st = self._streams[name] = _Stream(ident, configured=name in self.config.streams)
             _log.info("stream %s: %s", name, "configured" if name in self.config.streams else "discovered")
             return st
 
@@ -283,14 +299,14 @@ class Daemon:
             return
         self._pubs[f"{name}/model"] = bus.publisher(model_key(name), block=True)
         self._pubs[f"{name}/status"] = bus.publisher(status_key(name), block=False)
+        st.handles += [self._pubs[f"{name}/model"], self._pubs[f"{name}/status"]]
         def model_reply(_key: str) -> bytes | None:
             return st.ident.payload
 
         def status_reply(_key: str) -> bytes | None:
             return encode_json(self._status(st))
 
-        self._subs.append(bus.queryable(model_key(name), model_reply))
-        self._subs.append(bus.queryable(status_key(name), status_reply))
+        st.handles += [bus.queryable(model_key(name), model_reply), bus.queryable(status_key(name), status_reply)]
         st.declared = True
 
     def _daemon_info(self) -> dict[str, Any]:
@@ -305,10 +321,24 @@ class Daemon:
             doc = st.ident.status(now_ns=time.time_ns())
             if st.latency_s is not None:
                 doc["last"]["latency_s"] = st.latency_s
+            doc.update(st.counters())
         doc["daemon"] = self._daemon_info()
         return doc
 
     # ------------------------------------------------------------ receiving path
+    def _on_too_large(self, key: str, size: int) -> None:
+        """A payload over ``max_payload_bytes``: refused undecoded, counted on its stream (or the daemon)."""
+        self._large_payload.set()
+        parts = key.split("/")
+        st = self._streams.get(parts[1]) if len(parts) == 3 else None
+        if st is None:
+            self._global["payloads_too_large"] += 1
+            return
+        with st.lock:
+            st.ident.count_bad("too_large", f"payload of {size} bytes on {key!r}; daemon.max_payload_bytes is "
+                               f"{self.config.max_payload_bytes} (send smaller batches, or raise it)",
+                               now_ns=time.time_ns())
+
     def _on_sample(self, key: str, payload: bytes) -> None:
         parts = key.split("/")
         if len(parts) != 3:
@@ -328,6 +358,8 @@ class Daemon:
         st = self._streams.get(stream) or self._ensure(stream)
         if st is None:
             return
+        if len(payload) >= LARGE_PAYLOAD:
+            self._large_payload.set()
         now_ns = time.time_ns()
         try:
             batch = decode(payload)
@@ -335,82 +367,33 @@ class Daemon:
             with st.lock:
                 st.ident.count_bad("decode", str(exc)[:300], now_ns=now_ns)
             return
+        del payload
         with st.lock:
             if batch.stream != stream:
                 st.ident.count_bad("stream_mismatch", f"batch names stream {batch.stream!r} but came on {key!r}",
                                    now_ns=now_ns)
                 return
+            refused = check_batch(batch, st.ident.config, max_channels=self.config.max_channels,
+                                  max_bytes=self.config.max_identification_bytes,
+                                  known=known_channels(st.ident.counters()))
+            if refused is not None:
+                st.ident.count_bad(refused[0], refused[1], now_ns=now_ns)
+                return
             st.ident.push(batch, source=kind, now_ns=now_ns)
             due = st.ident.pending > 0
         if due and self.identify:
-            self._wake(stream)
+            self._runner.wake(stream)
 
-    # ------------------------------------------------------------------ workers
-    def _wake(self, name: str) -> None:
-        with self._sched:
-            if name not in self._ready_set:
-                self._ready_set.add(name)
-                self._ready.append(name)
-                self._sched.notify()
-
-    def _next(self) -> tuple[_Stream, UpdateJob] | None:
-        """The next stream with a window due and its job (round robin; a stream with a job out waits)."""
-        with self._sched:
-            end = time.monotonic() + 0.2
-            while not self._stop.is_set():
-                for _ in range(len(self._ready)):
-                    name = self._ready.popleft()
-                    st = self._streams.get(name)
-                    if st is None:
-                        self._ready_set.discard(name)
-                        continue
-                    with st.lock:
-                        busy = st.ident.busy
-                        job = None if busy else st.ident.next_job()
-                    if busy:  # another worker has it; it re-queues when done
-                        self._ready.append(name)
-                        continue
-                    self._ready_set.discard(name)
-                    if job is not None:
-                        return st, job
-                left = end - time.monotonic()
-                if left <= 0:
-                    return None
-                self._sched.wait(left)
-            return None
-
-    def _worker_loop(self, helper: EvalHelper | None = None) -> None:
-        while not self._stop.is_set():
-            nxt = self._next()
-            if nxt is None:
-                continue
-            st, job = nxt
-            try:
-                self._process(st, job, helper)
-            except Stopped:
-                return
-            except Exception:  # noqa: BLE001 - one stream's bug must not stop the others
-                _log.error("stream %s: worker error\n%s", st.ident.stream, traceback.format_exc())
-            finally:
-                with st.lock:
-                    st.ident.abandon(job)  # (a no-op when finished)
-                    again = st.ident.pending > 0
-                if again:
-                    self._wake(st.ident.stream)
-
-    def _process(self, st: _Stream, job: UpdateJob, helper: EvalHelper | None = None) -> None:
+    # ------------------------------------------------------------------ results
+    def _finish(self, st: _Stream, job: UpdateJob, out: Outcome) -> None:
+        """Judge a job's outcome, save, publish an accepted model, then draw it (a worker thread)."""
         name, window = st.ident.stream, job.window
-        try:
-            out = job.run(stop=self._stop, on_generation=self.on_generation, helper=helper)
-        except Stopped:
-            raise
-        except Exception as exc:  # noqa: BLE001 - an engine bug is a failed update, not a dead daemon
-            _log.error("stream %s: identification raised\n%s", name, traceback.format_exc())
-            out = Outcome("failed", f"identification raised {type(exc).__name__}: {exc}", "exception")
         persist = self.store.save if self.store is not None else None
         with st.lock:
             up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
         latency_s = None
+        with st.lock:
+            st.recent_updates.append((time.monotonic(), up.kind, (time.time_ns() - window.received_ns) / 1e9))
         if up.accepted:
             pub = self._pubs.get(f"{name}/model")
             if pub is None:
@@ -444,7 +427,7 @@ class Daemon:
 
     # -------------------------------------------------------------- housekeeping
     def _housekeeping_loop(self) -> None:
-        next_status = 0.0
+        next_status = next_idle = next_trim = 0.0
         every = self.config.status_every_s
         while not self._stop.wait(0.05):
             for st in list(self._streams.values()):
@@ -453,11 +436,49 @@ class Daemon:
                         self._declare(st)
                     except Exception as exc:  # noqa: BLE001
                         _log.error("stream %s: declarations failed (%s)", st.ident.stream, exc)
-                self._forward_events(st)
+                forward_events(st, self.viz)
             now = time.monotonic()
             if now >= next_status:
                 next_status = now + every
                 self.publish_status()
+            if now >= next_idle:
+                next_idle = now + min(1.0, self.config.stream_idle_s / 4)
+                self._release_idle(now)
+            if now >= next_trim and self._large_payload.is_set():
+                next_trim = now + 1.0
+                self._large_payload.clear()
+                give_back_freed_memory()
+
+    def _release_idle(self, now: float) -> None:
+        """Give back the slots of discovered streams without a valid sample for ``stream_idle_s``."""
+        for st in list(self._streams.values()):
+            with st.lock:
+                samples = st.ident.counters().get("samples_in", 0)
+                if samples != st.samples_seen:
+                    st.samples_seen, st.valid_mono = samples, now
+                    continue
+                if st.configured or st.ident.busy or now - st.valid_mono < self.config.stream_idle_s:
+                    continue
+            self._release(st, now - st.valid_mono)
+
+    def _release(self, st: _Stream, idle_s: float) -> None:
+        name = st.ident.stream
+        with self._streams_lock:
+            if self._streams.get(name) is not st:
+                return
+            del self._streams[name]
+            self._global["streams_released"] += 1
+        self._runner.scheduler.forget(name)
+        for key in (f"{name}/model", f"{name}/status"):
+            self._pubs.pop(key, None)
+        for h in st.handles:
+            try:
+                h.close()
+            except Exception:  # noqa: BLE001 - the session may be closing
+                pass
+        forward_events(st, self.viz)
+        _log.info("stream %s: slot released after %.0f s without a valid sample (daemon.stream_idle_s = %g)%s",
+                  name, idle_s, self.config.stream_idle_s, "; its state file stays" if self.store is not None else "")
 
     def publish_status(self) -> None:
         """Put the status of every stream on its status key."""
@@ -469,46 +490,3 @@ class Daemon:
                 pub.put(encode_json(self._status(st)))
             except Exception as exc:  # noqa: BLE001
                 _log.debug("status of %s not published: %s", st.ident.stream, exc)
-
-    def _forward_events(self, st: _Stream) -> None:
-        """The stream's events to the log (bad input rate-limited) and to Rerun's event log."""
-        with st.lock:
-            events = st.ident.drain_events()
-        if not events:
-            return
-        name = st.ident.stream
-        shown = [ev for ev in events if not ev.kind.startswith(("update.", "window."))]  # updates: see _process
-        now = time.monotonic()
-        for ev in events:
-            if ev.kind.startswith("window."):
-                _log.debug("%s", ev.message)
-            elif ev.kind.startswith("bad."):
-                key = (name, ev.kind)
-                if now >= st.bad_log_next.get(key, 0.0):
-                    st.bad_log_next[key] = now + _BAD_LOG_EVERY_S
-                    extra = st.bad_suppressed.pop(key, 0)
-                    _log.warning("%s%s", ev.message, f" ({extra} more of this kind not logged)" if extra else "")
-                else:
-                    st.bad_suppressed[key] = st.bad_suppressed.get(key, 0) + 1
-            elif not ev.kind.startswith("update."):
-                _log.info("%s", ev.message)
-        if self.viz is not None and shown:
-            for ev in shown[-20:]:
-                level = "WARN" if ev.kind.startswith(("bad", "reset", "gap", "unaligned")) else "INFO"
-                self.viz.log_event(name, ev.message, level=level, t_ns=ev.t_ns)  # stream time of the event
-            if len(shown) > 20:
-                self.viz.log_event(name, f"... and {len(shown) - 20} more events", level="WARN")
-
-
-class _Stream:
-    """The daemon's hold on one stream: its :class:`OnlineIdentifier` behind a lock, and what only the daemon knows."""
-
-    def __init__(self, ident: OnlineIdentifier) -> None:
-        self.ident = ident
-        self.lock = threading.Lock()  # every call into ident holds it (Zenoh callbacks, workers, housekeeping)
-        self.declared = False
-        self.latency_s: float | None = None
-        #: (version, window closed -> published seconds) of recent updates (bounded)
-        self.recent_latencies: deque[tuple[int, float]] = deque(maxlen=4096)
-        self.bad_log_next: dict[tuple[str, str], float] = {}
-        self.bad_suppressed: dict[tuple[str, str], int] = {}

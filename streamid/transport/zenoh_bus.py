@@ -12,6 +12,7 @@ Publishers of samples use BLOCK congestion control: with Zenoh's default
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import re
@@ -105,6 +106,16 @@ class ZenohSettings:
             raise ConfigError(
                 f"zenoh config file must be an existing JSON5 file; got {self.config_file!r}"
             )
+
+    def with_max_message_bytes(self, n_bytes: int) -> ZenohSettings:
+        """These settings with Zenoh's own bound on one received message (``transport/link/rx/max_message_size``).
+
+        Zenoh drops a larger message before it is reassembled (silently: the
+        receiver never sees it, the link stays up); the default is 1 GiB.
+        """
+        if isinstance(n_bytes, bool) or not isinstance(n_bytes, int) or n_bytes < 1024:
+            raise ConfigError(f"max message size must be an integer number of bytes >= 1024; got {n_bytes!r}")
+        return dataclasses.replace(self, extra=(*self.extra, ("transport/link/rx/max_message_size", str(n_bytes))))
 
     def to_config(self) -> zenoh.Config:
         """Build the :class:`zenoh.Config` these settings describe.
@@ -288,9 +299,18 @@ class Bus:
             self._entities.append(entity)
 
     # -- pub/sub ---------------------------------------------------------
-    def subscribe(self, key_expr: str, callback: Callback) -> _Handle:
+    def subscribe(
+        self,
+        key_expr: str,
+        callback: Callback,
+        *,
+        max_payload_bytes: int | None = None,
+        on_too_large: Callable[[str, int], None] | None = None,
+    ) -> _Handle:
         """Call ``callback(key, payload_bytes)`` for every sample put on ``key_expr``.
 
+        A payload longer than ``max_payload_bytes`` is not copied out of Zenoh nor
+        given to ``callback``: ``on_too_large(key, length)`` is called instead.
         Returns a handle whose ``close()`` undeclares the subscription.
         """
         self._check_open()
@@ -300,6 +320,12 @@ class Bus:
             try:
                 if sample.kind != zenoh.SampleKind.PUT:
                     return
+                if max_payload_bytes is not None:
+                    size = len(sample.payload)
+                    if size > max_payload_bytes:
+                        if on_too_large is not None:
+                            on_too_large(key, size)
+                        return
                 callback(key, sample.payload.to_bytes())
             except Exception:  # noqa: BLE001 - a callback must not kill zenoh's thread
                 _log.exception("subscriber callback failed on key %s", key)
