@@ -226,7 +226,7 @@ REAL_LOGS: dict[str, RealLog] = {
     ),
     "f16_gvt": RealLog(
         "f16_gvt", "f16_gvt", load_f16_gvt, ("force_N",), ("accel1_au", "accel2_au", "accel3_au"),
-        F16_PERIOD_NS, 40,  # 100 ms per batch
+        F16_PERIOD_NS, 32,  # 80 ms per batch; 8192 = 256 batches: the junction falls between two
         (
             ("source", "measured: F-16 ground vibration test benchmark (Noel & Schoukens, Workshop on "
                        "Nonlinear System Identification Benchmarks 2017), full-grid multisine 2-15 Hz; "

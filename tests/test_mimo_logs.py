@@ -47,6 +47,9 @@ def test_f16_log_equals_the_two_benchmark_periods_exactly() -> None:
     assert meta["estimation_samples"].startswith("8192") and "0bdf70605da2570cca526659b3b21e6356e7bb48" in (
         meta["source_repository"])
     assert "no licence file" in meta["licence"] and "Noel & Schoukens" in meta["licence"]
+    # no batch straddles the junction: `replay f16_gvt --start 20.48` plays exactly the validation part
+    first = [codec.decode(d) for _, t, d in mcaplog.iter_log(mcaplog.bundled_log("f16_gvt")) if t < 20_480_000_000]
+    assert sum(len(b) for b in first) == 8192 and first[-1].t0_ns + 31 * 2_500_000 == 20_477_500_000
     # the benchmark's levels: 36.8 N RMS (estimation), 24.6 N RMS (validation)
     assert float(np.sqrt(np.mean(a.u()[:8192, 0] ** 2))) == pytest.approx(36.85, abs=0.01)
     assert float(np.sqrt(np.mean(a.u()[8192:, 0] ** 2))) == pytest.approx(24.64, abs=0.01)
@@ -94,7 +97,7 @@ def test_mimo_logs_are_packaged_with_their_provenance() -> None:
         assert res.returncode == 0, res.stdout + res.stderr
 
 
-@pytest.mark.parametrize(("name", "n_samples", "n_messages"), [("f16_gvt", 16_384, 410), ("cstr", 7500, 750)])
+@pytest.mark.parametrize(("name", "n_samples", "n_messages"), [("f16_gvt", 16_384, 512), ("cstr", 7500, 750)])
 def test_replay_max_speed_delivers_every_sample_to_a_zenoh_subscriber(
     name: str, n_samples: int, n_messages: int
 ) -> None:
