@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+import rerun_bindings as rr_bindings
 
 from streamid.viz.figures import COL_FR, COL_MEASURED, COL_OSA, CANVAS, Figure, fitness_figure, plane_figure, validation_figures
 from streamid.viz.rrd_files import RepairReport, repair
@@ -108,6 +109,11 @@ class _Link:
             assert path is not None
             self.rec.set_sinks(rr.FileSink(path))
 
+    def reopen(self, path: str) -> None:
+        """Go on in the file ``path``: the SDK flushes the previous file, writes its footer and closes it first."""
+        self.rec.set_sinks(rr.FileSink(path))
+        self.path = path
+
 
 class Viz:
     """Rerun diagnostics of the daemon (thread-safe, never raises on a sink failure).
@@ -126,6 +132,7 @@ class Viz:
         self._cold: dict[str, tuple[int, np.ndarray]] = {}  # latest cold run's (version, fitness) per stream
         self._time_kind: str | None = None
         self._closed = False
+        self._bp_stream: tuple[tuple[str, ...], rr.RecordingStream] | None = None  # (layout's streams, its stream)
 
         def open_link(kind: str, path: str | None) -> Link:
             return _Link(settings, self._rid, kind, path)
@@ -262,8 +269,25 @@ class Viz:
         )
 
     def _send_blueprint_to(self, link: Link) -> None:
+        """Send the layout, from one blueprint stream per layout (the streams declared so far).
+
+        ``RecordingStream.send_blueprint`` makes a new blueprint stream on every call, and each
+        leaves two SDK threads behind (measured, rerun-sdk 0.41): once per .rrd segment and per
+        viewer reconnection that grew without bound.  The stream of the current layout is kept and
+        its blueprint logged again into a fresh in-memory sink for each send.
+        """
         try:
-            link.rec.send_blueprint(self.blueprint())
+            key = tuple(self._streams)
+            if self._bp_stream is None or self._bp_stream[0] != key:
+                self._bp_stream = (key, rr.RecordingStream._from_native(rr_bindings.new_blueprint(
+                    application_id=self.settings.application_id, make_default=False, make_thread_default=False,
+                    default_enabled=True)))
+            bps = self._bp_stream[1]
+            memory = bps.memory_recording()
+            bps.set_time("blueprint", sequence=0)
+            self.blueprint()._log_to_stream(bps)
+            bps.flush()
+            rr_bindings.send_blueprint(memory.storage, True, True, recording=link.rec.to_native())
         except Exception as exc:  # noqa: BLE001
             self._warn_once("blueprint", f"rerun blueprint not sent ({exc})")
 

@@ -2,7 +2,8 @@
 
 :class:`Sinks` keeps one link per sink -- an object with a recording stream
 ``rec`` (``flush(timeout_sec=...)``, ``disconnect()``), its ``kind`` (``file``,
-``serve`` or ``live``) and ``path`` -- made by the ``open_link`` that
+``serve`` or ``live``), ``path`` and ``reopen(path)`` (a file link goes on in
+another file, the previous one closed with its footer) -- made by the ``open_link`` that
 :class:`streamid.viz.rerun_view.Viz` hands in, so that only that module imports rerun.
 It rotates the file (:class:`streamid.viz.rrd_files.Segments`), probes the viewer
 before linking to it, and closes everything on shutdown.  The SDK's gRPC client
@@ -37,6 +38,9 @@ class Link(Protocol):
     rec: Any
     kind: str
     path: str | None
+
+    def reopen(self, path: str) -> None:
+        """Close the file (footer written) and go on in ``path``, on the same recording stream."""
 
 
 def quiet_disconnect(rec: Any) -> None:
@@ -156,19 +160,19 @@ class Sinks:
         seg.dirty = True
         if not seg.due():
             return
-        path = seg.next_path()
+        path, before = seg.next_path(), old.path
+        t0 = time.perf_counter()
         try:
-            new = self._open("file", str(path))
+            # the same recording stream goes on in a new file sink: a new stream per segment would leave two
+            # SDK threads behind each time (measured: +2 threads per RecordingStream, even after disconnect)
+            old.reopen(str(path))
         except Exception as exc:  # noqa: BLE001
-            self.warn_once("rotate", f"rerun file rotation to {str(path)!r} failed ({exc}); continuing in {old.path!r}")
+            self.warn_once("rotate", f"rerun file rotation to {str(path)!r} failed ({exc}); continuing in {before!r}")
             seg.opened_s = time.monotonic()  # retry one period later, not on every call
             return
-        t0 = time.perf_counter()
-        quiet_disconnect(old.rec)  # flushes, writes the footer and closes the file
-        self.file = new
         gone = seg.rotated(path)
-        self._greet(new)
-        _log.debug("rerun diagnostics continue in %s (%s closed in %.3f s)", path, old.path, time.perf_counter() - t0)
+        self._greet(old)
+        _log.debug("rerun diagnostics continue in %s (%s closed in %.4f s)", path, before, time.perf_counter() - t0)
         if gone:
             _log.info("removed %d old .rrd segments (%s ...; keep %d segments, %s MB): %d removed so far",
                       len(gone), gone[0].name, seg.keep, seg.max_mb, seg.removed)
