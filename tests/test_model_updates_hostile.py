@@ -82,10 +82,11 @@ def _wait(pred: Any, what: str) -> None:
 def test_forged_keys_and_kinds_are_skipped_counted_and_never_delivered(caplog: pytest.LogCaptureFixture) -> None:
     ep = endpoint()
     with Bus(ZenohSettings(listen=(ep,))) as forger:
-        got: dict[str, list[ModelUpdate]] = {"a": [], "*": [], "b": []}
+        got: dict[str, list[ModelUpdate]] = {"a": [], "*": [], "b": [], "one": []}
         with ModelSubscriber(ep, "a", got["a"].append) as sub_a, \
                 ModelSubscriber(ep, "*", got["*"].append) as sub_all, \
-                ModelSubscriber(ep, "b", got["b"].append) as sub_b:
+                ModelSubscriber(ep, "b", got["b"].append) as sub_b, \
+                ModelSubscriber(ep, "*", got["one"].append, max_models=1) as sub_one:
             pub = forger.publisher("streamid/a/model")
             assert pub.wait_for_subscribers(DEADLINE_S)
             time.sleep(0.2)  # the other subscriptions' declarations reach the forger too
@@ -93,12 +94,16 @@ def test_forged_keys_and_kinds_are_skipped_counted_and_never_delivered(caplog: p
             pub.put(_payload("a", 98, accepted=False, code="not_better", champion=1))  # a rejected one on /model
             pub.put(_overflowing("a"))
             pub.put(_payload("a", 1))
+            forger.put("streamid/e/model", _payload("e", 1))  # a second stream: beyond max_models=1
             assert sub_a.wait_for_version(1, DEADLINE_S) is not None
-            assert sub_all.wait_for_version(1, DEADLINE_S, stream="a") is not None
-            for sub in (sub_a, sub_all):
-                assert sub.skipped == {"malformed": 1, "key_mismatch": 1, "kind_mismatch": 1}, sub.skipped
-                assert sub.errors == 3
-            assert [u.version for u in got["a"]] == [1] and [(u.stream, u.version) for u in got["*"]] == [("a", 1)]
+            assert sub_all.wait_for_version(1, DEADLINE_S, stream="e") is not None
+            _wait(lambda: sub_one.errors >= 4, "the subscriber bounded to one model")
+            for sub in (sub_a, sub_all, sub_one):
+                want = {"malformed": 1, "key_mismatch": 1, "kind_mismatch": 1, "too_many": int(sub is sub_one)}
+                assert sub.skipped == want, sub.skipped
+            assert [u.version for u in got["a"]] == [1]
+            assert [(u.stream, u.version) for u in got["*"]] == [("a", 1), ("e", 1)]
+            assert [(u.stream, u.version) for u in got["one"]] == [("a", 1)] and list(sub_one.latest) == ["a"]
             assert got["b"] == [] and sub_b.errors == 0 and "b" not in sub_all.latest
         forger.queryable("streamid/c/model", lambda _k: _payload("b", 50))  # a daemon answering for another stream
         assert latest_model(ep, "c", timeout_s=0.5, default=None) is None  # the reply naming "b" is skipped

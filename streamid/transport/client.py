@@ -56,7 +56,7 @@ _log = logging.getLogger(__name__)
 #: Where to reach the daemon: an endpoint string, settings, or an open session.
 Target = Union[str, ZenohSettings, Bus]
 #: Why a received document was skipped (the keys of ``ModelSubscriber.skipped``).
-SKIP_REASONS = ("malformed", "key_mismatch", "kind_mismatch")
+SKIP_REASONS = ("malformed", "key_mismatch", "kind_mismatch", "too_many")
 
 
 def _open(bus_or_settings: Target) -> tuple[Bus, bool]:
@@ -169,6 +169,9 @@ class ModelSubscriber:
         ``streamid/<stream>/rejected``), as they come.
     warn_every_s
         At most one warning per skip reason in this many seconds.
+    max_models
+        Bound on the (stream, output) pairs kept: a model of a new pair beyond it is skipped
+        (``too_many``), so publishers inventing names cannot make the subscriber grow without end.
 
     Attributes
     ----------
@@ -177,7 +180,8 @@ class ModelSubscriber:
     skipped : dict
         Documents skipped per reason: ``malformed`` (not a valid model update),
         ``key_mismatch`` (naming another stream than its key), ``kind_mismatch``
-        (an accepted model on the rejected key or the other way round).
+        (an accepted model on the rejected key or the other way round), ``too_many`` (beyond
+        ``max_models``).
     stale : int
         Valid updates not newer than the current one of their output (e.g. a query reply
         that repeats a version already received).
@@ -195,9 +199,13 @@ class ModelSubscriber:
         latest_timeout_s: float = 1.0,
         include_rejected: bool = False,
         warn_every_s: float = 10.0,
+        max_models: int = 4096,
     ) -> None:
         if stream != "*":
             check_stream_name(stream)
+        if isinstance(max_models, bool) or not isinstance(max_models, int) or max_models < 1:
+            raise ConfigError(f"max_models must be an integer >= 1; got {max_models!r}")
+        self.max_models = max_models
         self.stream = stream
         self.callback = callback
         self.include_rejected = include_rejected
@@ -253,13 +261,18 @@ class ModelSubscriber:
                 return
             with self._cond:
                 prev = self._models.get((up.stream, up.output))
-                if not is_newer(up, prev):
+                full = prev is None and len(self._models) >= self.max_models
+                if not full and not is_newer(up, prev):
                     self.stale += 1
                     return
-                self._models[(up.stream, up.output)] = up
-                if is_newer(up, self.latest.get(up.stream)):
-                    self.latest[up.stream] = up
-                self._cond.notify_all()
+                if not full:
+                    self._models[(up.stream, up.output)] = up
+                    if is_newer(up, self.latest.get(up.stream)):
+                        self.latest[up.stream] = up
+                    self._cond.notify_all()
+            if full:
+                self._skips.skip("too_many", key, f"already {self.max_models} (stream, output) pairs kept (max_models)")
+                return
             self._deliver(up)
 
     def latest_per_output(self, stream: str | None = None) -> dict[str, ModelUpdate]:
