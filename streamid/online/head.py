@@ -12,10 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from streamid.engine import CoEAState, Model
-from streamid.online.drift import DriftSettings, ResidualMonitor
+from streamid.online.drift import DriftMonitor
 
 __all__ = ["OutputHead"]
 
@@ -39,26 +37,17 @@ class OutputHead:
     replaced: int = 0  # champions of this output replaced by a challenger (losses)
     current: dict[str, Any] = field(default_factory=dict)  # its last re-validation on current held-out data
     # drift
-    monitor: ResidualMonitor | None = None
+    monitor: DriftMonitor | None = None
     drift_t_ns: int | None = None  # estimated start of the last detected change (windows are cut to begin there)
     escalate: bool = False  # the next identification runs with the drift budget
     drifts: int = 0
 
-    def new_champion(self, model: Model, mse_ref: float, settings: DriftSettings | None, period_ns: int) -> None:
-        """Start monitoring a new champion (``mse_ref``: its OSA mean-square error on its held-out data)."""
+    def new_champion(self, model: Model, monitor: DriftMonitor | None) -> None:
+        """Serve ``model`` from now on, watched by ``monitor`` (None: not watched)."""
         self.model = model
-        self.monitor = ResidualMonitor(settings, period_ns, mse_ref) if settings is not None else None
+        self.monitor = monitor
         self.wins = 0
         self.current = {}
-
-    def residuals(self, u: np.ndarray, y: np.ndarray) -> np.ndarray | None:
-        """The champion's one-step-ahead residuals on the newest rows of ``u``/``y`` (the first ``max_lag`` are history)."""
-        m = self.model
-        if m is None or u.shape[1] != m.n_inputs or y.shape[0] <= m.max_lag:
-            return None
-        with np.errstate(over="ignore", invalid="ignore"):
-            pred = m.predict_osa(u, y)
-        return np.asarray(y[m.max_lag :] - pred[m.max_lag :], dtype=np.float64)
 
     def snapshot(self) -> dict[str, Any]:
         """The part of :class:`~streamid.online.snapshot.StreamState` that belongs to this output."""

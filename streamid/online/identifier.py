@@ -55,7 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine import CoEAState, EvalHelper, Model
 from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidError
 from streamid.online.acceptance import Decision, Update, decide
-from streamid.online.drift import DriftSettings
+from streamid.online.drift import DriftMonitor, DriftSettings, block_errors
 from streamid.online.head import OutputHead
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
 from streamid.online.snapshot import StreamState
@@ -124,7 +124,6 @@ class OnlineIdentifier(StreamIntake):
         self._last: dict[str, Any] = {}
         self._degraded_reason = ""
         self._state_error = ""
-        self._watched = (0, 0)  # buffer position up to which the champions' residuals were watched
 
     # ---------------------------------------------------------------- identification
     @property
@@ -248,10 +247,7 @@ class OnlineIdentifier(StreamIntake):
         self._version = version
         head.version, head.document, head.payload = version, doc, payload
         head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
-        L = model.max_lag
-        assert outcome.summary is not None
-        e = outcome.y_val[L:] - outcome.summary.osa_val[L:]
-        head.new_champion(model, float(np.mean(e * e)) if e.size else 0.0, self._drift, w.period_ns)
+        head.new_champion(model, self._monitor(model, outcome, w.period_ns))
         head.since_t_ns, head.since_unix_ns = w.t_end_ns, now_ns
         saved = True
         if persist is not None:
@@ -266,7 +262,7 @@ class OnlineIdentifier(StreamIntake):
                 self._state_error = str(exc)[:300] or type(exc).__name__
         self._outcomes["accepted"] += 1
         self._degraded_reason = ""
-        m = outcome.summary.metrics
+        m = outcome.summary.metrics if outcome.summary is not None else {}
         self._last.update(outcome="accepted", r2_osa_val=m.get("r2_osa_val"), r2_fr_val=m.get("r2_fr_val"),
                           model_unix_ns=now_ns)
         ev = self._event(
@@ -454,7 +450,7 @@ class OnlineIdentifier(StreamIntake):
         if model is not None and msg is not None:
             head.version = int(msg.get("version", v) if isinstance(msg.get("version", v), int) else 0)
             head.document, head.payload = dict(msg), encode_json(msg)
-            head.new_champion(model, 0.0, None, 1)  # no drift watch until the next champion sets its residual level
+            head.new_champion(model, None)  # no drift watch until the next champion is referenced on its held-out data
         if isinstance(co, str):
             try:
                 head.coea_state = CoEAState.from_json(co)
@@ -493,32 +489,43 @@ class OnlineIdentifier(StreamIntake):
         return next(iter(self._heads.values()), None)
 
     def _watch(self, now_ns: int) -> None:
-        """Feed the champions' one-step-ahead residuals on the samples just completed to their drift monitors."""
-        before, self._watched = self._watched, self._buffer.position
-        (epoch, complete), heads = self._watched, [h for h in self._heads.values() if h.monitor is not None]
-        if not heads or epoch != before[0] or complete <= before[1]:
-            return
-        names = self._buffer.output_names
-        for head in heads:
-            m = head.model
-            if m is None or head.monitor is None or head.output not in names:
+        """Run each champion free over the blocks of samples just completed; feed the errors to its drift test."""
+        epoch, complete = self._buffer.position
+        names, cap = self._buffer.output_names, self._buffer.lengths[2]
+        for head in self._heads.values():
+            mon, m = head.monitor, head.model
+            if mon is None or m is None or head.output not in names:
                 continue
-            n = min(complete - before[1] + m.max_lag, self._buffer.lengths[2])
-            got = self._buffer.recent(n)
-            if got is None:
+            B, L = mon.block_samples, m.max_lag
+            if mon.epoch != epoch or mon.next_index is None or complete - mon.next_index + L > cap:
+                mon.epoch, mon.next_index = epoch, complete  # (re)start at the newest sample
                 continue
-            e = head.residuals(got[0], got[1][:, names.index(head.output)])
-            if e is None or not e.size:
+            n_blocks = (complete - mon.next_index) // B
+            got = self._buffer.recent(complete - mon.next_index + L) if n_blocks > 0 else None
+            if got is None or got[0].shape[1] != m.n_inputs:
                 continue
-            t_ns = self._buffer.times_ns(complete - e.size, e.size)
-            change_ns = head.monitor.update(t_ns, e)
-            if change_ns is not None:
+            n = L + n_blocks * B
+            errors = block_errors(m, got[0][:n], got[1][:n, names.index(head.output)], B)
+            ends = self._buffer.times_ns(mon.next_index + B - 1, n_blocks * B)[::B]
+            mon.next_index += n_blocks * B
+            for mse, t_end in zip(errors, ends, strict=True):
+                change_ns = mon.block(float(mse), int(t_end))
+                if change_ns is None:
+                    continue
                 head.drift_t_ns, head.escalate = change_ns, True
                 head.drifts += 1
-                self._event("drift", f"{head.output}: champion v{head.version}'s residual level rose "
-                            f"(last block {head.monitor.last_level:+.2f} log-MSE ratio); change estimated at stream "
-                            f"time {change_ns / 1e9:.2f} s: the next identification uses data from then on with "
-                            f"{self.config.drift_generations} generations", int(t_ns[-1]), now_ns)
+                self._event("drift", f"{head.output}: champion v{head.version}'s free-run error rose (block level "
+                            f"{mon.last_level:+.2f} log-MSE ratio); change estimated at stream time "
+                            f"{change_ns / 1e9:.2f} s: the next identification uses data from then on with "
+                            f"{self.config.drift_generations} generations", int(t_end), now_ns)
+
+    def _monitor(self, model: Model, outcome: Outcome, period_ns: int) -> DriftMonitor | None:
+        """The drift monitor of a new champion; blocks at most as long as its held-out part (None: detection off)."""
+        if self._drift is None:
+            return None
+        n_val, L = outcome.y_val.shape[0], model.max_lag
+        block = min(max(2, round(self._drift.block_s * 1e9 / max(1, period_ns))), n_val - L)
+        return DriftMonitor(self._drift, block) if block >= 2 else None
 
     def _outcomes_count(self, outcome: Outcome) -> None:
         if outcome.kind == "dropped":

@@ -81,7 +81,7 @@ def stream_status(
         "identifications": {k: int(outcomes.get(k, 0)) for k in UPDATE_KINDS},
         "decisions": dict(decisions),
         "champion": outputs[first.output]["champion"] if first is not None else None,
-        "outputs": outputs,
+        "models": outputs,  # per modelled output: its champion, losses, failures, drifts
         "drifts": sum(h.drifts for h in heads),
         "drop_reasons": dict(drop_reasons),
         "failures_in_row": first.failures_in_row if first is not None else 0,
