@@ -20,6 +20,7 @@ files are JSON, parsed with :func:`json.loads`.
 
 from __future__ import annotations
 
+import glob
 import os
 import tempfile
 import time
@@ -29,8 +30,11 @@ from streamid.errors import ConfigError, ModelFormatError
 from streamid.online.snapshot import STATE_FORMAT, StreamState
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
-__all__ = ["STATE_FORMAT", "StreamState", "StateStore", "atomic_write_text"]
+__all__ = ["KEEP_QUARANTINED", "STATE_FORMAT", "StreamState", "StateStore", "atomic_write_text"]
 _SUFFIX = ".json"
+_CORRUPT = ".corrupt-"
+#: Quarantined files kept per stream (the oldest beyond this are deleted when another is moved aside).
+KEEP_QUARANTINED = 8
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -131,10 +135,31 @@ class StateStore:
         return p
 
     def quarantine(self, stream: str) -> Path | None:
-        """Move an unreadable state file aside (``.corrupt-<ns>``); returns the new path."""
+        """Move an unreadable state file aside (``.corrupt-<ns>``); returns the new path.
+
+        The newest :data:`KEEP_QUARANTINED` quarantined files of the stream are kept
+        (:mod:`streamid.daemon.versions` reads the highest version in them); older
+        ones are deleted, so a file damaged at every start cannot fill the directory.
+        """
         p = self.path(stream)
         if not p.exists():
             return None
-        q = p.with_name(f"{p.name}.corrupt-{time.time_ns()}")
+        q = p.with_name(f"{p.name}{_CORRUPT}{time.time_ns()}")
         os.replace(p, q)
+        for old in self.quarantined(stream)[KEEP_QUARANTINED:]:
+            try:
+                old.unlink()
+            except OSError:
+                pass
         return q
+
+    def quarantined(self, stream: str) -> list[Path]:
+        """The stream's quarantined state files, newest first."""
+        prefix = self.path(stream).name + _CORRUPT
+
+        def stamp(p: Path) -> int:
+            tail = p.name[len(prefix):]
+            return int(tail) if tail.isdigit() else -1
+
+        found = [p for p in self.directory.glob(f"{glob.escape(prefix)}*") if p.name.startswith(prefix)]
+        return sorted(found, key=stamp, reverse=True)
