@@ -63,9 +63,11 @@ def run(args: argparse.Namespace) -> int:
         return _repair(args)
     if not args.timeout > 0:
         raise ConfigError(f"--timeout must be a number of seconds > 0; got {args.timeout}")
-    files = rrd_files.resolve(args.files)
+    files, empty = rrd_files.resolve(args.files)
     open_ = [str(f) for f in files if not rrd_files.has_footer(f)]
     if not args.json:
+        for f in empty:
+            print(f"streamid view: {f} is empty (its writer was killed as it created it); left out", file=sys.stderr)
         total = sum(f.stat().st_size for f in files)
         print(f"streamid view: {len(files)} file{'s' if len(files) > 1 else ''} ({total / 1e6:.1f} MB): "
               f"{', '.join(f.name for f in files[:3])}{' ...' if len(files) > 3 else ''}", file=sys.stderr)
@@ -76,9 +78,9 @@ def run(args: argparse.Namespace) -> int:
     from streamid.viz.screenshot import rerun_cli
 
     command = [rerun_cli(), "--bind", "127.0.0.1", *map(str, files)]
+    doc: dict[str, object] = {"files": [str(f) for f in files], "no_footer": open_, "empty": [str(f) for f in empty]}
     if args.print_command:
-        _say(args, {"files": [str(f) for f in files], "no_footer": open_, "command": command},
-             shlex.join(command))
+        _say(args, {**doc, "command": command}, shlex.join(command))
         return 0
     if args.screenshot:
         from streamid.viz.rerun_view import screenshot
@@ -88,8 +90,7 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, RuntimeError) as exc:
             print(f"streamid view: error: {exc}", file=sys.stderr)
             return 1
-        _say(args, {"files": [str(f) for f in files], "no_footer": open_, "screenshot": str(png)},
-             f"screenshot: {png}")
+        _say(args, {**doc, "screenshot": str(png)}, f"screenshot: {png}")
         return 0
     return subprocess.run(command, check=False).returncode
 

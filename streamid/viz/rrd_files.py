@@ -115,13 +115,16 @@ def has_footer(path: str | os.PathLike[str]) -> bool:
         return False
 
 
-def resolve(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
+def resolve(paths: Iterable[str | os.PathLike[str]]) -> tuple[list[Path], list[Path]]:
     """The files to show for ``paths``: each .rrd with its continuation segments, checked, without repeats.
 
-    A name whose own file was removed by rotation still resolves to its segments.
-    Raises :class:`ConfigError` naming the first path that is not an .rrd or has no file at all.
+    A name whose own file was removed by rotation still resolves to its segments.  Returns the
+    files and the continuation segments left out because they are empty (their writer was
+    killed as it created them).  Raises :class:`ConfigError` naming the first path that is not
+    an .rrd or has no file at all.
     """
     out: dict[Path, None] = {}
+    empty: list[Path] = []
     for given in paths:
         p = Path(given)
         if p.suffix != ".rrd":
@@ -130,8 +133,11 @@ def resolve(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
         if not segs:
             check_rrd(p)  # raises: nothing there (names the file)
         for s in segs or [p]:
+            if s != p and s.stat().st_size < len(_MAGIC) + 1:
+                empty.append(s)
+                continue
             out[check_rrd(s)] = None
-    return list(out)
+    return list(out), empty
 
 
 def verify(path: str | os.PathLike[str], *, rerun: str, timeout_s: float = 120.0) -> tuple[bool, str]:
