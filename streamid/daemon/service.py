@@ -57,9 +57,11 @@ from streamid.daemon.runner import JobRunner
 from streamid.daemon.slots import StreamSlot as _Stream
 from streamid.daemon.slots import forward_events
 from streamid.daemon.state_store import StateStore
+from streamid.daemon.identity import daemon_origin
+from streamid.daemon.versions import VersionKeeper
 from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
 from streamid.engine.parallel import EvalHelper
-from streamid.errors import CodecError, ModelFormatError, StreamidError
+from streamid.errors import CodecError, StreamidError
 from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
 from streamid.transport import Bus, ZenohSettings
 
@@ -106,6 +108,7 @@ class Daemon:
         self.zenoh = zenoh
         self.viz = viz
         self.store = StateStore(state_dir) if state_dir is not None else None
+        self.versions = VersionKeeper(self.store, daemon_origin(state_dir))  # origin, lost-state and full-disk rules
         self.bus: Bus | None = None
         self.identify = identify
         self.on_generation = on_generation
@@ -276,18 +279,8 @@ class Daemon:
                     self._warned.add("max_streams")
                     _log.warning("stream %r refused: daemon.max_streams = %d reached", name, self.config.max_streams)
                 return None
-            ident = OnlineIdentifier(self.config.for_stream(name), stream=name)
-            if self.store is not None:
-                try:
-                    saved = self.store.load(name)
-                except ModelFormatError as exc:
-                    moved = self.store.quarantine(name)
-                    _log.error("stream %s: unreadable state (%s); moved to %s, starting cold", name, exc, moved)
-                    saved = None
-                if saved is not None:
-                    for warning in ident.restore(saved):
-                        _log.warning("stream %s: %s", name, warning)
-                    _log.info("stream %s: resumed at version %d from %s", name, saved.version, self.store.path(name))
+            ident = OnlineIdentifier(self.config.for_stream(name), stream=name, origin=self.versions.origin_doc)
+            self.versions.resume(ident)  # saved state; a damaged file quarantined, its version recovered
             st = self._streams[name] = _Stream(ident, configured=name in self.config.streams)
             _log.info("stream %s: %s", name, "configured" if name in self.config.streams else "discovered")
             return st
@@ -313,6 +306,7 @@ class Daemon:
         return {
             "streams": len(self._streams),
             "uptime_s": round((time.time_ns() - self._started_ns) / 1e9, 3),
+            "origin": self.versions.origin_doc,  # who publishes this life's models (daemon id, epoch)
             **{k: int(v) for k, v in self._global.items()},
         }
 
@@ -388,7 +382,8 @@ class Daemon:
     def _finish(self, st: _Stream, job: UpdateJob, out: Outcome) -> None:
         """Judge a job's outcome, save, publish an accepted model, then draw it (a worker thread)."""
         name, window = st.ident.stream, job.window
-        persist = self.store.save if self.store is not None else None
+        persist = self.versions.persist if self.store is not None else None
+        self.versions.settle(st.ident, self.bus, st.lock)  # once per stream without state: the network's version
         with st.lock:
             up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
         latency_s = None
