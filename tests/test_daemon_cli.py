@@ -33,6 +33,7 @@ warm_generations = 15
 neurons = 6
 max_lag_y = 4
 max_lag_u = 4
+challenger_margin = -1.0  # every valid challenger is published: these tests count versions across restarts
 """
 
 

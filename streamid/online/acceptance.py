@@ -154,8 +154,9 @@ def decide(outcome: Outcome, cfg: StreamConfig, champion_version: int) -> Decisi
                         f"champion v{champion_version} cannot run on the current signals", margin, champ_doc)
     c_fr, c_osa = _fig(champ, "r2_fr_val"), _fig(champ, "r2_osa_val")
     if fr >= c_fr + margin:
-        return Decision(True, "better", f"FR R² {fr:.4f} beats champion v{champion_version}'s {c_fr:.4f} on the same "
-                        f"held-out data by {fr - c_fr:.4f} >= margin {margin:g}", margin, champ_doc)
+        word = "beats" if fr > c_fr else "is within the margin of"
+        return Decision(True, "better", f"FR R² {fr:.4f} {word} champion v{champion_version}'s {c_fr:.4f} on the same "
+                        f"held-out data ({fr - c_fr:+.4f}, margin {margin:g})", margin, champ_doc)
     champion_valid = c_fr >= cfg.min_r2_fr and c_osa >= cfg.min_r2_osa
     if not champion_valid and fr > c_fr:
         return Decision(True, "champion_invalid", f"champion v{champion_version} no longer valid on current data "

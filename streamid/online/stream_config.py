@@ -59,6 +59,8 @@ class StreamConfig:
         on the same held-out data, to replace a valid champion (default 0.005:
         about the spread of R^2 between restarts on a few seconds of data, so
         a controller is not handed a new model for a difference that is noise).
+        Negative: a challenger up to that much worse still replaces the champion
+        (-1: every valid challenger does, one model per window as in the paper).
     drift_detection
         Watch the champion's one-step-ahead residuals on incoming data with a
         Page-Hinkley test (:mod:`streamid.online.drift`); on a drift, the next
@@ -133,8 +135,9 @@ class StreamConfig:
             if not getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must be a number <= 1 (R^2 never exceeds 1); got {getattr(self, name)!r}")
 
-        if not (isinstance(self.challenger_margin, (int, float)) and 0.0 <= self.challenger_margin <= 1.0):
-            raise ConfigError(f"challenger_margin must be a number in [0, 1] (an R^2 difference); got {self.challenger_margin!r}")
+        if not (isinstance(self.challenger_margin, (int, float)) and -1.0 <= self.challenger_margin <= 1.0):
+            raise ConfigError(
+                f"challenger_margin must be a number in [-1, 1] (an R^2 difference); got {self.challenger_margin!r}")
         if not isinstance(self.drift_detection, bool):
             raise ConfigError(f"drift_detection must be true or false; got {self.drift_detection!r}")
 
