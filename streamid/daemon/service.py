@@ -43,7 +43,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -55,7 +55,7 @@ from streamid.daemon.admission import check_batch, known_channels
 from streamid.daemon.memory import LARGE_PAYLOAD, give_back_freed_memory, retain_freed_memory
 from streamid.daemon.runner import JobRunner
 from streamid.daemon.slots import StreamSlot as _Stream
-from streamid.daemon.slots import forward_events
+from streamid.daemon.slots import EVICT_GRACE_S, evictable, forward_events
 from streamid.daemon.state_store import StateStore
 from streamid.daemon.identity import daemon_origin
 from streamid.daemon.versions import VersionKeeper
@@ -123,6 +123,7 @@ class Daemon:
         self._warned: set[str] = set()
         self._started_ns = 0
         self._large_payload = threading.Event()  # a large payload came in: give heap memory back
+        self._released: deque[_Stream] = deque()  # slots taken by new streams, declarations still to close
         self._runner = JobRunner(self._streams, config, self._stop, self._global, self._finish, on_generation)
 
     # ------------------------------------------------------------------ lifecycle
@@ -273,6 +274,13 @@ class Daemon:
                 return None
             if not self.config.discover and name not in self.config.streams:
                 return None
+            victim = None
+            if len(self._streams) >= self.config.max_streams:  # a slot that only ever had bad input goes first
+                victim = evictable(self._streams.values(), time.monotonic(), min(EVICT_GRACE_S, self.config.stream_idle_s))
+                if victim is not None:
+                    del self._streams[victim.ident.stream]
+                    self._global["streams_released"] += 1
+                    self._released.append(victim)  # its declarations are closed by the housekeeping thread
             if len(self._streams) >= self.config.max_streams:
                 self._global["streams_refused"] += 1
                 if "max_streams" not in self._warned:
@@ -373,7 +381,9 @@ class Daemon:
             if refused is not None:
                 st.ident.count_bad(refused[0], refused[1], now_ns=now_ns)
                 return
-            st.ident.push(batch, source=kind, now_ns=now_ns)
+            events = st.ident.push(batch, source=kind, now_ns=now_ns)
+            if not st.had_valid and not any(ev.kind.startswith("bad.") for ev in events):
+                st.had_valid = True
             due = st.ident.pending > 0
         if due and self.identify:
             self._runner.wake(stream)
@@ -439,6 +449,8 @@ class Daemon:
             if now >= next_idle:
                 next_idle = now + min(1.0, self.config.stream_idle_s / 4)
                 self._release_idle(now)
+            while self._released:
+                self._close_slot(self._released.popleft(), "taken by a new stream: it never had a valid batch")
             if now >= next_trim and self._large_payload.is_set():
                 next_trim = now + 1.0
                 self._large_payload.clear()
@@ -454,26 +466,29 @@ class Daemon:
                     continue
                 if st.configured or st.ident.busy or now - st.valid_mono < self.config.stream_idle_s:
                     continue
-            self._release(st, now - st.valid_mono)
+            with self._streams_lock:
+                if self._streams.get(st.ident.stream) is not st:
+                    continue
+                del self._streams[st.ident.stream]
+                self._global["streams_released"] += 1
+            self._close_slot(st, f"{now - st.valid_mono:.0f} s without a valid sample (daemon.stream_idle_s = "
+                                 f"{self.config.stream_idle_s:g})")
 
-    def _release(self, st: _Stream, idle_s: float) -> None:
+    def _close_slot(self, st: _Stream, why: str) -> None:
+        """Close the declarations of a slot already removed from the table (housekeeping thread)."""
         name = st.ident.stream
-        with self._streams_lock:
-            if self._streams.get(name) is not st:
-                return
-            del self._streams[name]
-            self._global["streams_released"] += 1
-        self._runner.scheduler.forget(name)
+        if name not in self._streams:  # (not already back in a new slot)
+            self._runner.scheduler.forget(name)
         for key in (f"{name}/model", f"{name}/status"):
-            self._pubs.pop(key, None)
+            if any(self._pubs.get(key) is h for h in st.handles):
+                self._pubs.pop(key, None)
         for h in st.handles:
             try:
                 h.close()
             except Exception:  # noqa: BLE001 - the session may be closing
                 pass
         forward_events(st, self.viz)
-        _log.info("stream %s: slot released after %.0f s without a valid sample (daemon.stream_idle_s = %g)%s",
-                  name, idle_s, self.config.stream_idle_s, "; its state file stays" if self.store is not None else "")
+        _log.info("stream %s: slot released: %s%s", name, why, "; its state file stays" if self.store is not None else "")
 
     def publish_status(self) -> None:
         """Put the status of every stream on its status key."""

@@ -6,15 +6,18 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 from typing import Any
 
 from streamid.online import OnlineIdentifier
 
-__all__ = ["StreamSlot", "forward_events", "BAD_LOG_EVERY_S"]
+__all__ = ["StreamSlot", "forward_events", "evictable", "BAD_LOG_EVERY_S", "EVICT_GRACE_S"]
 
 _log = logging.getLogger("streamid.daemon.service")
 #: Bad input of one kind on one stream is logged at most once per this many seconds (the rest is counted).
 BAD_LOG_EVERY_S = 10.0
+#: A discovered slot that never had a valid batch may be taken by a new stream after this long (at most stream_idle_s).
+EVICT_GRACE_S = 1.0
 
 
 class StreamSlot:
@@ -37,10 +40,20 @@ class StreamSlot:
         self.nested_runs = 0  # jobs of this stream run between the generations of another stream's job
         self.samples_seen: object = 0  # samples_in at the last idleness check
         self.valid_mono = time.monotonic()  # when samples_in last grew (or the slot was made)
+        self.created_mono = self.valid_mono
+        self.had_valid = False  # a batch of it was ever accepted by the window buffer
 
     def counters(self) -> dict[str, int]:
         """What the daemon adds to the stream's status document."""
         return {"identification_timeouts": self.identification_timeouts, "nested_runs": self.nested_runs}
+
+
+def evictable(slots: Iterable[StreamSlot], now: float, grace_s: float) -> StreamSlot | None:
+    """A slot a new stream may take when the table is full: discovered, never a valid batch, idle, ``grace_s`` old."""
+    for st in slots:
+        if not (st.configured or st.had_valid or st.ident.busy) and now - st.created_mono >= grace_s:
+            return st
+    return None
 
 
 def forward_events(st: StreamSlot, viz: Any | None) -> None:
