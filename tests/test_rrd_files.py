@@ -75,13 +75,13 @@ def test_sigkilled_writer_leaves_one_open_segment_and_repair_recovers_it(tmp_pat
                 break  # well into a segment: the SDK wrote some of it (it flushes every ~0.2 s)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
-        rest = proc.stdout.read()
+        rest = proc.stdout.read() if proc.stdout is not None else ""
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
     assert proc.returncode == -signal.SIGKILL
-    assert rotations >= 3, f"the writer rotated {rotations} times before the deadline: {proc.stderr.read()[-2000:]}"
+    assert rotations >= 3, f"the writer rotated {rotations} times before the deadline: {proc.stderr.read()[-2000:] if proc.stderr else ''}"
     t_kill = time.monotonic()
     for line in rest.splitlines():  # lines printed between the last read and the kill
         if line.startswith("drawn v"):
