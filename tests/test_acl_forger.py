@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 
 from conftest import STREAMID, endpoint
-from test_security import FAST_DAEMON_TOML, _settings, _wait_listening
+from test_security import FAST_DAEMON_TOML, Inbox, _counter_put, _pump, _settings, _wait_listening
 from streamid.online import OnlineIdentifier, StreamConfig
 from streamid.sim import get_device
 from streamid.transport import Bus
@@ -159,3 +159,32 @@ def test_shipped_acl_stops_a_forger_and_the_daemon_models_still_arrive(
             time.sleep(0.05)
     assert any(u.version == FORGED_VERSION for u in got), "the control forgery never arrived: the test cannot fail"
     print(f"forged puts refused: {puts[0]}; genuine versions seen: {published}", file=sys.stderr)
+
+
+def test_shipped_acl_lets_daemons_ask_versions_and_carries_rejected_challengers() -> None:
+    """Through router.json5: a daemon's version query reaches another daemon's model queryable (recovery after
+    lost state); rejected challengers flow from a daemon to analysts, and a sensor cannot forge one."""
+    ep = endpoint()
+    with Bus(_settings("router.json5", listen=(ep,))), \
+            Bus(_settings("daemon-via-router.json5", connect=(ep,))) as old_life, \
+            Bus(_settings("daemon-via-router.json5", connect=(ep,))) as new_life, \
+            Bus(_settings("analyst.json5", connect=(ep,))) as analyst, \
+            Bus(_settings("sensor.json5", connect=(ep,))) as sensor:
+        old_life.queryable("streamid/r/model", lambda _k: b"served-v7")
+        replies: list[tuple[str, bytes]] = []
+        deadline = time.monotonic() + ARRIVE_S  # declarations propagate asynchronously
+        while not replies and time.monotonic() < deadline:
+            replies = new_life.get("streamid/r/model", timeout_s=0.5, all_replies=True)
+        assert replies == [("streamid/r/model", b"served-v7")]
+        assert sensor.get("streamid/r/model", timeout_s=0.5) == []  # sensors still cannot query models
+        rejected = Inbox()
+        analyst.subscribe("streamid/*/rejected", rejected)
+        put_genuine = _counter_put(old_life, "streamid/r/rejected", b"challenger#")
+        put_forged = _counter_put(sensor, "streamid/r/rejected", b"forged#")
+
+        def both() -> None:
+            put_genuine()
+            put_forged()
+
+        assert _pump(both, lambda: rejected.count(b"challenger#") >= 3)
+        assert rejected.count(b"forged#") == 0

@@ -16,6 +16,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -242,6 +243,7 @@ def test_restart_after_damaged_or_lost_state_never_silences_subscribers(tmp_path
     by_epoch = {d["origin"]["epoch_ns"] for d in shown if d.get("origin")}
     assert {first[0].origin.epoch_ns, second[0].origin.epoch_ns, third[0].origin.epoch_ns} <= by_epoch, werr[-2000:]
     assert any(d["version"] == 1 and d["origin"]["epoch_ns"] == third[0].origin.epoch_ns for d in shown)
+    print("versions per life:", [[u.version for u in lf] for lf in lives], file=sys.stderr)
 
 
 # --------------------------------------------------------------------------- VersionKeeper with a real identifier

@@ -18,6 +18,7 @@ import errno
 import json
 import logging
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -130,6 +131,7 @@ def test_full_disk_keeps_publishing_warns_once_and_recovers(
     not_saved = [r for r in caplog.records if "state not saved" in r.getMessage() and "disk" in r.getMessage()]
     assert len(not_saved) == 1, [r.getMessage() for r in not_saved]  # one warning for >= 4 updates
     assert "No space left on device" in not_saved[0].getMessage()
+    print(f"versions {versions} ({n_full} while full); status: {full_status['state_error']!r}", file=sys.stderr)
     assert any("state saved again" in r.getMessage() for r in caplog.records)
     assert any("daemon identity not saved" in r.getMessage() for r in caplog.records)  # it was full at start
     saved = json.loads((state_dir / "disk.json").read_text())

@@ -52,7 +52,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     sinks.add_argument("--rrd-rotate-s", type=float, default=5.0, metavar="S", help="... and every S seconds, so a "
                        "SIGKILL leaves at most S s without footer (default 5; 0 = by size only)")
     sinks.add_argument("--no-rerun", action="store_true", help="no diagnostics at all")
-    p.add_argument("--state-dir", metavar="DIR", help="save models and populations here; resume warm from them")
+    p.add_argument("--state-dir", metavar="DIR",
+                   help="save models and populations here; resume warm from them (also keeps the daemon's id, "
+                        "so a restart is recognised by subscribers; a damaged file is quarantined and its version "
+                        "recovered; on a full disk models are still published)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until signalled)")
     p.add_argument("--print-config", action="store_true", help="print every effective setting as TOML that --config reads back, and exit")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v info, -vv debug)")
@@ -91,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
                 viz.close()
             raise
         where = ", ".join(zenoh.listen or zenoh.connect) or "zenoh config"
-        print(f"streamid daemon: serving on {where}; Ctrl-C to stop", file=sys.stderr, flush=True)
+        origin = daemon.versions.origin
+        print(f"streamid daemon: serving on {where} as daemon {origin.daemon} (epoch {origin.epoch_ns}); "
+              "Ctrl-C to stop", file=sys.stderr, flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
         while not stop.wait(0.1):
             if end is not None and time.monotonic() >= end:
