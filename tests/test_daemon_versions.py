@@ -43,11 +43,13 @@ def test_identity_is_stable_per_state_dir_and_epochs_increase(tmp_path: Path) ->
     b = daemon_origin(tmp_path, now_ns=2_000)
     assert a.daemon == b.daemon and len(a.daemon) == 16
     assert (a.epoch_ns, b.epoch_ns) == (1_000, 2_000)
+    (tmp_path / f".{IDENTITY_FILE}.abc123.tmp").write_text("{")  # a temporary of a writer killed mid-write
     # a wall clock stepped back: the epoch still moves forward for this state directory
     c = daemon_origin(tmp_path, now_ns=500)
     assert c.daemon == a.daemon and c.epoch_ns == 2_001
     doc = json.loads((tmp_path / IDENTITY_FILE).read_text())
     assert doc == {"format": IDENTITY_FORMAT, "daemon": a.daemon, "last_epoch_ns": 2_001}
+    assert sorted(p.name for p in tmp_path.iterdir()) == [IDENTITY_FILE]  # the temporary removed
     # another state directory, or none: another daemon
     (tmp_path / "other").mkdir()
     assert daemon_origin(tmp_path / "other", now_ns=1).daemon != a.daemon

@@ -191,8 +191,8 @@ def test_daemon_sigkilled_thrice_resumes_warm_with_unique_increasing_versions(tm
                 proc.send_signal(signal.SIGKILL)
                 proc.wait(10)
                 for f in (tmp_path / "state").iterdir():  # whole documents only
-                    if f.name.endswith(".tmp"):
-                        continue  # a temporary of the killed writer: never read, removed at the next start
+                    if f.name.endswith(".tmp") or f.name == "daemon.identity":
+                        continue  # a temporary of the killed writer (removed at the next start); the daemon's id
                     assert f.name == "bench.json", f.name
                     doc = json.loads(f.read_text())
                     assert doc["format"] == "streamid.daemon-state/1" and doc["coea_state"]
@@ -214,7 +214,7 @@ def test_daemon_sigkilled_thrice_resumes_warm_with_unique_increasing_versions(tm
         assert mine[0].version > max(u.version for lf, u in ups if lf < i)
     saved = json.loads((tmp_path / "state" / "bench.json").read_text())
     assert saved["version"] == versions[-1]
-    assert [f.name for f in (tmp_path / "state").iterdir()] == ["bench.json"]
+    assert sorted(f.name for f in (tmp_path / "state").iterdir()) == ["bench.json", "daemon.identity"]
 
 
 _WRITER = """

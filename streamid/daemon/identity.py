@@ -97,6 +97,11 @@ def daemon_origin(state_dir: str | Path | None, *, now_ns: int | None = None) ->
     if state_dir is None:
         return Origin(_new_id(), now)
     path = Path(state_dir) / IDENTITY_FILE
+    for tmp in Path(state_dir).glob(f".{IDENTITY_FILE}.*.tmp"):  # left by a daemon killed mid-write
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
     daemon, last, why = _read(path)
     if why:
         _log.warning("daemon identity: %s; starting under a new identity", why)
