@@ -62,13 +62,13 @@ from streamid.daemon.versions import VersionKeeper
 from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, StreamidError
-from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, status_key
+from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, rejected_key, status_key
 from streamid.transport import Bus, ZenohSettings
 
 __all__ = ["Daemon"]
 
 _log = logging.getLogger(__name__)
-_OWN_KINDS = ("model", "status")
+_OWN_KINDS = ("model", "status", "rejected")
 #: Zenoh drops a received message larger than this many times ``max_payload_bytes`` before reassembling it.
 ZENOH_MESSAGE_FACTOR = 8
 
@@ -300,9 +300,12 @@ class Daemon:
             return
         self._pubs[f"{name}/model"] = bus.publisher(model_key(name), block=True)
         self._pubs[f"{name}/status"] = bus.publisher(status_key(name), block=False)
-        st.handles += [self._pubs[f"{name}/model"], self._pubs[f"{name}/status"]]
-        def model_reply(_key: str) -> bytes | None:
-            return st.ident.payload
+        self._pubs[f"{name}/rejected"] = bus.publisher(rejected_key(name), block=False)
+        st.handles += [self._pubs[f"{name}/{k}"] for k in ("model", "status", "rejected")]
+
+        def model_reply(_key: str) -> list[bytes]:
+            with st.lock:
+                return list(st.ident.payloads)  # the champion of every output: one reply each
 
         def status_reply(_key: str) -> bytes | None:
             return encode_json(self._status(st))
@@ -399,6 +402,8 @@ class Daemon:
         latency_s = None
         with st.lock:
             st.recent_updates.append((time.monotonic(), up.kind, (time.time_ns() - window.received_ns) / 1e9))
+        if up.kind == "rejected" and up.payload is not None and (rej := self._pubs.get(f"{name}/rejected")):
+            rej.put(up.payload)  # a rejected challenger, for subscribers that asked (include_rejected)
         if up.accepted:
             pub = self._pubs.get(f"{name}/model")
             if pub is None:

@@ -38,7 +38,7 @@ from mcap.writer import CompressionType, Writer
 
 from streamid.wire import codec
 from streamid.errors import CodecError, ConfigError, LogError
-from streamid.wire.keys import SAMPLE_KINDS, parse_key
+from streamid.wire.keys import DOCUMENT_KINDS, SAMPLE_KINDS, parse_key
 
 __all__ = [
     "LOG_FORMAT",
@@ -159,7 +159,7 @@ class LogWriter:
                     codec.SCHEMA_NAME, codec.SCHEMA_ENCODING, codec.FILE_DESCRIPTOR_SET
                 )
             cid = self._writer.register_channel(key, codec.MESSAGE_ENCODING, self._schema_id)
-        elif kind in ("model", "status"):
+        elif kind in DOCUMENT_KINDS:
             cid = self._writer.register_channel(key, "json", 0)
         else:
             cid = self._writer.register_channel(key, "", 0)

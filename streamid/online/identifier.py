@@ -128,8 +128,8 @@ class OnlineIdentifier(StreamIntake):
     # ---------------------------------------------------------------- identification
     @property
     def pending(self) -> int:
-        """Closed windows waiting to be identified."""
-        return self._buffer.pending_windows
+        """Closed windows waiting to be identified (a window with outputs still to do counts)."""
+        return self._buffer.pending_windows + (1 if self._todo else 0)
 
     @property
     def busy(self) -> bool:
@@ -471,6 +471,7 @@ class OnlineIdentifier(StreamIntake):
             degraded_reason=self._degraded_reason, version=self._version, busy=self.busy,
             outcomes=self._outcomes, decisions=self._decisions, drop_reasons=self._drop_reasons,
             last=self._last, events_dropped=self._events_dropped, state_error=self._state_error,
+            outputs_to_do=len(self._todo),
         )
 
     # ---------------------------------------------------------------- internals

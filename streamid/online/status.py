@@ -41,6 +41,7 @@ def stream_status(
     last: Mapping[str, Any],
     events_dropped: int,
     state_error: str,
+    outputs_to_do: int = 0,
 ) -> dict[str, Any]:
     """The status document (``c``: the window buffer's counters)."""
     last_t_ns = c.get("last_t_ns")
@@ -75,7 +76,9 @@ def stream_status(
             "emitted": c.get("windows_emitted", 0),
             "coalesced": c.get("windows_coalesced", 0),
             "dropped": int(outcomes.get("dropped", 0)),
-            **{k: c[k] for k in ("pending", "pending_windows", "max_pending_windows", "pending_bytes",
+            "pending": bool(c["pending"] or outputs_to_do),
+            "outputs_to_do": outputs_to_do,  # outputs of the window being identified not done yet
+            **{k: c[k] for k in ("pending_windows", "max_pending_windows", "pending_bytes",
                                  "pending_windows_peak", "pending_bytes_peak", "pending_bytes_max", "live")},
         },
         "identifications": {k: int(outcomes.get(k, 0)) for k in UPDATE_KINDS},

@@ -198,7 +198,7 @@ def explain_open_error(message: str, settings: ZenohSettings) -> str:
 
 
 Callback = Callable[[str, bytes], None]
-QueryHandler = Callable[[str], "bytes | None"]
+QueryHandler = Callable[[str], "bytes | Sequence[bytes] | None"]
 
 
 class BusPublisher:
@@ -370,10 +370,11 @@ class Bus:
 
     # -- query/reply -----------------------------------------------------
     def queryable(self, key: str, handler: QueryHandler) -> _Handle:
-        """Answer queries on ``key``: ``handler(query_key) -> bytes | None``.
+        """Answer queries on ``key``: ``handler(query_key) -> bytes | list of bytes | None``.
 
-        A ``None`` result sends no reply.  The reply is sent on the queried key
-        when it is concrete, else on ``key``.
+        A ``None`` result sends no reply, a list one reply per item (e.g. the model of
+        each output of a stream).  Replies are sent on the queried key when it is
+        concrete, else on ``key``.
         """
         self._check_open()
 
@@ -381,9 +382,9 @@ class Bus:
             qkey = str(query.key_expr)
             try:
                 payload = handler(qkey)
-                if payload is not None:
-                    reply_key = key if ("*" in qkey or "$" in qkey) else qkey
-                    query.reply(reply_key, bytes(payload))
+                reply_key = key if ("*" in qkey or "$" in qkey) else qkey
+                for item in [payload] if isinstance(payload, (bytes, bytearray)) else payload or ():
+                    query.reply(reply_key, bytes(item))
             except Exception:  # noqa: BLE001
                 _log.exception("queryable handler failed on key %s", qkey)
 
