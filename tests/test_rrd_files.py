@@ -148,6 +148,23 @@ def test_rotation_by_time_bounds_segments_and_bytes_and_counts_what_it_removed(t
     assert sorted(p.name for p in big.parent.iterdir()) == sorted(Path(f).name for f in viz.files)
 
 
+def test_an_idle_writer_closes_its_segment_once_due(tmp_path: Path) -> None:
+    """Nothing drawn after the first update: the segment is closed on time all the same, and only once."""
+    base = tmp_path / "i.rrd"
+    viz = Viz(VizSettings(rrd=str(base), rrd_rotate_s=0.2, recording_id="idle"))
+    try:
+        viz.add_stream("s")
+        viz.log_update(report(1))
+        deadline = time.monotonic() + 10
+        while not rrd_files.has_footer(base) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert rrd_files.has_footer(base) and verified(base)[0] and versions(base) == [1]  # while still running
+        time.sleep(0.5)  # nothing new: no more segments
+        assert viz.files == [str(base), str(tmp_path / "i.001.rrd")] and viz.file_stats["rotations"] == 1
+    finally:
+        viz.close()
+
+
 def test_segments_of_an_earlier_run_are_removed_and_others_kept(tmp_path: Path) -> None:
     base = tmp_path / "d.rrd"
     first = Viz(VizSettings(rrd=str(base), rrd_rotate_mb=0.05, recording_id="first"))

@@ -83,7 +83,8 @@ class VizSettings:
     rrd_rotate_mb, rrd_rotate_s
         Close the ``.rrd`` (footer written) and continue in ``<stem>.001.rrd``,
         ``<stem>.002.rrd``... once it passes ``rrd_rotate_mb`` or, if set, once it
-        is ``rrd_rotate_s`` old and something was drawn into it (see
+        is ``rrd_rotate_s`` old and something was drawn into it (checked on
+        each draw and every ``rrd_rotate_s / 2`` when idle; see
         :mod:`streamid.viz.rrd_files`).  A file sink keeps per-chunk metadata in
         memory for its footer (about a quarter of the file's size here): rotation
         bounds that memory on an endless run; rotating by time bounds what a

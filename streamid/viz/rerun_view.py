@@ -140,6 +140,18 @@ class Viz:
         self._sinks = Sinks(settings, open_link, self._greet)
         self._warn_once = self._sinks.warn_once
         self._sinks.open()
+        self._stop = threading.Event()
+        if self._sinks.segments is not None and self._sinks.segments.rotate_s is not None:
+            threading.Thread(target=self._rotate_when_idle, args=(self._sinks.segments.rotate_s / 2,), daemon=True,
+                             name="rerun-rotate").start()
+
+    def _rotate_when_idle(self, period_s: float) -> None:
+        """Close a segment that is due though nothing more is drawn: an idle daemon's .rrd all verifies."""
+        while not self._stop.wait(period_s):
+            with self._lock:
+                if self._closed:
+                    return
+                self._sinks.rotate_if_due()
 
     @property
     def _live(self) -> Link | None:
@@ -398,6 +410,7 @@ class Viz:
             if self._closed:
                 return
             self._closed = True
+            self._stop.set()
         self._sinks.close(timeout_s)
 
 

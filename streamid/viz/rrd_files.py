@@ -14,8 +14,11 @@ Why rotate by time
     A file sink writes the footer (the index that ``rerun rrd verify`` checks)
     only when it is closed.  A SIGKILL leaves the open segment without one:
     ``rerun rrd verify`` fails on it with "Missing RRD footer", though its complete
-    chunks are readable.  Closing the segment every ``rotate_s`` seconds leaves
-    every older segment whole; :func:`repair` writes a verified copy of the open one.
+    chunks are readable.  Closing the segment every ``rotate_s`` seconds (once
+    something was drawn into it; an idle writer closes it on a timer) leaves every
+    older segment whole; :func:`repair` writes a verified copy of the open one.
+    Switching segments keeps the same recording stream (a new file sink), ~10 ms
+    with the series styles and the layout sent again.
 """
 
 from __future__ import annotations

@@ -154,11 +154,14 @@ class Sinks:
 
     def wrote(self) -> None:
         """Something was drawn: close the open .rrd segment (footer written) and continue in the next, if due."""
+        if self.segments is not None:
+            self.segments.dirty = True
+        self.rotate_if_due()
+
+    def rotate_if_due(self) -> None:
+        """Close the open .rrd segment (footer written) and continue in the next, if due (also when idle)."""
         seg, old = self.segments, self.file
-        if seg is None or old is None:
-            return
-        seg.dirty = True
-        if not seg.due():
+        if seg is None or old is None or not seg.due():
             return
         path, before = seg.next_path(), old.path
         t0 = time.perf_counter()
