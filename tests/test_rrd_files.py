@@ -165,6 +165,22 @@ def test_an_idle_writer_closes_its_segment_once_due(tmp_path: Path) -> None:
         viz.close()
 
 
+def test_rotation_leaves_no_threads_behind(tmp_path: Path) -> None:
+    """Was: every segment left 2 SDK threads (a new recording stream) and every blueprint sent 2 more."""
+    def threads() -> int:
+        return len(os.listdir("/proc/self/task"))
+
+    viz = Viz(VizSettings(rrd=str(tmp_path / "n.rrd"), rrd_rotate_mb=0.01, rrd_keep=5, recording_id="n"))
+    viz.add_stream("s")
+    viz.log_update(report(1, n_val=100))
+    before = threads()
+    for v in range(2, 32):
+        viz.log_update(report(v, n_val=100))
+    after, rotations = threads(), viz.file_stats["rotations"]
+    viz.close()
+    assert rotations >= 30 and after - before <= 2, (before, after, rotations)
+
+
 def test_segments_of_an_earlier_run_are_removed_and_others_kept(tmp_path: Path) -> None:
     base = tmp_path / "d.rrd"
     first = Viz(VizSettings(rrd=str(base), rrd_rotate_mb=0.05, recording_id="first"))
