@@ -126,6 +126,9 @@ class _Tally:
     last: Any = None
     ident_s: list[float] = field(default_factory=list)
     latency_s: list[float] = field(default_factory=list)
+    decision_s: list[float] = field(default_factory=list)  # window closed -> decided, accepted or rejected
+    fr_val: list[float] = field(default_factory=list)  # free-run R2 of each published model on its held-out data
+    rejected: int = 0
 
 
 def _line(t0: float, up: Any) -> str:
@@ -177,6 +180,12 @@ def run(args: argparse.Namespace) -> int:
             t = tallies.get(up.stream)
             if t is None:
                 return
+            if up.window_closed_unix_ns and up.published_unix_ns:
+                t.decision_s.append((up.published_unix_ns - up.window_closed_unix_ns) / 1e9)
+            if not up.accepted:  # a challenger that did not beat the champion: counted, not printed
+                t.rejected += 1
+                return
+            t.fr_val.append(float(up.metrics.get("r2_fr_val", float("nan"))))
             t.versions.append(up.version)
             t.last = up
             t.ident_s.append(up.identification_s)
@@ -188,7 +197,8 @@ def run(args: argparse.Namespace) -> int:
     statuses: dict[str, Any] = {}
     try:
         _wait_listening(port, daemon, 30.0)
-        with Bus(client) as bus, ModelSubscriber(bus, "*", on_update, fetch_latest=False):
+        with Bus(client) as bus, ModelSubscriber(bus, "*", on_update, fetch_latest=False,
+                                                      include_rejected=True):
             bus.wait_connected(10.0)  # so that no early model is published before we listen
             for s in streams:
                 replays.append(subprocess.Popen(
@@ -241,8 +251,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _summary(streams: Sequence[DemoStream], tallies: dict[str, _Tally], statuses: dict[str, Any]) -> str:
-    head = ("stream", "models", "last v", "lags (last)", "R2 OSA val", "R2 FR val", "ident median s",
-            "publish latency median s", "samples in", "bad msgs")
+    head = ("stream", "models", "rejected", "last v", "lags (last)", "R2 OSA val", "R2 FR val",
+            "min FR val after 1st", "ident median s", "decided median/max s", "samples in", "bad msgs")
     rows = [head]
     for s in streams:
         t = tallies[s.stream]
@@ -250,15 +260,16 @@ def _summary(streams: Sequence[DemoStream], tallies: dict[str, _Tally], statuses
         samples_in = st.get("samples_in", "n/a")
         bad = st.get("bad_total", "n/a")
         if t.last is None:
-            rows.append((s.stream, "0", "-", "-", "-", "-", "-", "-", str(samples_in), str(bad)))
+            rows.append((s.stream, "0", str(t.rejected), "-", "-", "-", "-", "-", "-", "-", str(samples_in), str(bad)))
             continue
         m = t.last.metrics
         rows.append((
-            s.stream, str(len(t.versions)), str(t.last.version),
+            s.stream, str(len(t.versions)), str(t.rejected), str(t.last.version),
             t.last.model.lags_text(),
             f"{m.get('r2_osa_val', float('nan')):.4f}", f"{m.get('r2_fr_val', float('nan')):.4f}",
+            f"{min(t.fr_val[1:]):.4f}" if len(t.fr_val) > 1 else "-",
             f"{statistics.median(t.ident_s):.3f}",
-            f"{statistics.median(t.latency_s):.3f}" if t.latency_s else "n/a",
+            f"{statistics.median(t.decision_s):.3f}/{max(t.decision_s):.3f}" if t.decision_s else "n/a",
             str(samples_in), str(bad),
         ))
     widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
