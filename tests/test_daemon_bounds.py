@@ -180,9 +180,8 @@ PLAN = {"seconds": 24.0, "wide_from_s": 9.0, "wide_to_s": 17.0, "wide_channels":
                                                                    ["streamid/wide/samples", 100_000_000]]}
 
 
-@pytest.fixture(scope="module")
-def attack() -> dict[str, Any]:
-    ep = endpoint()
+def _attack_here(ep: str) -> dict[str, Any]:
+    """The attack on a daemon in this process (run in a fresh process: its memory is the daemon's alone)."""
     daemon = Daemon(ATTACK, ZenohSettings(listen=(ep,))).start()
     try:
         with RssSampler() as rss:
@@ -191,11 +190,25 @@ def attack() -> dict[str, Any]:
                                   timeout=PLAN["seconds"] + 40)
             time.sleep(1.5)  # the last update; memory given back (housekeeping, at most once a second)
         assert peer.returncode == 0, peer.stderr[-2000:]
-        return {"t0": t0, "rss": rss, "sent": json.loads(peer.stdout.strip().splitlines()[-1]),
+        return {"t0": t0, "rss": rss.samples, "sent": json.loads(peer.stdout.strip().splitlines()[-1]),
                 "healthy": daemon.stream_status("healthy"), "wide": daemon.stream_status("wide"),
                 "updates": daemon.update_latencies("healthy"), "rss_end": vm_rss_mb()}
     finally:
         daemon.stop()
+
+
+@pytest.fixture(scope="module")
+def attack() -> dict[str, Any]:
+    """The attack, on a daemon in a fresh process (as deployed: the test process's own heap would blur its RSS)."""
+    out = subprocess.run([sys.executable, __file__, endpoint()], capture_output=True, text=True,
+                         timeout=PLAN["seconds"] + 90)
+    assert out.returncode == 0, out.stderr[-3000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    sampler = RssSampler()
+    sampler.samples = [(float(t), float(r)) for t, r in res["rss"]]
+    res["rss"] = sampler
+    res["updates"] = [tuple(u) for u in res["updates"]]
+    return res
 
 
 def _phases(attack: dict[str, Any]) -> dict[str, tuple[float, float]]:
@@ -305,3 +318,7 @@ def test_junk_stream_names_give_their_slots_back_and_a_real_stream_gets_one(tmp_
             print(f"flood of 20,000 names: {flood_s:.2f} s; late samples in {late_samples} of 1200; counters {info}")
     finally:
         daemon.stop()
+
+
+if __name__ == "__main__":  # the attack fixture's daemon process
+    print(json.dumps(_attack_here(sys.argv[1])))

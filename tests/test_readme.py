@@ -4,6 +4,7 @@ its explanation of the output covers every figure printed."""
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 import signal
@@ -155,8 +156,11 @@ def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> N
         code = _block_after("## 2. Replay a log").replace(README_ENDPOINT, ep)
         client = subprocess.run([sys.executable, "-c", code], cwd=work, capture_output=True, text=True, timeout=90)
         assert client.returncode == 0, client.stderr
-        versions = [int(v) for v in re.findall(r"^v(\d+): free-run R2 -?[0-9.]+  force_N\(t-", client.stdout, re.M)]
-        assert versions[:1] == [1] and versions == sorted(set(versions)) and versions[-1] >= 3, client.stdout
+        rows = re.findall(r"^v(\d+) (champion|rejected \((?:not_better|validation)\)): free-run R2 (-?[0-9.]+)  force_N\(t-",
+                          client.stdout, re.M)
+        champions = [int(v) for v, what, _ in rows if what == "champion"]
+        assert champions[:1] == [1] and champions == sorted(set(champions)), client.stdout
+        assert len(rows) >= 3 and all(float(r2) >= 0.9 for v, what, r2 in rows if what == "champion"), client.stdout
         assert "RBF-NARX model velocity_cm_s -> force_N" in client.stdout
         from streamid import Model
 
@@ -174,8 +178,15 @@ def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> N
                     proc.kill()
                     proc.wait()
     assert daemon.returncode == 0
-    # journey 3: `rerun mr_damper.rrd` opens a viewer; here the same file is checked by the rerun CLI
+    # journey 3: `streamid view mr_damper.rrd` opens a viewer on every segment; here the same command prints the
+    # viewer command it would run, and every segment it names is checked by the rerun CLI
     argv = _command(_block_after("## 3. Inspect residuals", "sh"), ep)
-    assert argv[0] == "rerun" and argv[1:] == ["mr_damper.rrd"]
-    check = subprocess.run(["rerun", "rrd", "verify", *argv[1:]], cwd=work, capture_output=True, text=True, timeout=60)
-    assert "1 file verified without error" in check.stdout + check.stderr, (check.stdout, check.stderr)
+    assert argv[-2:] == ["view", "mr_damper.rrd"]
+    shown = subprocess.run([*argv, "--print-command", "--json"], cwd=work, capture_output=True, text=True,
+                           timeout=60)
+    assert shown.returncode == 0, shown.stderr
+    plan = json.loads(shown.stdout)
+    files = plan["files"]
+    assert files and files[0].endswith("mr_damper.rrd") and plan["command"][-len(files):] == files and not plan["no_footer"]
+    check = subprocess.run(["rerun", "rrd", "verify", *files], cwd=work, capture_output=True, text=True, timeout=60)
+    assert f"{len(files)} file" in check.stdout + check.stderr and check.returncode == 0, (check.stdout, check.stderr)

@@ -43,8 +43,9 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         metrics=dict(s.metrics),
         identification_s=out.seconds,
         latency_s=latency_s,
-        note="" if up.accepted else up.reason,
+        note=up.reason if up.decision is not None or not up.accepted else "",
         input_names=tuple(out.input_names),
+        champion_r2_fr=(out.champion_metrics or {}).get("r2_fr_val") if not up.accepted else None,
     )
 
 

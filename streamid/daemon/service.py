@@ -428,12 +428,13 @@ class Daemon:
         from streamid.daemon.report import update_report  # viz types only when drawing
 
         assert self.viz is not None
-        self.viz.add_stream(name)  # idempotent: a discovered stream gets its tab at its first update
+        view = f"{name}/{up.output}" if len(up.window.output_names) > 1 and up.output else name  # a tab per output
+        self.viz.add_stream(view)  # idempotent: a discovered stream gets its tab at its first update
         if up.outcome.summary is None:
-            self.viz.log_event(name, f"window {up.window.number} {up.kind}: {up.reason}", level="WARN",
+            self.viz.log_event(view, f"window {up.window.number} {up.kind}: {up.reason}", level="WARN",
                                t_ns=up.window.t_end_ns)
             return
-        self.viz.log_update(update_report(name, up, latency_s))
+        self.viz.log_update(update_report(view, up, latency_s))
 
     # -------------------------------------------------------------- housekeeping
     def _housekeeping_loop(self) -> None:

@@ -40,6 +40,8 @@ SERIES_STYLES: dict[str, tuple[tuple[int, int, int], str]] = {
     "residual/free_run": ((250, 140, 40), "free run"),
     "history/r2_osa": ((66, 150, 250), "R² one step ahead (validation)"),
     "history/r2_fr": ((250, 140, 40), "R² free run (validation)"),
+    "history/champion_r2_fr": ((250, 200, 120), "champion R² free run, re-validated on current data"),
+    "history/rejected_r2_fr": ((220, 60, 60), "rejected challenger R² free run"),
     "history/identification_s": ((120, 200, 120), "identification time [s]"),
     "history/latency_s": ((200, 120, 200), "window closed -> model published [s]"),
 }
@@ -170,6 +172,7 @@ class UpdateReport:
     latency_s: float | None = None
     note: str = ""
     input_names: tuple[str, ...] = field(default=())
+    champion_r2_fr: float | None = None  # a rejected challenger's champion, re-validated on the same held-out data
 
 
 def fmt_metric(v: float | None) -> str:

@@ -257,22 +257,23 @@ class Viz:
         history = f"{base}/history"
         return rrb.Vertical(
             rrb.Horizontal(
-                fig("plot/validation", "validation", f"{stream}: newest model on the validation part (held out)"),
+                fig("plot/validation", "validation", f"{stream}: champion on the held-out part when it won"),
                 fig("plot/residual", "residual", "residuals on the validation part"),
                 column_shares=[3, 2],
             ),
             rrb.Horizontal(*corr, name="residual correlation tests (±95 % band; red: outside)"),
             rrb.Horizontal(
                 fig("plot/fitness", "fitness", "best fitness per generation"),
-                rrb.TimeSeriesView(origin=history, contents=[f"{history}/r2_osa", f"{history}/r2_fr"],
-                                   name="R² (validation) across updates", plot_legend=legend),
+                rrb.TimeSeriesView(origin=history, contents=[f"{history}/{k}" for k in (
+                    "r2_osa", "r2_fr", "champion_r2_fr", "rejected_r2_fr")],
+                                   name="R² (held out): champions, re-validations, rejected", plot_legend=legend),
                 rrb.TimeSeriesView(origin=history, contents=[f"{history}/identification_s", f"{history}/latency_s"],
                                    name="update time [s] across updates", plot_legend=legend_top),
                 fig("hysteresis", "plane", "input-output plane"),
                 column_shares=[1, 1, 1, 1],
             ),
             rrb.Horizontal(
-                rrb.TextDocumentView(origin=f"{base}/model", name="newest model"),
+                rrb.TextDocumentView(origin=f"{base}/model", name="champion (the model served)"),
                 rrb.TextLogView(origin=f"{base}/events", name="events"),
                 column_shares=[2, 3],
             ),
@@ -321,6 +322,15 @@ class Viz:
 
     def _draw(self, rec: rr.RecordingStream, r: UpdateReport) -> None:
         base = f"streams/{r.stream}"
+        if not r.accepted:  # a rejected challenger: its figure and the champion's on the same data, no plots
+            self._set_time(rec, r.window_end_ns)
+            for name, metric in (("rejected_r2_fr", r.metrics.get("r2_fr_val")), ("champion_r2_fr", r.champion_r2_fr)):
+                if metric is not None and math.isfinite(metric):
+                    rec.log(f"{base}/history/{name}", rr.Scalars(max(metric, -1.0)))
+            rec.log(f"{base}/events", rr.TextLog(
+                f"challenger REJECTED (G={r.generations}, {r.identification_s:.2f} s): R² val OSA "
+                f"{_f(r.metrics.get('r2_osa_val'))} FR {_f(r.metrics.get('r2_fr_val'))}; {r.note}", level="INFO"))
+            return
         n = len(r.y_val)
         if n:  # the validation part as scalars on the stream's clock (data; the layout shows the figures)
             step = max(1, -(-n // self.settings.max_points))  # decimate long windows for drawing
