@@ -34,7 +34,8 @@ from streamid.viz.rerun_view import Viz, VizSettings
 STREAM = "mr_damper"
 CFG = DaemonConfig(
     defaults=StreamConfig(
-        window_s=3.0, update_every_s=1.5, cold_generations=60, warm_generations=15, neurons=6, max_lag_y=4, max_lag_u=4
+        window_s=3.0, update_every_s=1.5, cold_generations=60, warm_generations=15, neurons=6, max_lag_y=4, max_lag_u=4,
+        challenger_margin=-1.0,  # every valid challenger is published: these tests follow each window's model
     )
 )
 

@@ -63,9 +63,12 @@ def test_backlog_stays_bounded(run: dict[str, Any]) -> None:
 
 def test_every_stream_keeps_publishing_models(run: dict[str, Any]) -> None:
     for name, s in run["per_stream"].items():
-        assert s["versions"] >= 0.6 * SECONDS, (name, s["versions"])  # one update per second of stream
+        ids = s["identifications"]
+        decided = ids["accepted"] + ids["rejected"]  # a champion kept is a decision too (champion/challenger)
+        assert decided >= 0.6 * SECONDS, (name, ids)  # one update per second of stream
+        assert s["versions"] >= 1 and ids["failed"] == 0, (name, s["versions"], ids)
         late = [t for t in s["model_t"] if t >= SECONDS * 0.75]
-        assert late, f"{name}: no model in the last quarter of the run"
+        assert late, f"{name}: no decision in the last quarter of the run"
 
 
 def test_resident_memory_is_flat_after_warm_up(run: dict[str, Any]) -> None:

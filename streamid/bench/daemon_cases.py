@@ -259,8 +259,8 @@ def bench(options: BenchOptions) -> Iterable[Measurement]:
                       f"spread {100 * ls['rss_spread']:.1f} %, peak (VmHWM) {ls['hwm_mb']:.1f} MB")
     yield Measurement(SECTION, case, "models per stream", "count", tuple(float(v) for v in ls["versions"].values()),
                       f"one window per second; coalesced {sorted(set(ls['coalesced'].values()))}")
-    yield Measurement(SECTION, case, "longest time without a model", "s",
-                      tuple(ls["longest_without_model_s"].values()), "per stream, after warm-up")
+    yield Measurement(SECTION, case, "longest time without a decision", "s",
+                      tuple(ls["longest_without_decision_s"].values()), "per stream, after warm-up")
 
 
 def _main(argv: list[str]) -> int:

@@ -141,7 +141,8 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
              sample_every_s: float = 0.5, retain_memory: bool = True) -> dict[str, Any]:
     """Run the load; returns per-stream counters, model times, memory series and publisher lateness.
 
-    Keys: ``per_stream`` {name: {sent, ingested, versions, windows, bad_total, degraded, model_t}},
+    Keys: ``per_stream`` {name: {sent, ingested, versions, windows, bad_total, degraded, model_t}} (``model_t``:
+    when each decision arrived, champions and rejected challengers),
     ``rss_mb`` [(t_s, MB)], ``hwm_mb`` (peak RSS of the daemon), ``publisher`` (its report),
     ``replay`` (the replayer's report), ``seconds``, ``smaps`` (the daemon's resident memory by mapping
     at the end, MB).  ``retain_memory=False`` runs the daemon with glibc's default allocator behaviour.
@@ -165,8 +166,9 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
             connect = ZenohSettings(connect=(ep,))
             with Bus(connect) as bus:
                 t0 = time.monotonic()
+                # every decision (a new champion, or a challenger rejected): the stream is being served
                 sub = ModelSubscriber(bus, "*", lambda up: models.setdefault(up.stream, []).append(
-                    time.monotonic() - t0), fetch_latest=False)
+                    time.monotonic() - t0), fetch_latest=False, include_rejected=True)
                 code = (f"from streamid.bench.load import multi_publish_main; "
                         f"multi_publish_main({ep!r}, {streams}, {rate_hz}, {seconds}, 100, {seed})")
                 multi = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
@@ -231,7 +233,7 @@ def summary(r: dict[str, Any], warmup_s: float) -> dict[str, Any]:
         "hwm_mb": r["hwm_mb"],
         "versions": {n: s["versions"] for n, s in per.items()},
         "coalesced": {n: (s["windows"] or {}).get("coalesced") for n, s in per.items()},
-        "longest_without_model_s": gaps,
+        "longest_without_decision_s": gaps,
         "publisher_max_late_s": r["publisher"]["max_late_s"],
         "replay_timing_error_us": r["replay"]["timing_error_us"],
     }
