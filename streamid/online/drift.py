@@ -8,8 +8,8 @@ seen; the detector then resets.  ``tests/test_drift.py`` reproduces river's
 documented example value for value.
 
 :class:`DriftMonitor` feeds it with what the served model (the champion) does on
-incoming data.  The stream is cut into blocks of ``block_s`` (at most the
-held-out part of a window); on each block the champion runs free from the
+incoming data.  The stream is cut into blocks of ``block_s`` (at least
+``min_block_samples``, at most the held-out part of a window); on each block the champion runs free from the
 block's first ``max_lag`` measured outputs, and the block gives one value
 ``x = log(MSE_block)``, clipped to within ``clip`` of the running mean of the
 values seen so far (the test's ``x̄``: the champion's own typical level on
@@ -99,6 +99,9 @@ class DriftSettings:
     threshold: float = 3.0
     clip: float = 1.5
     min_blocks: int = 8
+    #: fewest samples per block (a slow stream's blocks last longer than ``block_s``; the error of a free run of a
+    #: handful of samples is too noisy a level: 2-sample blocks of the CSTR, one sample every 6 s, gave 79 alarms)
+    min_block_samples: int = 25
 
     def detector(self) -> PageHinkley:
         """A fresh Page-Hinkley test with these settings (no forgetting)."""

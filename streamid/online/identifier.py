@@ -525,8 +525,9 @@ class OnlineIdentifier(StreamIntake):
         if self._drift is None:
             return None
         n_val, L = outcome.y_val.shape[0], model.max_lag
-        block = min(max(2, round(self._drift.block_s * 1e9 / max(1, period_ns))), n_val - L)
-        return DriftMonitor(self._drift, block) if block >= 2 else None
+        want = max(self._drift.min_block_samples, round(self._drift.block_s * 1e9 / max(1, period_ns)))
+        block = min(want, n_val - L)
+        return DriftMonitor(self._drift, block) if block >= self._drift.min_block_samples else None
 
     def _outcomes_count(self, outcome: Outcome) -> None:
         if outcome.kind == "dropped":
