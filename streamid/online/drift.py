@@ -103,6 +103,12 @@ class DriftSettings:
     #: handful of samples is too noisy a level: 2-sample blocks of the CSTR, one sample every 6 s, gave 79 alarms)
     min_block_samples: int = 25
 
+    def monitor(self, period_ns: int, max_block: int) -> DriftMonitor | None:
+        """A monitor of a new champion: blocks of ``block_s``, at least ``min_block_samples``, at most ``max_block``
+        (its held-out samples after the lags); None if the held-out part is shorter than the minimum block."""
+        block = min(max(self.min_block_samples, round(self.block_s * 1e9 / max(1, period_ns))), max_block)
+        return DriftMonitor(self, block) if block >= self.min_block_samples else None
+
     def detector(self) -> PageHinkley:
         """A fresh Page-Hinkley test with these settings (no forgetting)."""
         return PageHinkley(min_instances=self.min_blocks, delta=self.delta, threshold=self.threshold, alpha=1.0)

@@ -247,7 +247,8 @@ class OnlineIdentifier(StreamIntake):
         self._version = version
         head.version, head.document, head.payload = version, doc, payload
         head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
-        head.new_champion(model, self._monitor(model, outcome, w.period_ns))
+        monitor = None if self._drift is None else self._drift.monitor(w.period_ns, outcome.y_val.shape[0] - model.max_lag)
+        head.new_champion(model, monitor)
         head.since_t_ns, head.since_unix_ns = w.t_end_ns, now_ns
         saved = True
         if persist is not None:
@@ -493,41 +494,38 @@ class OnlineIdentifier(StreamIntake):
         """Run each champion free over the blocks of samples just completed; feed the errors to its drift test."""
         epoch, complete = self._buffer.position
         names, cap = self._buffer.output_names, self._buffer.lengths[2]
+        due: list[tuple[OutputHead, DriftMonitor, Model, int, int]] = []  # (..., first sample, samples it needs)
         for head in self._heads.values():
             mon, m = head.monitor, head.model
             if mon is None or m is None or head.output not in names:
                 continue
-            B, L = mon.block_samples, m.max_lag
-            if mon.epoch != epoch or mon.next_index is None or complete - mon.next_index + L > cap:
+            if mon.epoch != epoch or mon.next_index is None or complete - mon.next_index + m.max_lag > cap:
                 mon.epoch, mon.next_index = epoch, complete  # (re)start at the newest sample
+            elif complete - mon.next_index >= mon.block_samples:
+                due.append((head, mon, m, mon.next_index, complete - mon.next_index + m.max_lag))
+        got = self._buffer.recent(max(n for *_, n in due)) if due else None  # one copy for every output
+        if got is None:
+            return
+        for head, mon, m, first, need in due:
+            u, y = got[0][-need:], got[1][-need:, names.index(head.output)]
+            if u.shape[1] != m.n_inputs:
                 continue
-            n_blocks = (complete - mon.next_index) // B
-            got = self._buffer.recent(complete - mon.next_index + L) if n_blocks > 0 else None
-            if got is None or got[0].shape[1] != m.n_inputs:
-                continue
-            n = L + n_blocks * B
-            errors = block_errors(m, got[0][:n], got[1][:n, names.index(head.output)], B)
-            ends = self._buffer.times_ns(mon.next_index + B - 1, n_blocks * B)[::B]
-            mon.next_index += n_blocks * B
+            B = mon.block_samples
+            n_blocks = (complete - first) // B
+            errors = block_errors(m, u[: m.max_lag + n_blocks * B], y[: m.max_lag + n_blocks * B], B)
+            period = int(self._buffer.period_ns or 0)
+            ends = self._buffer.times_ns(first + B - 1, 1)[0] + np.arange(n_blocks, dtype=np.int64) * B * period
+            mon.next_index = first + n_blocks * B
             for mse, t_end in zip(errors, ends, strict=True):
                 change_ns = mon.block(float(mse), int(t_end))
                 if change_ns is None:
                     continue
                 head.drift_t_ns, head.escalate = change_ns, True
                 head.drifts += 1
-                self._event("drift", f"{head.output}: champion v{head.version}'s free-run error rose (block level "
-                            f"{mon.last_level:+.2f} log-MSE ratio); change estimated at stream time "
+                self._event("drift", f"{head.output}: champion v{head.version}'s free-run error rose (block log-MSE "
+                            f"{mon.last_level:+.2f} above its running level); change estimated at stream time "
                             f"{change_ns / 1e9:.2f} s: the next identification uses data from then on with "
                             f"{self.config.drift_generations} generations", int(t_end), now_ns)
-
-    def _monitor(self, model: Model, outcome: Outcome, period_ns: int) -> DriftMonitor | None:
-        """The drift monitor of a new champion; blocks at most as long as its held-out part (None: detection off)."""
-        if self._drift is None:
-            return None
-        n_val, L = outcome.y_val.shape[0], model.max_lag
-        want = max(self._drift.min_block_samples, round(self._drift.block_s * 1e9 / max(1, period_ns)))
-        block = min(want, n_val - L)
-        return DriftMonitor(self._drift, block) if block >= self._drift.min_block_samples else None
 
     def _outcomes_count(self, outcome: Outcome) -> None:
         if outcome.kind == "dropped":
