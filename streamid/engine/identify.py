@@ -203,12 +203,22 @@ def select_model(
     return cands[k], float(scores[k])
 
 
+def _stage(
+    tick: Callable[[Progress], object] | None, gen0: int, evals0: int
+) -> Callable[[Progress], object] | None:
+    """A stage's per-generation callback reporting the run's generations and evaluations so far."""
+    if tick is None:
+        return None
+    return lambda p: tick(Progress(gen0 + p.generation, p.generations, p.best_fitness, evals0 + p.evaluations))
+
+
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
     norm = Normalisation.from_dict(job["normalisation"])
     warm = CoEAState.from_json(job["warm_start"]) if job.get("warm_start") else None
     u, y, n_search = job["u"], job["y"], job["n_search"]
+    tick = job.get("tick")  # in-process runs only (a callable is never sent to a worker): tick(Progress) per generation
     t0 = time.perf_counter()
     rng = np.random.default_rng(job["seed"])
     common: dict[str, Any] = {
@@ -224,12 +234,13 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         lag_cfg = cfg.replace(
             neurons=cfg.lag_search_neurons, generations=cfg.lag_search_generations, harmony_stop=1.0
         )
-        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **common).solve()
+        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...then DE trains the full network on those lags.
-        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, fixed_mask=lag_run.best_h, **common).solve()
+        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, fixed_mask=lag_run.best_h, **common).solve(
+            _stage(tick, lag_cfg.generations, evaluations))
     else:
-        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve()
+        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
     evaluations += run.evaluations
     model, score = select_model(run, u, y, cfg.selection, n_search=n_search)
     return {
@@ -353,13 +364,21 @@ def identify(
         {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None}
         for i, s in enumerate(seeds)
     ]
-    total_gen = cfg.generations * cfg.restarts
+    per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
+    total_gen = per_run * cfg.restarts
+    done: list[dict[str, Any]] = []  # finished runs (in-process progress)
+    if callback is not None and executor is None and min(cfg.workers, len(jobs)) <= 1:
+        for i, job in enumerate(jobs):  # runs made here report every generation, as the one-run path does
+            job["tick"] = lambda p, i=i: callback(Progress(
+                i * per_run + p.generation, total_gen, min([p.best_fitness] + [o["fitness"] for o in done]),
+                sum(o["evaluations"] for o in done) + p.evaluations))
 
     def report(outs: list[dict[str, Any]]) -> None:
+        done[:] = outs
         if callback is not None:
             callback(
                 Progress(
-                    len(outs) * cfg.generations,
+                    len(outs) * per_run,
                     total_gen,
                     min(o["fitness"] for o in outs),
                     sum(o["evaluations"] for o in outs),
