@@ -114,8 +114,10 @@ class Recorder:
         config: RecorderConfig | None = None,
         *,
         bus: Bus | None = None,
+        stop: threading.Event | None = None,
     ) -> None:
         self.path = Path(path)
+        self._stop_waiting = stop  # ends a client's wait for its router at start
         self.settings = settings if settings is not None else ZenohSettings()
         self.config = config if config is not None else RecorderConfig()
         self.stats = RecordStats(self.path)
@@ -159,7 +161,7 @@ class Recorder:
         self._thread.start()
         try:
             if self._bus is None:
-                self._bus = Bus(self.settings)
+                self._bus = Bus(self.settings, stop=self._stop_waiting)
             for expr in self.config.key_exprs:
                 self._handles.append(self._bus.subscribe(expr, self._on_sample))
         except BaseException:
@@ -297,7 +299,7 @@ def record(
     if duration_s is not None and not duration_s > 0:
         raise ConfigError(f"duration_s must be > 0 seconds; got {duration_s!r}")
     stop = stop_event if stop_event is not None else threading.Event()
-    rec = Recorder(path, settings, config)
+    rec = Recorder(path, settings, config, stop=stop)
     rec.start()
     try:
         if ready is not None:

@@ -336,7 +336,7 @@ def replay_log(
     report = ReplayReport(path)
     own_bus = bus is None
     if bus is None:
-        bus = Bus(settings if settings is not None else ZenohSettings())
+        bus = Bus(settings if settings is not None else ZenohSettings(), stop=stop)
     publishers: dict[str, BusPublisher] = {}
     heard: set[str] = set()
     report.endpoints = tuple(bus.settings.connect) or tuple(bus.settings.listen)

@@ -15,6 +15,7 @@ import pytest
 
 from conftest import endpoint, free_tcp_port
 from streamid.commands.main import build_parser, main
+from streamid.transport import Bus, ZenohSettings
 
 STREAMID = [sys.executable, "-m", "streamid"]
 
@@ -63,13 +64,16 @@ def test_replay_unknown_log_lists_the_bundled_logs_and_the_closest(capsys: pytes
 def test_replay_with_no_subscriber_says_so_and_fails_when_required() -> None:
     ep = endpoint()
     args = [*STREAMID, "replay", "mr_damper", "--connect", ep, "--max-speed", "--end", "0.2", "--wait-subscribers", "0.2"]
-    p = subprocess.run([*args, "--require-subscriber"], capture_output=True, text=True, timeout=60)
-    assert p.returncode == 1, p.stderr
-    last = p.stdout.strip().splitlines()[-1]
-    assert last.startswith(f"no subscriber via {ep} on streamid/mr_damper/samples: nothing received these messages")
-    q = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=60)
-    assert q.returncode == 0, q.stderr  # without --require-subscriber: reported, not an error
-    assert json.loads(q.stdout.strip().splitlines()[-1])["unheard_keys"] == ["streamid/mr_damper/samples"]
+    with Bus(ZenohSettings(mode="router", listen=(ep,))):  # a network that answers, with no subscriber on it
+        p = subprocess.run([*args, "--require-subscriber"], capture_output=True, text=True, timeout=60)
+        assert p.returncode == 1, p.stderr
+        last = p.stdout.strip().splitlines()[-1]
+        assert last.startswith(f"no subscriber via {ep} on streamid/mr_damper/samples: nothing received these messages")
+        q = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=60)
+        assert q.returncode == 0, q.stderr  # without --require-subscriber: reported, not an error
+        assert json.loads(q.stdout.strip().splitlines()[-1])["unheard_keys"] == ["streamid/mr_damper/samples"]
+    r = subprocess.run([*args, "--connect-wait", "0.5"], capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and f"cannot connect to {ep}" in r.stderr  # nothing answers: said, not hung
 
 
 def test_watch_names_the_endpoint_and_fails_when_nothing_came() -> None:

@@ -72,10 +72,17 @@ def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
     try:
         # watch says so once its subscription is declared: replay only then, or it may first see v2+
         ready: list[str] = []
-        reader = threading.Thread(target=lambda: ready.append(watch.stderr.readline()), daemon=True)
+
+        def read_until_ready() -> None:  # (a client may first say it waits for the daemon to answer)
+            for _ in range(20):
+                ready.append(watch.stderr.readline())
+                if "waiting for models" in ready[-1] or not ready[-1]:
+                    return
+
+        reader = threading.Thread(target=read_until_ready, daemon=True)
         reader.start()
         reader.join(timeout=30)
-        assert ready and "waiting for models" in ready[0], ready
+        assert ready and "waiting for models" in ready[-1], ready
         replay(ep)
         last = wait_version(ep, 3)
         assert last >= 3

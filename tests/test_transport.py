@@ -145,7 +145,11 @@ def test_connection_flags() -> None:
     p = argparse.ArgumentParser()
     add_connection_flags(p, default_connect=(DEFAULT_ENDPOINT,))
     s = settings_from_args(p.parse_args([]))
-    assert s == ZenohSettings(connect=(DEFAULT_ENDPOINT,))
+    assert s == ZenohSettings(connect=(DEFAULT_ENDPOINT,), connect_wait_s=None)  # a command waits until stopped
+    assert s.resolved_mode() == "client"  # connects, listens nowhere
+    assert settings_from_args(p.parse_args(["--connect-wait", "3"])).connect_wait_s == 3.0
+    with pytest.raises(SystemExit):
+        p.parse_args(["--connect-wait", "-1"])
     s = settings_from_args(p.parse_args(["--listen", "tcp/127.0.0.1:1", "--listen", "tcp/127.0.0.1:2"]))
     assert s.listen == ("tcp/127.0.0.1:1", "tcp/127.0.0.1:2") and s.connect == ()
     s = settings_from_args(p.parse_args(["--mode", "client", "--connect", "tcp/127.0.0.1:3",
@@ -227,3 +231,48 @@ def test_sessions_leave_nothing_in_dev_shm_even_after_os_exit(zenoh_endpoint: st
     after = {n for n in os.listdir("/dev/shm") if n.endswith(".zenoh")} - before
     assert not (during - before), f"zenoh mapped shared memory: {sorted(during - before)}"
     assert not after, f"left behind in /dev/shm: {sorted(after)}"
+
+
+def test_default_mode_is_client_for_a_process_that_only_connects() -> None:
+    assert ZenohSettings(connect=("tcp/127.0.0.1:1",)).resolved_mode() == "client"
+    assert ZenohSettings(listen=("tcp/127.0.0.1:1",)).resolved_mode() == "peer"
+    assert ZenohSettings(connect=("tcp/127.0.0.1:1",), listen=("tcp/127.0.0.1:2",)).resolved_mode() == "peer"
+    assert ZenohSettings().resolved_mode() == "peer"
+    assert ZenohSettings(mode="peer", connect=("tcp/127.0.0.1:1",)).resolved_mode() == "peer"
+    with pytest.raises(ConfigError, match="connect_wait_s must be"):
+        ZenohSettings(connect_wait_s=-1.0)
+
+
+def test_two_default_sessions_meet_through_a_router_they_both_connect_to() -> None:
+    """The README's several-machines recipe: nobody listens but the router (peers never met there)."""
+    ep = endpoint()
+    with Bus(ZenohSettings(mode="router", listen=(ep,))):
+        with Bus(ZenohSettings(connect=(ep,))) as a, Bus(ZenohSettings(connect=(ep,))) as b:
+            got: list[bytes] = []
+            b.subscribe("streamid/t/samples", lambda _k, p: got.append(p))
+            pub = a.publisher("streamid/t/samples")
+            assert pub.wait_for_subscribers(5.0)
+            pub.put(b"through the router")
+            assert _wait(lambda: got == [b"through the router"])
+
+
+def test_a_client_waits_for_a_late_router_and_stop_ends_the_wait() -> None:
+    ep = endpoint()
+    t0 = time.monotonic()
+    with pytest.raises(TransportError, match="cannot connect to"):
+        Bus(ZenohSettings(connect=(ep,), connect_wait_s=0.6))
+    assert 0.5 <= time.monotonic() - t0 < 5.0  # it retried for its bound, then said why
+    stop = threading.Event()
+    threading.Timer(0.7, stop.set).start()
+    t0 = time.monotonic()
+    with pytest.raises(TransportError):
+        Bus(ZenohSettings(connect=(ep,), connect_wait_s=None), stop=stop)
+    assert time.monotonic() - t0 < 5.0
+    holder: list[Bus] = []
+    threading.Timer(1.0, lambda: holder.append(Bus(ZenohSettings(mode="router", listen=(ep,))))).start()
+    try:
+        with Bus(ZenohSettings(connect=(ep,), connect_wait_s=20.0)) as late:
+            assert _wait(lambda: bool(holder)) and late.routers()  # opened once the router was up, connected to it
+    finally:
+        for b in holder:
+            b.close()

@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
 
     def _on_signal(signum: int, _frame: Any) -> None:
         stop.set()
+        daemon.request_stop()  # also ends a wait for the router at start
 
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:

@@ -13,6 +13,7 @@ from the network are shown escaped (control, format and bidi characters as \\uXX
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import signal
@@ -113,7 +114,6 @@ def run(args: argparse.Namespace) -> int:
     from streamid.wire.documents import parse_status
     from streamid.errors import ModelFormatError
     from streamid.wire.keys import PREFIX, status_key
-    from streamid.transport import Bus
     from streamid.commands.zenoh_flags import settings_from_args
 
     if args.count is not None and args.count < 1:
@@ -164,28 +164,32 @@ def run(args: argparse.Namespace) -> int:
     end = None if args.duration is None else time.monotonic() + args.duration
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with Bus(settings) as bus:
-            wait = 5.0 if args.duration is None else min(5.0, args.duration)
-            if not bus.wait_connected(wait):
-                print(f"streamid watch: nothing reachable at {where} yet (no daemon or router there); still trying",
-                      file=sys.stderr, flush=True)
-            skey = f"{PREFIX}/*/status" if args.stream == "*" else status_key(args.stream)
-            bus.subscribe(skey, on_status)
-            with ModelSubscriber(bus, args.stream, on_update, include_rejected=args.rejected) as sub:
-                if not sub.latest:
-                    print(f"streamid watch: waiting for models on {args.stream!r} ...", file=sys.stderr, flush=True)
-                next_age = time.monotonic() + args.every if args.every else None
-                while not stop.wait(0.1):
-                    now = time.monotonic()
-                    if end is not None and now >= end:
-                        timed_out = True
-                        break
-                    if next_age is not None and now >= next_age:
-                        next_age = now + args.every
-                        for name in sorted(sub.latest):
-                            for up in sub.latest_per_output(name).values():
-                                emit(format_update(up))
-                skipped = {k: v for k, v in sub.skipped.items() if v}
+        bus = _open_bus(settings, stop, where, args.duration)
+        if bus is None:  # --duration (or a signal) ended the wait for the endpoint
+            timed_out = not stop.is_set()
+        else:
+            with bus:
+                wait = 5.0 if args.duration is None else min(5.0, args.duration)
+                if not bus.wait_connected(wait):
+                    print(f"streamid watch: nothing reachable at {where} yet (no daemon or router there); still trying",
+                          file=sys.stderr, flush=True)
+                skey = f"{PREFIX}/*/status" if args.stream == "*" else status_key(args.stream)
+                bus.subscribe(skey, on_status)
+                with ModelSubscriber(bus, args.stream, on_update, include_rejected=args.rejected) as sub:
+                    if not sub.latest:
+                        print(f"streamid watch: waiting for models on {args.stream!r} ...", file=sys.stderr, flush=True)
+                    next_age = time.monotonic() + args.every if args.every else None
+                    while not stop.wait(0.1):
+                        now = time.monotonic()
+                        if end is not None and now >= end:
+                            timed_out = True
+                            break
+                        if next_age is not None and now >= next_age:
+                            next_age = now + args.every
+                            for name in sorted(sub.latest):
+                                for up in sub.latest_per_output(name).values():
+                                    emit(format_update(up))
+                    skipped = {k: v for k, v in sub.skipped.items() if v}
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -196,3 +200,31 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamid watch: no model received from {where} in {args.duration:g} s", file=sys.stderr, flush=True)
         return 1
     return 0
+
+
+def _open_bus(settings: Any, stop: threading.Event, where: str, duration_s: float | None) -> Any:
+    """The session (a Bus); a client whose endpoint does not answer yet says so once and waits.
+
+    It waits until stopped, ``--connect-wait`` or ``--duration``; None when that ended the wait.
+    """
+    from streamid.errors import TransportError
+    from streamid.transport import Bus
+
+    if settings.resolved_mode() != "client":
+        return Bus(settings, stop=stop)
+    try:
+        return Bus(dataclasses.replace(settings, connect_wait_s=0.0))
+    except TransportError as exc:
+        if "cannot connect" not in str(exc):
+            raise
+    print(f"streamid watch: nothing reachable at {where} yet (no daemon or router there); still trying",
+          file=sys.stderr, flush=True)
+    wait_s = settings.connect_wait_s
+    if duration_s is not None:
+        wait_s = duration_s if wait_s is None else min(wait_s, duration_s)
+    try:
+        return Bus(dataclasses.replace(settings, connect_wait_s=wait_s), stop=stop)
+    except TransportError as exc:
+        if "cannot connect" in str(exc) and (stop.is_set() or wait_s is not None):
+            return None
+        raise

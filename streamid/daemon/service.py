@@ -142,7 +142,8 @@ class Daemon:
         n_workers = self.config.workers if self.identify else 0
         self._helpers = [self._start_helper() for _ in range(n_workers)]  # before Zenoh's threads exist
         limit = self.config.max_payload_bytes
-        self.bus = Bus(self.zenoh.with_max_message_bytes(min(1 << 30, max(ZENOH_MESSAGE_FACTOR * limit, 1 << 20))))
+        self.bus = Bus(self.zenoh.with_max_message_bytes(min(1 << 30, max(ZENOH_MESSAGE_FACTOR * limit, 1 << 20))),
+                       stop=self._stop)  # a client waiting for its router gives up when stopped
         try:
             keys = [f"{PREFIX}/*/*"] if self.config.discover else [f"{PREFIX}/{s}/*" for s in self.config.streams]
             for key in keys:
@@ -192,7 +193,7 @@ class Daemon:
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop within ``timeout_s``: unsubscribe, join threads, save state, close sinks; idempotent."""
-        if self._stop.is_set() and self.bus is None:
+        if self._stop.is_set() and self.bus is None and not self._threads:
             return
         deadline = time.monotonic() + timeout_s
         self._stop.set()
@@ -217,6 +218,10 @@ class Daemon:
         if self.bus is not None:
             self.bus.close()
             self.bus = None
+
+    def request_stop(self) -> None:
+        """Ask a running (or starting) daemon to stop; safe from a signal handler. :meth:`stop` does the work."""
+        self._stop.set()
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Block until :meth:`stop` was called (or the timeout); returns whether it was."""

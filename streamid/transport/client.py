@@ -26,6 +26,8 @@ about (at most one warning per reason every ``warn_every_s`` seconds).
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import threading
 import time
@@ -33,7 +35,7 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any, Union
 
-from streamid.errors import ConfigError, ModelFormatError, NoDaemonError, NoModelYetError
+from streamid.errors import ConfigError, ModelFormatError, NoDaemonError, NoModelYetError, TransportError
 from streamid.transport.updates import ModelUpdate, is_newer, parse_model_update, recency
 from streamid.transport.zenoh_bus import Bus, ZenohSettings, _Handle
 from streamid.wire.documents import parse_status
@@ -59,12 +61,16 @@ Target = Union[str, ZenohSettings, Bus]
 SKIP_REASONS = ("malformed", "key_mismatch", "kind_mismatch", "too_many")
 
 
-def _open(bus_or_settings: Target) -> tuple[Bus, bool]:
+def _open(bus_or_settings: Target, wait_s: float | None = None) -> tuple[Bus, bool]:
+    """The session to use and whether it is ours; ``wait_s`` caps how long a client waits for its endpoint."""
     if isinstance(bus_or_settings, Bus):
         return bus_or_settings, False
     if isinstance(bus_or_settings, str):
         bus_or_settings = ZenohSettings(connect=(bus_or_settings,))  # checks the endpoint's form
     if isinstance(bus_or_settings, ZenohSettings):
+        if wait_s is not None:
+            own = bus_or_settings.connect_wait_s
+            bus_or_settings = dataclasses.replace(bus_or_settings, connect_wait_s=wait_s if own is None else min(own, wait_s))
         return Bus(bus_or_settings), True
     raise ConfigError(
         "where to connect must be an endpoint string such as 'tcp/127.0.0.1:7447', ZenohSettings or an open Bus; "
@@ -323,9 +329,17 @@ def _query(
     """Query ``key`` until a reply or ``timeout_s``; ``probe`` receives ``reachable`` and ``where``."""
     if not timeout_s > 0:
         raise ConfigError(f"timeout_s must be > 0 seconds; got {timeout_s!r}")
-    bus, owned = _open(settings)
+    deadline = time.monotonic() + timeout_s
     try:
-        deadline = time.monotonic() + timeout_s
+        bus, owned = _open(settings, wait_s=timeout_s)
+    except TransportError as exc:  # a client whose endpoint never answered within timeout_s
+        if "cannot connect" not in str(exc):
+            raise
+        if probe is not None:
+            probe["reachable"] = False
+            probe["where"] = ", ".join(settings.connect) if isinstance(settings, ZenohSettings) else str(settings)
+        return []
+    try:
         while True:  # declarations propagate asynchronously: retry until the deadline
             left = deadline - time.monotonic()
             got = bus.get(key, timeout_s=max(0.05, min(left, 0.5)), all_replies=all_replies)

@@ -34,12 +34,16 @@ __all__ = [
     "ZenohSettings",
     "Bus",
     "BusPublisher",
+    "CONNECT_RETRY_S",
 ]
 
 _log = logging.getLogger(__name__)
 
 #: The endpoint streamid's daemon listens on by default and clients connect to.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+#: Seconds between two attempts of a client session to reach its ``connect`` endpoints at open.
+CONNECT_RETRY_S = 0.5
 
 #: Accepted Zenoh session modes.
 MODES: tuple[str, ...] = ("peer", "client", "router")
@@ -70,7 +74,12 @@ class ZenohSettings:
     ----------
     mode : {"peer", "client", "router"} or None
         Zenoh session mode (a ``router`` session is a working Zenoh router).
-        ``None``: the ``config_file``'s mode (``peer`` without a file).
+        ``None`` (the default): the ``config_file``'s mode; without a file,
+        ``client`` for a session that connects and listens nowhere, else ``peer``
+        (:meth:`resolved_mode`).  Zenoh peers expect to reach each other
+        directly: two peers that only connect to a router (or to a listening
+        daemon) were never delivered each other's messages (eclipse-zenoh 1.10,
+        measured), while clients are routed by what they connect to.
     connect : tuple of str
         Endpoints to connect to, e.g. ``("tcp/127.0.0.1:7447",)``.
     listen : tuple of str
@@ -85,13 +94,17 @@ class ZenohSettings:
         group and delays ``open`` by ~0.5 s).
     """
 
-    mode: str | None = "peer"
+    mode: str | None = None
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
     config_file: str | None = None
     multicast_scouting: bool = False
     #: Extra raw JSON5 key/value pairs inserted last (e.g. ``{"adminspace/enabled": "true"}``).
     extra: tuple[tuple[str, str], ...] = field(default=())
+    #: How long opening a ``client`` session waits for one of ``connect`` to answer, retrying
+    #: every :data:`CONNECT_RETRY_S` (None: until the :class:`Bus`'s ``stop`` event is set).
+    #: A peer opens at once and connects in the background; a client cannot open alone.
+    connect_wait_s: float | None = 10.0
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode not in MODES:
@@ -102,10 +115,25 @@ class ZenohSettings:
             _check_endpoint(ep, "connect")
         for ep in self.listen:
             _check_endpoint(ep, "listen")
+        if self.connect_wait_s is not None and not (
+            isinstance(self.connect_wait_s, (int, float)) and 0 <= self.connect_wait_s < float("inf")
+        ):
+            raise ConfigError(
+                f"connect_wait_s must be a finite number of seconds >= 0 or None (wait until stopped); "
+                f"got {self.connect_wait_s!r}"
+            )
         if self.config_file is not None and not Path(self.config_file).is_file():
             raise ConfigError(
                 f"zenoh config file must be an existing JSON5 file; got {self.config_file!r}"
             )
+
+    def resolved_mode(self) -> str | None:
+        """The mode the session opens in (None: the config file's)."""
+        if self.mode is not None:
+            return self.mode
+        if self.config_file is not None:
+            return None
+        return "client" if self.connect and not self.listen else "peer"
 
     def with_max_message_bytes(self, n_bytes: int) -> ZenohSettings:
         """These settings with Zenoh's own bound on one received message (``transport/link/rx/max_message_size``).
@@ -130,8 +158,9 @@ class ZenohSettings:
                 conf = zenoh.Config.from_file(self.config_file)
             else:
                 conf = zenoh.Config()
-            if self.mode is not None or self.config_file is None:
-                conf.insert_json5("mode", json.dumps(self.mode or "peer"))
+            mode = self.resolved_mode()
+            if mode is not None:
+                conf.insert_json5("mode", json.dumps(mode))
             # A file that leaves multicast scouting or the listen endpoints unset would get
             # Zenoh's own defaults: scouting on a multicast group and listening on every
             # interface.  streamid's rule is loopback unless configured otherwise, so both
@@ -187,14 +216,14 @@ def explain_open_error(message: str, settings: ZenohSettings) -> str:
         eps = ", ".join(settings.connect) or "the connect endpoints"
         return (
             f"cannot open zenoh session: cannot connect to {eps}: nothing answers there, or it refused this session "
-            f"(mode {settings.mode or 'from the config file'}; with access control or TLS, check the credentials and "
+            f"(mode {settings.resolved_mode() or 'from the config file'}; with access control or TLS, check the credentials and "
             "certificates of --zenoh-config); start `streamid daemon` or `streamid router` there, or point --connect "
             "at where one listens"
         )
     if "Can not create a new" in text and "listener" in text:
         eps = ", ".join(settings.listen) or "the listen endpoint"
         return f"cannot listen on {eps} ({text}); choose another endpoint with --listen, e.g. --listen tcp/127.0.0.1:7448"
-    return f"cannot open zenoh session ({text}); listen {list(settings.listen)}, connect {list(settings.connect)}, mode {settings.mode}"
+    return f"cannot open zenoh session ({text}); listen {list(settings.listen)}, connect {list(settings.connect)}, mode {settings.resolved_mode()}"
 
 
 Callback = Callable[[str, bytes], None]
@@ -262,16 +291,45 @@ class Bus:
     logged (with the key) and swallowed so that the session keeps running.
     """
 
-    def __init__(self, settings: ZenohSettings | None = None) -> None:
+    def __init__(self, settings: ZenohSettings | None = None, *, stop: threading.Event | None = None) -> None:
         self.settings = settings if settings is not None else ZenohSettings()
-        conf = self.settings.to_config()
-        try:
-            self._session = zenoh.open(conf)
-        except zenoh.ZError as exc:
-            raise TransportError(explain_open_error(str(exc), self.settings)) from exc
+        self._session = self._open(self.settings, stop)
         self._lock = threading.Lock()
         self._entities: list[Any] = []
         self._closed = False
+
+    @staticmethod
+    def _open(settings: ZenohSettings, stop: threading.Event | None) -> Any:
+        """``zenoh.open``; a client nothing answers yet retries until ``connect_wait_s`` or ``stop``.
+
+        Raises TransportError (with the explanation of the last failure) when it gives up.
+        """
+        wait_s = settings.connect_wait_s
+        deadline = None if wait_s is None else time.monotonic() + wait_s
+        waited = False
+        while True:
+            conf = settings.to_config()
+            try:
+                session = zenoh.open(conf)
+            except zenoh.ZError as exc:
+                text = str(exc)
+                retry = "Unable to connect" in text and settings.resolved_mode() == "client"
+                left = None if deadline is None else deadline - time.monotonic()
+                if not retry or (left is not None and left <= 0) or (stop is not None and stop.is_set()):
+                    raise TransportError(explain_open_error(text, settings)) from exc
+                if not waited:
+                    waited = True
+                    _log.warning("nothing answers at %s yet; retrying every %g s %s", ", ".join(settings.connect),
+                                 CONNECT_RETRY_S, "until stopped" if left is None else f"for {left:.0f} s")
+                pause = CONNECT_RETRY_S if left is None else min(CONNECT_RETRY_S, max(0.0, left))
+                if stop is not None:
+                    stop.wait(pause)
+                else:
+                    time.sleep(pause)
+                continue
+            if waited:
+                _log.warning("connected to %s", ", ".join(settings.connect))
+            return session
 
     # -- context manager -------------------------------------------------
     def __enter__(self) -> Bus:
