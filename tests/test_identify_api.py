@@ -95,7 +95,7 @@ def test_bad_files(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="distinct"):
         load_table(tmp_path / "h.csv")
     (tmp_path / "r.csv").write_text("a,b\n1,2\n3\n")
-    with pytest.raises(DataError, match="row 3 has 1 fields"):
+    with pytest.raises(DataError, match="line 3 has 1 fields"):
         load_table(tmp_path / "r.csv")
     (tmp_path / "m.mat").write_bytes(b"garbage" * 20)
     with pytest.raises(DataError, match="not a readable MATLAB"):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid.commands.identify import _Bar
+from streamid.commands.identify_io import Bar as _Bar
 from streamid.engine import Model
 from streamid.engine.validation import prediction_r2
 
@@ -108,11 +108,12 @@ def test_unknown_column_and_bad_values(tmp_path: Path) -> None:
     text[10] = text[10].replace(text[10].split(",")[1], "nan", 1)
     data.write_text("\n".join(text) + "\n")
     p = cli(str(data), "--input", "force", "--output", "pos", *QUICK)
-    assert p.returncode == 2 and "column 'force'" in p.stderr and "nan at sample 9" in p.stderr
+    assert p.returncode == 2 and "1 row of 100 has a missing value" in p.stderr and "line 11 (force)" in p.stderr
+    assert "--fill" in p.stderr and "--drop" in p.stderr
     text[12] = text[12].replace(text[12].split(",")[3], "abc", 1)
     data.write_text("\n".join(text) + "\n")
     p = cli(str(data), "--input", "force", "--output", "pos", *QUICK)
-    assert p.returncode == 2 and "'abc' is not a number" in p.stderr and "row 13" in p.stderr
+    assert p.returncode == 2 and "'abc' is not a number" in p.stderr and "column 'pos', line 13" in p.stderr
 
 
 def test_bad_options() -> None:

@@ -3,8 +3,21 @@
 Examples:
 
     streamid identify data.csv --input u --output y
-    streamid identify mr.mcap --input velocity_cm_s --output force_N --est 2000 --model mr.json
+    streamid identify mr_damper --est 2000 --model mr.json     # a bundled log: its input and output
+    streamid identify data.csv --input u --output y --rrd r.rrd && streamid view r.rrd
     streamid identify data.csv --input u --output y --paper --runs 10 --report r.json
+
+Reading a CSV: the delimiter (, ; tab | whitespace) is detected from the header
+and the first lines (--delimiter sets it); with ; tab | or whitespace a decimal
+comma (1,5) is read as such. A column named like a time (time_s, t_ms...) that
+only increases is the samples' clock. Missing values (empty cells, NaN, NA) in
+the columns used are an error naming their file lines, unless --fill (linear
+interpolation between the neighbouring samples of the column) or --drop (the
+rows are left out: the sample spacing is broken where rows inside the record
+go, which is refused at more than one place per 100 rows). Either way missing
+rows at the start and end are cut. An input that is the output, or that only
+ever increases or decreases (a time column?) is refused; --allow-time-input
+uses the latter anyway, with a warning.
 
 Estimation data are the first samples (--est N or --est-fraction F, default
 half), validation data the rest. With --runs R the identification is repeated
@@ -23,7 +36,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from streamid.logs.datafile import Dataset, load_dataset
+from streamid.commands.identify_io import Bar, check_rrd_target, data_help, draw_rrd, load, read_summary
+from streamid.logs.datafile import Dataset
 from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
 from streamid.engine.fanout import fan_out
 from streamid.engine.identify import identify
@@ -42,9 +56,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("data", metavar="DATA", help="CSV (header row), MATLAB .mat or streamid .mcap log")
-    p.add_argument("--input", action="append", required=True, metavar="COL", help="input column (repeat for several)")
-    p.add_argument("--output", required=True, metavar="COL", help="output column")
+    p.add_argument("data", metavar="DATA", help=data_help())
+    p.add_argument("--input", action="append", metavar="COL",
+                   help="input column (repeat for several; an MCAP log's default: its stream's inputs)")
+    p.add_argument("--output", metavar="COL", help="output column (an MCAP log's default: its stream's only output)")
+    p.add_argument("--delimiter", metavar="D", help="CSV delimiter: , ; tab | whitespace (default: detected)")
+    gaps = p.add_mutually_exclusive_group()
+    gaps.add_argument("--fill", action="store_true",
+                      help="fill missing values by linear interpolation between the neighbouring samples of the column")
+    gaps.add_argument("--drop", action="store_true",
+                      help="leave out rows with a missing value (breaks the sample spacing where they were: warned, "
+                           "refused at more than one place per 100 rows)")
+    p.add_argument("--allow-time-input", action="store_true",
+                   help="use an input that only ever increases or decreases (a time column?) instead of refusing it")
     split = p.add_mutually_exclusive_group()
     split.add_argument("--est", type=int, metavar="N", help="estimation samples: the first N (default: half)")
     split.add_argument("--est-fraction", type=float, metavar="F", help="estimation samples: the first fraction F")
@@ -83,6 +107,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="print the report as one JSON line on stdout instead of the table (as every streamid command's --json)")
     p.add_argument("--report", metavar="REPORT.json", help="also write the report as a JSON file")
     p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (streamid.model/1 JSON)")
+    p.add_argument("--rrd", metavar="FILE.rrd",
+                   help="draw the kept model in the daemon's Rerun layout into FILE.rrd (streamid view FILE.rrd)")
     p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal)")
     p.set_defaults(func=run)
 
@@ -149,31 +175,8 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
         "correlation": {"est": rep.correlation_est.to_dict(), "val": rep.correlation_val.to_dict()},
         "selection_score": model.metrics.get("selection_score"),
         "model": model.to_json(indent=None),
+        "history": [float(f) for f in res.fitness_history],
     }
-
-
-class _Bar:
-    """A one-line progress bar on a stream, shown only once a second has passed."""
-
-    def __init__(self, stream: TextIO, enabled: bool, label: str) -> None:
-        self.stream, self.enabled, self.label = stream, enabled, label
-        self.t0 = time.perf_counter()
-        self.shown = False
-
-    def update(self, done: float, total: float, note: str = "") -> None:
-        if not self.enabled or time.perf_counter() - self.t0 < 1.0:
-            return
-        frac = 0.0 if total <= 0 else min(1.0, done / total)
-        width = 30
-        bar = "#" * int(round(frac * width))
-        self.stream.write(f"\r{self.label} [{bar:<{width}}] {100 * frac:5.1f}% {note}   ")
-        self.stream.flush()
-        self.shown = True
-
-    def close(self) -> None:
-        if self.shown:
-            self.stream.write("\n")
-            self.stream.flush()
 
 
 def identify_runs(
@@ -181,7 +184,7 @@ def identify_runs(
     cfg: CoEAConfig,
     seeds: list[int],
     workers: int,
-    bar: _Bar | None = None,
+    bar: Bar | None = None,
     helper: EvalHelper | None = None,
 ) -> list[dict[str, Any]]:
     """Run one identification per seed (over ``workers`` processes when several) and validate each.
@@ -189,11 +192,11 @@ def identify_runs(
     ``helper`` (an :class:`EvalHelper`) is used by the runs made in this process.
     """
     jobs = [{"dataset": ds, "config": cfg.to_dict(), "seed": s} for s in seeds]
+    if bar is not None and (len(jobs) == 1 or workers <= 1):  # runs made here report every generation
+        for i, job in enumerate(jobs):
+            run = f"run {i + 1}/{len(jobs)}: " if len(jobs) > 1 else ""
+            job["callback"] = lambda p, run=run: bar.generation(p, run)
     if len(jobs) == 1:
-        if bar is not None:
-            jobs[0]["callback"] = lambda p: bar.update(
-                p.generation, p.generations, f"{p.evaluations} evaluations, best fitness {p.best_fitness:.5g}"
-            )
         return [_one(jobs[0], helper)]
 
     def progress(out: list[dict[str, Any]]) -> None:
@@ -232,6 +235,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     w = out.write
     w(f"streamid identify: {ds.path}\n")
     w(f"  model     {', '.join(ds.input_names)} -> {ds.output_name}\n")
+    w(f"  read      {read_summary(ds)}\n")
     w(f"  data      estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)\n")
     w(
         f"  settings  neurons {cfg.neurons}, max lag y {cfg.max_lag_y} / u {cfg.max_lag_u}, generations {cfg.generations}, "
@@ -273,17 +277,23 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     cfg = _config(args)
+    if args.rrd is not None:
+        check_rrd_target(args.rrd)
+    show = args.progress == "always" or (args.progress == "auto" and sys.stderr.isatty())
     # The runs go to a pool of `--workers` processes when there are several; otherwise (one run
     # of one coevolution, or --workers 1) they are made here, and with a second process
     # allowed an EvalHelper evaluates half of every batch (started now, while the data load).
-    in_process = (args.runs == 1 and (cfg.restarts == 1 or cfg.workers <= 1)) or args.workers <= 1
+    # With a progress bar, one run's restarts are made here too (the same result), so that the
+    # bar moves every generation, not once per finished restart.
+    in_process = (args.runs == 1 and (cfg.restarts == 1 or cfg.workers <= 1 or show)) or args.workers <= 1
+    if show and args.runs == 1:
+        cfg = cfg.replace(workers=1)
     helper = EvalHelper(wait=False) if (args.workers >= 2 and in_process and EvalHelper.supported()) else None
     try:
-        ds = load_dataset(
-            args.data, list(args.input), args.output, est=args.est, est_fraction=args.est_fraction, stream=args.stream
-        )
-        show = args.progress == "always" or (args.progress == "auto" and sys.stderr.isatty())
-        bar = _Bar(sys.stderr, show, "identify")
+        ds = load(args)
+        for note in ds.notes:
+            print(f"streamid identify: warning: {note}", file=sys.stderr, flush=True)
+        bar = Bar(sys.stderr, show, "identify")
         seeds = list(range(args.seed, args.seed + args.runs))
         try:
             runs = identify_runs(ds, cfg, seeds, args.workers, bar, helper)
@@ -294,8 +304,11 @@ def run(args: argparse.Namespace) -> int:
             helper.close()
     best = _best_index(runs, cfg)
     wall = time.perf_counter() - t0
+    rrd_files = draw_rrd(args.rrd, ds, runs, best, cfg.generations) if args.rrd is not None else []
     if not args.json:
         _print_report(sys.stdout, ds, cfg, runs, best, wall)
+        if rrd_files:
+            print(f"rrd: {', '.join(rrd_files)} (streamid view {args.rrd}; --screenshot PNG renders it)")
     if args.model:
         model = Model.from_json(runs[best]["model"])
         with open(args.model, "w", encoding="utf-8") as fh:
@@ -309,10 +322,14 @@ def run(args: argparse.Namespace) -> int:
                 "output": ds.output_name,
                 "n_est": ds.n_est,
                 "n_val": ds.n_val,
+                "read": ds.info,
+                "warnings": list(ds.notes),
+                "period_ns": ds.period_ns,
             },
             "config": cfg.to_dict(),
-            "runs": [{k: v for k, v in r.items() if k != "model"} for r in runs],
+            "runs": [{k: v for k, v in r.items() if k not in ("model", "history")} for r in runs],
             "best": best,
+            "rrd": rrd_files,
             "summary": {
                 "fitness": _stats([r["fitness"] for r in runs]),
                 "r2": {k: _stats([r["r2"][k] for r in runs]) for k in ("osa_est", "osa_val", "fr_est", "fr_val")},

@@ -6,13 +6,19 @@ samples into an estimation part (the first ones) and a validation part (the rest
 
 Formats
 -------
-* ``.csv`` (or any other extension with ``format="csv"``): first row = column
-  names, then one row per sample, comma-separated numbers.
+* ``.csv`` (also ``.tsv``, or any extension with ``fmt="csv"``): first
+  row = column names, then one row per sample; the delimiter (``,`` ``;`` tab ``|``
+  whitespace) and a decimal comma are detected, empty / NaN / NA cells are missing
+  values, and a strictly increasing column named like a time (``time_s``, ``t_ms``...)
+  gives the samples' times: :mod:`streamid.logs.csv_table`.
 * ``.mat`` (MATLAB v4-v7.2, read with :func:`scipy.io.loadmat`): every numeric
   vector variable is a column (``N x 1`` or ``1 x N``); a matrix ``X`` of shape
   ``N x k`` gives columns ``X[0] .. X[k-1]``. MATLAB v7.3 (HDF5) files are not supported.
 * ``.mcap``: a streamid log (see :mod:`streamid.logs.mcap_files`); columns are the
   stream's input and output channel names.
+
+The chosen columns are checked (an input equal to the output, a time column as an
+input...) and missing values handled as :mod:`streamid.logs.columns` says.
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.errors import DataError
+from streamid.logs.columns import MISSING_POLICIES, check_columns, handle_missing
+from streamid.logs.csv_table import clock_of, read_delimited
 
 __all__ = ["Table", "Dataset", "load_table", "load_dataset", "split_index"]
 
@@ -66,6 +74,12 @@ class Dataset:
     y_val: NDArray[np.float64]
     n_est: int
     t_ns: NDArray[np.int64] | None = None
+    #: warnings about the data (missing values dropped or filled, a time column used as an input...)
+    notes: tuple[str, ...] = ()
+    #: how the file was read: ``delimiter``, ``decimal``, ``clock`` column, ``missing`` (policy and counts)
+    info: dict[str, Any] = field(default_factory=dict)
+    #: sample period of the file's clock (None when it has none)
+    period_ns: int | None = None
 
     @property
     def n_val(self) -> int:
@@ -80,35 +94,15 @@ class Dataset:
         return w
 
 
-def _read_csv(path: Path) -> Table:
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"cannot read CSV file {path}: {exc}") from None
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise DataError(f"{path}: a CSV file needs a header row with column names and at least one data row")
-    header = [h.strip() for h in rows[0]]
-    if len(set(header)) != len(header) or any(not h for h in header):
-        raise DataError(f"{path}: the header row must hold distinct, non-empty column names; got {header}")
-    body = rows[1:]
-    for i, r in enumerate(body):
-        if len(r) != len(header):
-            raise DataError(f"{path}: row {i + 2} has {len(r)} fields; the header has {len(header)}")
-    cols: dict[str, NDArray[np.float64]] = {}
-    for j, name in enumerate(header):
-        vals = np.empty(len(body))
-        for i, r in enumerate(body):
-            try:
-                vals[i] = float(r[j])
-            except ValueError:
-                raise DataError(
-                    f"{path}: column {name!r}, row {i + 2}: {r[j]!r} is not a number "
-                    "(every field of a data row must be a number)"
-                ) from None
-        cols[name] = vals
-    return Table(str(path), cols)
+def _read_csv(path: Path, delimiter: str | None = None) -> Table:
+    cols, lines, how = read_delimited(path, delimiter)
+    clock = clock_of(cols)
+    t_ns = period_ns = None
+    if clock is not None:
+        how["clock"] = clock[0]
+        t_ns = clock[1]
+        period_ns = int(np.median(np.diff(t_ns)))
+    return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta={"lines": lines, **how})
 
 
 def _read_mat(path: Path) -> Table:
@@ -150,7 +144,9 @@ def _read_mcap(path: Path, stream: str | None) -> Table:
     return Table(str(path), cols, t_ns=np.asarray(arr.t_ns, dtype=np.int64), period_ns=int(arr.period_ns), meta=meta)
 
 
-def load_table(path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None) -> Table:
+def load_table(
+    path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None, delimiter: str | None = None
+) -> Table:
     """Read a data file's numeric columns.
 
     Parameters
@@ -161,6 +157,8 @@ def load_table(path: str | os.PathLike[str], *, stream: str | None = None, fmt: 
         Stream of an MCAP log holding several.
     fmt : {"csv", "mat", "mcap"}, optional
         Format, if the extension does not tell.
+    delimiter : str, optional
+        CSV delimiter (``,`` ``;`` ``\\t`` ``|`` or ``" "`` for whitespace); default detected.
 
     Raises
     ------
@@ -173,13 +171,13 @@ def load_table(path: str | os.PathLike[str], *, stream: str | None = None, fmt: 
     if not p.is_file():
         raise DataError(f"data file {str(path)!r} does not exist (or is not a file)")
     kind = (fmt or p.suffix.lstrip(".")).lower()
-    if kind == "csv":
-        return _read_csv(p)
+    if kind in ("csv", "tsv"):
+        return _read_csv(p, delimiter)
     if kind == "mat":
         return _read_mat(p)
     if kind == "mcap":
         return _read_mcap(p, stream)
-    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv (header row), .mat, .mcap")
+    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv/.tsv (header row), .mat, .mcap")
 
 
 def split_index(n: int, est: int | None = None, est_fraction: float | None = None) -> int:
@@ -207,8 +205,11 @@ def load_dataset(
     est: int | None = None,
     est_fraction: float | None = None,
     stream: str | None = None,
+    delimiter: str | None = None,
+    missing: str = "error",
+    allow_time_input: bool = False,
 ) -> Dataset:
-    """Load the named columns and split them (estimation first, validation after).
+    """Load the named columns, check them, handle missing values, and split them (estimation first).
 
     Parameters
     ----------
@@ -218,28 +219,53 @@ def load_dataset(
     output : str
         Output column name.
     est, est_fraction : optional
-        Estimation samples (count or fraction); default the first half.
+        Estimation samples (count or fraction, of the samples kept); default the first half.
     stream : str, optional
         Stream of an MCAP log.
+    delimiter : str, optional
+        CSV delimiter; default detected (:mod:`streamid.logs.csv_table`).
+    missing : {"error", "drop", "fill"}
+        Rows with a missing value (empty cell, NaN) in a column used: an error naming
+        them (default), left out, or filled by linear interpolation
+        (:func:`streamid.logs.columns.handle_missing`).
+    allow_time_input : bool
+        Use an input that only increases or decreases (a time column?) with a warning
+        instead of refusing it.
 
     Raises
     ------
     DataError
-        Unknown columns, columns of different lengths, NaN/inf values.
+        Unknown columns, columns of different lengths, infinite values, missing values
+        (``missing="error"``), an input that is the output, a time-like input.
     """
     if not inputs:
-        raise DataError("at least one input column is needed")
-    table = load_table(path, stream=stream)
-    names = list(inputs) + [output]
-    cols = [table.column(c) for c in names]
-    lengths = {c: len(a) for c, a in zip(names, cols)}
+        raise DataError("at least one input column is needed (--input COL)")
+    if missing not in MISSING_POLICIES:
+        raise DataError(f"missing must be one of {MISSING_POLICIES}; got {missing!r}")
+    table = load_table(path, stream=stream, delimiter=delimiter)
+    names = list(dict.fromkeys([*inputs, output]))
+    cols = {c: table.column(c) for c in names}
+    lengths = {c: len(a) for c, a in cols.items()}
     if len(set(lengths.values())) != 1:
         raise DataError(f"{path}: the columns have different lengths {lengths}; all must be equal")
-    for c, a in zip(names, cols):
-        if not np.all(np.isfinite(a)):
-            i = int(np.flatnonzero(~np.isfinite(a))[0])
-            raise DataError(f"{path}: column {c!r} holds a non-finite value {float(a[i])!r} at sample {i}; only numbers are accepted")
-    u = np.column_stack(cols[:-1])
-    y = cols[-1]
+    notes = check_columns(str(path), list(inputs), output, cols, allow_time_input=allow_time_input)
+    lines = table.meta.get("lines")
+    clean = handle_missing(str(path), cols, missing, lines)
+    notes += clean.notes
+    u = np.column_stack([clean.columns[c] for c in inputs])
+    y = clean.columns[output]
     k = split_index(len(y), est, est_fraction)
-    return Dataset(str(path), tuple(inputs), output, u[:k], y[:k], u[k:], y[k:], k, table.t_ns)
+    t_ns = table.t_ns[clean.keep] if table.t_ns is not None else None
+    info: dict[str, Any] = {k_: v for k_, v in table.meta.items() if k_ in ("delimiter", "decimal", "clock")}
+    info["rows"] = len(table)
+    info["missing"] = {
+        "policy": missing,
+        "rows_with_missing": clean.rows_missing,
+        "rows_dropped": clean.dropped,
+        "values_filled": clean.filled,
+        "places_spacing_broken": clean.gaps,
+    }
+    return Dataset(
+        str(path), tuple(inputs), output, u[:k], y[:k], u[k:], y[k:], k, t_ns,
+        notes=tuple(notes), info=info, period_ns=table.period_ns,
+    )

@@ -1,0 +1,156 @@
+"""What ``streamid identify`` shows and writes around an identification: the data it reads, the progress bar, the .rrd.
+
+Kept apart from :mod:`streamid.commands.identify` (options, runs, the report table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+from streamid.engine.coevolution import Progress
+from streamid.errors import ConfigError, DataError
+from streamid.logs.bundled import bundled_logs, data_file
+from streamid.logs.csv_table import parse_delimiter
+from streamid.logs.datafile import Dataset, load_dataset, load_table
+
+__all__ = ["Bar", "load", "read_summary", "check_rrd_target", "draw_rrd"]
+
+
+class Bar:
+    """A one-line progress bar on a stream: shown once a second has passed, redrawn at most every ``every_s``."""
+
+    def __init__(self, stream: TextIO, enabled: bool, label: str, every_s: float = 0.1) -> None:
+        self.stream, self.enabled, self.label, self.every_s = stream, enabled, label, every_s
+        self.t0 = time.perf_counter()
+        self.shown = False
+        self.drawn = 0  # redraws so far
+        self._last = -1.0
+        self._line = ""
+
+    def update(self, done: float, total: float, note: str = "") -> None:
+        now = time.perf_counter()
+        if not self.enabled or now - self.t0 < 1.0 or (now - self._last < self.every_s and done < total):
+            return
+        self._last = now
+        frac = 0.0 if total <= 0 else min(1.0, done / total)
+        width = 30
+        bar = "#" * int(round(frac * width))
+        line = f"\r{self.label} [{bar:<{width}}] {100 * frac:5.1f}% {note}   "
+        if line == self._line:
+            return
+        self._line = line
+        self.stream.write(line)
+        self.stream.flush()
+        self.shown = True
+        self.drawn += 1
+
+    def generation(self, p: Progress, run: str = "") -> None:
+        """Draw one identification's progress (a generation of one of its restarts, in order)."""
+        self.update(p.generation, p.generations,
+                    f"{run}generation {p.generation}/{p.generations}, {p.evaluations} evaluations, "
+                    f"best fitness {p.best_fitness:.5g}")
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _columns(args: argparse.Namespace, path: Path, delimiter: str | None) -> tuple[list[str], str]:
+    """--input/--output, or for an MCAP log without them its stream's inputs and its only output."""
+    if args.input and args.output:
+        return list(args.input), args.output
+    table = load_table(path, stream=args.stream, delimiter=delimiter)
+    ins, outs = table.meta.get("inputs"), table.meta.get("outputs")
+    if ins is None or outs is None:
+        raise ConfigError(
+            f"{path} is not a log that names its inputs and outputs: give --input COL (once per input) and --output "
+            f"COL; its columns are {sorted(table.columns)}"
+        )
+    if not args.output and len(outs) != 1:
+        raise ConfigError(f"stream {table.meta.get('stream')!r} of {path} has outputs {outs}: choose one with --output")
+    return (list(args.input) if args.input else list(ins)), (args.output or outs[0])
+
+
+def load(args: argparse.Namespace) -> Dataset:
+    """The data of the command line: a file or a bundled log, the columns, delimiter, missing values, split."""
+    delimiter = parse_delimiter(args.delimiter) if args.delimiter is not None else None
+    path = data_file(args.data)
+    inputs, output = _columns(args, path, delimiter)
+    missing = "drop" if args.drop else "fill" if args.fill else "error"
+    return load_dataset(path, inputs, output, est=args.est, est_fraction=args.est_fraction, stream=args.stream,
+                        delimiter=delimiter, missing=missing, allow_time_input=args.allow_time_input)
+
+
+def read_summary(ds: Dataset) -> str:
+    """How the file was read, in one line (delimiter, decimal mark, clock, missing values)."""
+    info = ds.info
+    parts = []
+    if "delimiter" in info:
+        parts.append(f"{info['delimiter']}-separated, decimal {'comma' if info.get('decimal') == ',' else 'point'}")
+    if ds.period_ns:
+        clock = f"clock {info['clock']!r}" if "clock" in info else "clock of the log"
+        parts.append(f"{clock} (period {ds.period_ns / 1e6:.6g} ms)")
+    else:
+        parts.append("no clock (samples counted)")
+    m = info.get("missing", {})
+    if m.get("rows_with_missing"):
+        parts.append(f"{m['rows_with_missing']} rows with missing values ({m['policy']}: {m['rows_dropped']} rows left "
+                     f"out, {m['values_filled']} values filled)")
+    return f"{info.get('rows', ds.n_est + ds.n_val)} rows; " + ", ".join(parts)
+
+
+def check_rrd_target(path: str) -> None:
+    """Refuse an --rrd path that cannot be written, before the identification."""
+    p = Path(path)
+    if p.suffix != ".rrd":
+        raise ConfigError(f"--rrd {path!r}: the file name must end in .rrd (e.g. --rrd result.rrd)")
+    if p.is_dir():
+        raise ConfigError(f"--rrd {path!r} is a directory; give a file name ending in .rrd")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise ConfigError(f"--rrd {path!r}: the directory {str(parent)!r} does not exist or cannot be written")
+
+
+def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, generations: int) -> list[str]:
+    """Draw the kept run into ``path`` in the daemon's layout (:mod:`streamid.viz.identify_report`); the files written."""
+    from streamid.engine.model import Model
+    from streamid.engine.validation import validate
+    from streamid.viz.identify_report import Clock, draw_identification, identify_update_report
+
+    b = runs[best]
+    model = Model.from_json(b["model"])
+    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val)
+    clock = Clock.of(ds.t_ns, ds.period_ns)
+    stream = Path(ds.path).stem or "data"
+    events: list[tuple[str, str]] = [
+        ("INFO", f"streamid identify {ds.path}: {', '.join(ds.input_names)} -> {ds.output_name}; estimation the first "
+                 f"{ds.n_est} samples, validation the {ds.n_val} after"),
+        ("INFO", f"read: {read_summary(ds)}"),
+    ]
+    if not clock.from_file:
+        events.append(("WARN", "no time column in the file: the time axis counts one second per sample"))
+    events += [("WARN", n) for n in ds.notes]
+    for i, r in enumerate(runs):
+        r2 = r["r2"]
+        events.append(("INFO", f"run {i} (seed {r['seed']}){' kept' if i == best else ''}: R² est OSA {r2['osa_est']:.4f} "
+                               f"FR {r2['fr_est']:.4f} · val OSA {r2['osa_val']:.4f} FR {r2['fr_val']:.4f}, "
+                               f"{r['seconds']:.2f} s"))
+    note = f"run {best} of {len(runs)} (seed {b['seed']}), kept by the identification's own rule on the estimation data"
+    up = identify_update_report(stream, model, rep, u_val=ds.u_val, y_val=ds.y_val, n_est=ds.n_est, clock=clock,
+                                fitness_history=b.get("history", []), generations=generations,
+                                seconds=float(b["seconds"]), note=note)
+    files = draw_identification(path, up, events)
+    if not files or not Path(files[-1]).is_file():
+        raise DataError(f"--rrd {path!r}: the recording could not be written (see the warning above)")
+    return files
+
+
+def data_help() -> str:
+    """The DATA argument's help (names the bundled logs)."""
+    return ("CSV/.tsv (header row), MATLAB .mat or streamid .mcap log, or the name of a bundled log "
+            f"({', '.join(bundled_logs())})")

@@ -1,0 +1,222 @@
+"""Checks and repairs of the columns chosen for an identification: what a user's own file gets wrong.
+
+:func:`check_columns`
+    an input that is the output (by name or by value), a repeated input, a constant
+    input, and an input that only ever increases or decreases (a time column, most
+    likely): an error unless ``allow_time_input``, then a warning.
+:func:`handle_missing`
+    rows with a missing value (NaN) in the columns used: ``"error"`` (default) names
+    the first rows and the two ways out; ``"drop"`` leaves the rows out; ``"fill"``
+    interpolates linearly.  Both cut missing rows at the start and the end of the
+    record (that keeps the sample spacing).  ``"drop"`` of rows inside the record
+    joins samples that were not adjacent: a warning says how many places, and more
+    than one place per 100 rows (at least 1 allowed) is refused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.errors import DataError
+from streamid.logs.csv_table import time_unit_ns
+
+__all__ = ["MISSING_POLICIES", "Cleaned", "check_columns", "handle_missing", "row_label"]
+
+MISSING_POLICIES = ("error", "drop", "fill")
+_SHOW = 5  # rows named in a message
+
+
+def row_label(i: int, lines: NDArray[np.int64] | None) -> str:
+    """Where row ``i`` (0-based) is in the file: ``line N`` of a text file, else ``sample N`` (1-based)."""
+    return f"line {int(lines[i])}" if lines is not None else f"sample {i + 1}"
+
+
+def _monotonic(v: NDArray[np.float64]) -> str | None:
+    """'increasing'/'decreasing' when the finite values never go the other way and move at >= 90 % of steps.
+
+    Judged on 10 samples or more (a random column of 10 is monotonic by chance with probability 2/10! = 6e-7).
+    """
+    f = v[np.isfinite(v)]
+    if f.size < 10:
+        return None
+    d = np.diff(f)
+    for sign, word in ((1.0, "increasing"), (-1.0, "decreasing")):
+        s = sign * d
+        if np.all(s >= 0) and np.mean(s > 0) >= 0.9:
+            return word
+    return None
+
+
+def check_columns(
+    where: str,
+    inputs: Sequence[str],
+    output: str,
+    columns: dict[str, NDArray[np.float64]],
+    *,
+    allow_time_input: bool = False,
+) -> list[str]:
+    """Refuse inputs a model cannot be made of; return the warnings (see the module's rules).
+
+    Raises
+    ------
+    DataError
+        Naming the column, what is wrong and what to do.
+    """
+    if output in inputs:
+        raise DataError(
+            f"--input {output}: the column {output!r} is the --output too; a model of {output} from its own present "
+            f"value would be trivial (its past values are regressors already, up to --max-lag-y); choose other inputs"
+        )
+    seen: set[str] = set()
+    for name in inputs:
+        if name in seen:
+            raise DataError(f"--input {name} is given twice; give each input column once")
+        seen.add(name)
+    y = columns[output]
+    warnings: list[str] = []
+    for name in inputs:
+        u = columns[name]
+        if u.shape == y.shape and np.array_equal(u, y, equal_nan=True):
+            raise DataError(
+                f"--input {name}: the column {name!r} holds exactly the values of the output {output!r}; a model of "
+                f"{output} from itself would be trivial; choose other inputs"
+            )
+        f = u[np.isfinite(u)]
+        if f.size and np.all(f == f[0]):
+            raise DataError(
+                f"--input {name}: the column {name!r} is constant (every value {float(f[0])!r}); it carries nothing "
+                "to identify from; choose inputs that vary"
+            )
+        trend = _monotonic(u)
+        if trend is not None:
+            msg = (
+                f"--input {name}: the column {name!r} is {trend} over all its {f.size} samples (a time column?); a "
+                f"model of {output} from it meets, on the validation part and later, values it never saw"
+            )
+            if not allow_time_input:
+                raise DataError(msg + "; pass --allow-time-input to use it anyway")
+            warnings.append(msg + " (used, --allow-time-input)")
+        elif time_unit_ns(name) is not None:
+            warnings.append(f"--input {name}: the column {name!r} is named like a time; it is used as an input signal")
+    return warnings
+
+
+@dataclass(frozen=True)
+class Cleaned:
+    """The used columns after :func:`handle_missing`, and what was done."""
+
+    columns: dict[str, NDArray[np.float64]]
+    keep: NDArray[np.int64]  # indices of the file's rows kept, in order
+    notes: tuple[str, ...]
+    rows_missing: int  # rows that had a missing value in a used column
+    dropped: int  # rows left out (cut at the ends, or dropped inside)
+    filled: int  # cells filled by interpolation
+    gaps: int  # places inside the record where --drop joined samples that were not adjacent
+
+
+def _runs(idx: NDArray[np.int64]) -> list[tuple[int, int]]:
+    """Runs of consecutive indices as (first, last)."""
+    if idx.size == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(idx) != 1)
+    starts = np.concatenate([[idx[0]], idx[cuts + 1]])
+    ends = np.concatenate([idx[cuts], [idx[-1]]])
+    return [(int(a), int(b)) for a, b in zip(starts, ends)]
+
+
+def _span(a: int, b: int, lines: NDArray[np.int64] | None) -> str:
+    return row_label(a, lines) if a == b else f"{row_label(a, lines)}-{int(lines[b]) if lines is not None else b + 1}"
+
+
+def handle_missing(
+    where: str,
+    columns: dict[str, NDArray[np.float64]],
+    policy: str,
+    lines: NDArray[np.int64] | None = None,
+) -> Cleaned:
+    """Apply the missing-value ``policy`` (``"error"``, ``"drop"``, ``"fill"``) to the used ``columns``.
+
+    ``lines``: the file line of every row (text files), used to name rows.
+    """
+    if policy not in MISSING_POLICIES:
+        raise DataError(f"missing must be one of {MISSING_POLICIES}; got {policy!r}")
+    names = list(columns)
+    n = len(next(iter(columns.values())))
+    for name, v in columns.items():
+        inf = np.flatnonzero(np.isinf(v))
+        if inf.size:
+            raise DataError(
+                f"{where}: column {name!r}, {row_label(int(inf[0]), lines)}: {float(v[inf[0]])!r} is not a finite "
+                "number; only numbers (or missing values: empty, NaN) are accepted"
+            )
+    miss = np.column_stack([np.isnan(columns[c]) for c in names])
+    bad = np.flatnonzero(miss.any(axis=1))
+    every = np.arange(n, dtype=np.int64)
+    if bad.size == 0:
+        return Cleaned(dict(columns), every, (), 0, 0, 0, 0)
+    if policy == "error":
+        shown = "; ".join(
+            f"{row_label(int(i), lines)} ({', '.join(c for j, c in enumerate(names) if miss[i, j])})" for i in bad[:_SHOW]
+        )
+        more = f"; and {bad.size - _SHOW} more" if bad.size > _SHOW else ""
+        raise DataError(
+            f"{where}: {bad.size} row{'s' if bad.size > 1 else ''} of {n} {'have' if bad.size > 1 else 'has'} a missing value (empty, NaN, NA) in the "
+            f"columns used: {shown}{more}. Pass --fill to fill them by linear interpolation between the neighbouring "
+            "samples of each column, or --drop to leave those rows out (rows at the start and end are simply cut)"
+        )
+    ok: NDArray[np.bool_] = np.asarray(~miss.any(axis=1))
+    if not ok.any():
+        raise DataError(f"{where}: no row has a number in every column used ({', '.join(names)})")
+    first, last = int(np.argmax(ok)), int(n - 1 - np.argmax(ok[::-1]))
+    notes: list[str] = []
+    if first or last < n - 1:
+        notes.append(
+            f"cut {first} row{'s' if first != 1 else ''} at the start and {n - 1 - last} at the end of the record "
+            "(a missing value in a column used); the sample spacing is kept"
+        )
+    inner = bad[(bad > first) & (bad < last)]
+    runs = _runs(inner)
+    if policy == "drop":
+        limit = max(1, n // 100)
+        if len(runs) > limit:
+            raise DataError(
+                f"{where}: --drop would join samples that were not adjacent at {len(runs)} places inside the record "
+                f"(first: {'; '.join(_span(a, b, lines) for a, b in runs[:_SHOW])}); at most one place per 100 rows "
+                f"({limit} here) is accepted, as the lagged values after each place mix both sides of it. Use --fill "
+                "(linear interpolation between the neighbouring samples), or clean the file"
+            )
+        keep = every[first : last + 1][ok[first : last + 1]]
+        if runs:
+            notes.append(
+                f"--drop: left out {inner.size} row{'s' if inner.size > 1 else ''} inside the record "
+                f"({'; '.join(_span(a, b, lines) for a, b in runs[:_SHOW])}{' ...' if len(runs) > _SHOW else ''}): "
+                f"the sample spacing is broken at {len(runs)} place{'s' if len(runs) > 1 else ''} (up to max-lag "
+                "samples after each see lagged values from before it); --fill keeps the spacing"
+            )
+        cols = {c: v[keep] for c, v in columns.items()}
+        return Cleaned(cols, keep, tuple(notes), int(bad.size), n - keep.size, 0, len(runs))
+    keep = every[first : last + 1]
+    cols = {}
+    filled, longest = 0, (0, "")
+    for c, v in columns.items():
+        part = v[keep].copy()
+        holes = np.flatnonzero(np.isnan(part))
+        if holes.size:
+            have = np.flatnonzero(~np.isnan(part))
+            part[holes] = np.interp(holes, have, part[have])
+            filled += int(holes.size)
+            for a, b in _runs(holes + first):
+                if b - a + 1 > longest[0]:
+                    longest = (b - a + 1, f"{c!r}, {_span(a, b, lines)}")
+        cols[c] = part
+    if filled:
+        notes.append(
+            f"--fill: filled {filled} missing value{'s' if filled > 1 else ''} in {inner.size} row"
+            f"{'s' if inner.size > 1 else ''} by linear interpolation between the neighbouring samples of each column "
+            f"(longest run {longest[0]} sample{'s' if longest[0] > 1 else ''}: {longest[1]})"
+        )
+    return Cleaned(cols, keep, tuple(notes), int(bad.size), n - keep.size, filled, 0)

@@ -1,0 +1,131 @@
+"""``streamid identify --rrd FILE``: one offline identification drawn in the daemon's Rerun layout.
+
+The kept model becomes one :class:`~streamid.viz.reports.UpdateReport` (version 1,
+a cold run over the whole estimation part, validated on the rest) and is drawn by
+:class:`streamid.viz.rerun_view.Viz` exactly as the daemon draws an update: the
+validation figure, residuals, the five correlation tests, best fitness per
+generation, R² (one point), the input-output plane, the model as text and an
+event log (how the file was read, warnings, every run).  ``streamid view
+FILE.rrd`` opens it; ``--screenshot PNG`` renders it.
+
+Times come from the file's clock (an MCAP log, or a CSV time column such as
+``time_s``); without one the time axis counts one second per sample, and the
+event log says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.engine.model import Model
+from streamid.engine.validation import CorrelationTest, ValidationReport
+from streamid.viz.reports import UpdateReport, VizSettings
+
+__all__ = ["Clock", "identify_update_report", "draw_identification", "NO_CLOCK_PERIOD_NS"]
+
+#: Time axis of a file without a clock: one second per sample.
+NO_CLOCK_PERIOD_NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class Clock:
+    """Times of the identified samples: the first sample's time and the sample period (ns)."""
+
+    t0_ns: int
+    period_ns: int
+    from_file: bool
+
+    @classmethod
+    def of(cls, t_ns: NDArray[np.int64] | None, period_ns: int | None) -> Clock:
+        if t_ns is not None and len(t_ns) >= 2:
+            period = period_ns if period_ns and period_ns > 0 else int(np.median(np.diff(t_ns)))
+            if period > 0:
+                return cls(int(t_ns[0]), int(period), True)
+        return cls(0, NO_CLOCK_PERIOD_NS, False)
+
+
+def _first_input_tests(tests: Sequence[CorrelationTest]) -> tuple[CorrelationTest, ...]:
+    """``ee`` and the first input's tests, named by kind (as :func:`streamid.daemon.report.first_input_tests`)."""
+    seen: set[str] = set()
+    out = []
+    for t in tests:
+        kind = t.name.split("[", 1)[0]
+        if kind not in seen:
+            seen.add(kind)
+            out.append(t if kind == t.name else dataclasses.replace(t, name=kind))
+    return tuple(out)
+
+
+def identify_update_report(
+    stream: str,
+    model: Model,
+    report: ValidationReport,
+    *,
+    u_val: NDArray[np.float64],
+    y_val: NDArray[np.float64],
+    n_est: int,
+    clock: Clock,
+    fitness_history: Sequence[float],
+    generations: int,
+    seconds: float,
+    note: str = "",
+) -> UpdateReport:
+    """The drawing of an offline identification: ``report`` must come from :func:`streamid.engine.validation.validate`."""
+    n_val = len(y_val)
+    n = n_est + n_val
+    u = np.asarray(u_val, dtype=np.float64)
+    r2 = report.r2_dict()
+    return UpdateReport(
+        stream=stream,
+        version=1,
+        accepted=True,
+        warm=False,
+        generations=generations,
+        window_t0_ns=clock.t0_ns,
+        window_end_ns=clock.t0_ns + n * clock.period_ns,
+        period_ns=clock.period_ns,
+        val_t0_ns=clock.t0_ns + n_est * clock.period_ns,
+        y_val=np.asarray(y_val, dtype=np.float64),
+        osa_val=np.asarray(report.predictions["osa_val"], dtype=np.float64),
+        fr_val=np.asarray(report.predictions["fr_val"], dtype=np.float64),
+        u_val=u[:, 0] if u.ndim == 2 else u,
+        input_name=model.input_names[0] if model.input_names else "u",
+        output_name=model.output_name,
+        fitness=np.asarray(fitness_history, dtype=np.float64),
+        correlations=_first_input_tests(report.correlation_val.tests),
+        lags=model.lags,
+        metrics={f"r2_{k}": float(v) for k, v in r2.items()},
+        identification_s=float(seconds),
+        note=note,
+        input_names=tuple(model.input_names),
+    )
+
+
+def draw_identification(
+    path: str,
+    update: UpdateReport,
+    events: Sequence[tuple[str, str]] = (),
+    *,
+    application_id: str = "streamid identify",
+) -> list[str]:
+    """Write ``update`` (and ``events``: ``(level, text)`` pairs, before it) to the .rrd ``path``; the files written.
+
+    One file, never rotated, its footer written on return (``rerun rrd verify`` passes).
+    """
+    from streamid.viz.rerun_view import Viz
+
+    viz = Viz(VizSettings(rrd=path, rrd_rotate_mb=None, application_id=application_id))
+    try:
+        viz.add_stream(update.stream)
+        for level, text in events:
+            viz.log_event(update.stream, text, level=level, t_ns=update.window_t0_ns)
+        viz.log_update(update)
+        files = viz.files
+    finally:
+        viz.close(timeout_s=10.0)
+    return files
