@@ -193,3 +193,20 @@ def test_bundled_log_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     assert code == 2 and "give --input COL" in err and "['force', 'noise', 'pos', 't_s']" in err, err
     code, _, err = run(capsys, "cstr", *QUICK)
     assert code == 2 and "has outputs" in err and "choose one with --output" in err, err
+
+
+def test_mat_file_missing_values_are_named_by_sample(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A .mat file has no lines: rows are named by 1-based sample; it has no clock either, and says so."""
+    from scipy.io import savemat
+
+    cols = signals(300)
+    u = cols["force"].copy()
+    u[[4, 150]] = np.nan
+    mat = tmp_path / "m.mat"
+    savemat(mat, {"u": u, "y": cols["pos"]})
+    code, _, err = run(capsys, str(mat), "--input", "u", "--output", "y", *QUICK)
+    assert code == 2 and "2 rows of 300 have a missing value" in err and "sample 5 (u); sample 151 (u)." in err, err
+    code, out, err = run(capsys, str(mat), "--input", "u", "--output", "y", "--fill", *QUICK)
+    assert code == 0, err
+    assert "read      300 rows; no clock (samples counted), 2 rows with missing values (fill: 0 rows left out, " \
+           "2 values filled)" in out, out

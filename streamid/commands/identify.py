@@ -109,7 +109,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (streamid.model/1 JSON)")
     p.add_argument("--rrd", metavar="FILE.rrd",
                    help="draw the kept model in the daemon's Rerun layout into FILE.rrd (streamid view FILE.rrd)")
-    p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal)")
+    p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal); one identification moves it every generation "
+                        "(its restarts then run in this process), --runs over several processes every finished run")
     p.set_defaults(func=run)
 
 

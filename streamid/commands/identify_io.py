@@ -27,7 +27,6 @@ class Bar:
         self.stream, self.enabled, self.label, self.every_s = stream, enabled, label, every_s
         self.t0 = time.perf_counter()
         self.shown = False
-        self.drawn = 0  # redraws so far
         self._last = -1.0
         self._line = ""
 
@@ -46,7 +45,6 @@ class Bar:
         self.stream.write(line)
         self.stream.flush()
         self.shown = True
-        self.drawn += 1
 
     def generation(self, p: Progress, run: str = "") -> None:
         """Draw one identification's progress (a generation of one of its restarts, in order)."""

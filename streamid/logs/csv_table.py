@@ -113,7 +113,10 @@ def clock_of(columns: dict[str, NDArray[np.float64]]) -> tuple[str, NDArray[np.i
         unit = time_unit_ns(name)
         if unit is None or v.size < 2 or not np.all(np.isfinite(v)) or not np.all(np.diff(v) > 0):
             continue
-        t_ns = np.round(v * float(unit)).astype(np.int64)
+        scaled = v * float(unit)
+        if not np.all(np.abs(scaled) < 9e18):  # beyond int64 ns (~292 years): not a clock in this unit
+            continue
+        t_ns = np.round(scaled).astype(np.int64)
         if np.all(np.diff(t_ns) > 0):
             return name, t_ns
     return None
