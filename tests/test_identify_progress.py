@@ -36,23 +36,24 @@ def test_restarts_in_process_report_every_generation() -> None:
 
 
 def test_cli_bar_moves_within_one_run_on_a_pipe() -> None:
-    """`--progress always` on a pipe: one identification with the defaults (4 restarts, two stages) redraws the bar
-    many times, each generation further, not once per finished restart."""
+    """`--progress always` on a pipe: one identification of 2 two-stage restarts redraws the bar many times, each
+    time some generations further, not once per finished restart."""
     import re
     import subprocess
     import sys
 
     p = subprocess.run([sys.executable, "-m", "streamid", "identify", "mr_damper", "--est", "2000", "--progress",
-                        "always", "--json"], capture_output=True, timeout=120)  # bytes: text mode turns \r into \n
+                        "always", "--json", "--restarts", "2", "--generations", "150", "--lag-search-neurons", "10",
+                        "--lag-search-generations", "100"], capture_output=True, timeout=120)  # bytes: text mode turns \r into \n
     stderr, stdout = p.stderr.decode(), p.stdout.decode()
     assert p.returncode == 0, stderr
     draws = re.findall(r"\ridentify \[[# ]{30}\] +([0-9.]+)% generation (\d+)/(\d+), (\d+) evaluations", stderr)
     gens = [int(g) for _, g, _, _ in draws]
     total = {int(t) for _, _, t, _ in draws}
-    assert total == {800}, total  # 4 restarts x (100 lag-search + 100 final generations)
-    inside = [g for g in gens if g % 200]  # not at the end of a restart
-    assert len(draws) >= 8 and len(inside) >= 4, gens  # drawn between restarts' ends: it moves within a run
-    assert gens == sorted(gens) and gens[-1] == 800 and float(draws[-1][0]) == 100.0, gens
+    assert total == {500}, total  # 2 restarts x (100 lag-search + 150 final generations)
+    inside = [g for g in gens if g % 250]  # not at the end of a restart
+    assert len(draws) >= 6 and len(inside) >= 4, gens  # drawn between restarts' ends: it moves within a run
+    assert gens == sorted(gens) and gens[-1] == 500 and float(draws[-1][0]) == 100.0, gens
     evals = [int(e) for *_, e in draws]
     assert evals == sorted(evals) and evals[-1] == __import__("json").loads(stdout)["runs"][0]["evaluations"]
     assert stderr.endswith("\n")  # the bar's line is ended

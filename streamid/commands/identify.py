@@ -109,7 +109,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (streamid.model/1 JSON)")
     p.add_argument("--rrd", metavar="FILE.rrd",
                    help="draw the kept model in the daemon's Rerun layout into FILE.rrd (streamid view FILE.rrd)")
-    p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal); one identification moves it every generation "
+    p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal, after a second; always: from the start); one identification moves it every generation "
                         "(its restarts then run in this process), --runs over several processes every finished run")
     p.set_defaults(func=run)
 
@@ -294,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
         ds = load(args)
         for note in ds.notes:
             print(f"streamid identify: warning: {note}", file=sys.stderr, flush=True)
-        bar = Bar(sys.stderr, show, "identify")
+        bar = Bar(sys.stderr, show, "identify", delay_s=1.0 if args.progress == "auto" else 0.0)
         seeds = list(range(args.seed, args.seed + args.runs))
         try:
             runs = identify_runs(ds, cfg, seeds, args.workers, bar, helper)

@@ -21,10 +21,11 @@ __all__ = ["Bar", "load", "read_summary", "check_rrd_target", "draw_rrd"]
 
 
 class Bar:
-    """A one-line progress bar on a stream: shown once a second has passed, redrawn at most every ``every_s``."""
+    """A one-line progress bar on a stream, redrawn at most every ``every_s``; shown after ``delay_s``
+    (``streamid identify --progress auto`` waits a second, so that a quick run does not flash one)."""
 
-    def __init__(self, stream: TextIO, enabled: bool, label: str, every_s: float = 0.1) -> None:
-        self.stream, self.enabled, self.label, self.every_s = stream, enabled, label, every_s
+    def __init__(self, stream: TextIO, enabled: bool, label: str, every_s: float = 0.05, delay_s: float = 1.0) -> None:
+        self.stream, self.enabled, self.label, self.every_s, self.delay_s = stream, enabled, label, every_s, delay_s
         self.t0 = time.perf_counter()
         self.shown = False
         self._last = -1.0
@@ -32,7 +33,7 @@ class Bar:
 
     def update(self, done: float, total: float, note: str = "") -> None:
         now = time.perf_counter()
-        if not self.enabled or now - self.t0 < 1.0 or (now - self._last < self.every_s and done < total):
+        if not self.enabled or now - self.t0 < self.delay_s or (now - self._last < self.every_s and done < total):
             return
         self._last = now
         frac = 0.0 if total <= 0 else min(1.0, done / total)
