@@ -284,10 +284,12 @@ def run(args: argparse.Namespace) -> int:
     # The runs go to a pool of `--workers` processes when there are several; otherwise (one run
     # of one coevolution, or --workers 1) they are made here, and with a second process
     # allowed an EvalHelper evaluates half of every batch (started now, while the data load).
-    # With a progress bar, one run's restarts are made here too (the same result), so that the
-    # bar moves every generation, not once per finished restart.
-    in_process = (args.runs == 1 and (cfg.restarts == 1 or cfg.workers <= 1 or show)) or args.workers <= 1
-    if show and args.runs == 1:
+    # With a progress bar, one run's restarts are made here too when the helper can take the
+    # second core (the same result), so that the bar moves every generation, not once per
+    # finished restart.
+    bar_here = show and args.runs == 1 and args.workers >= 2 and EvalHelper.supported()
+    in_process = (args.runs == 1 and (cfg.restarts == 1 or cfg.workers <= 1 or bar_here)) or args.workers <= 1
+    if bar_here:
         cfg = cfg.replace(workers=1)
     helper = EvalHelper(wait=False) if (args.workers >= 2 and in_process and EvalHelper.supported()) else None
     try:
