@@ -16,6 +16,9 @@ A configuration file is optional: every setting has an embedded default, so
     max_identification_bytes = 536870912 # a stream's buffers + one identification (512 MiB)
     max_identification_s = 60.0          # one identification's own time; then stopped, counted
     stream_idle_s = 60.0                 # a discovered stream without a valid sample this long gives its slot back
+    share = true                         # divide discovered streams with the other daemons on the network
+    claim_settle_s = 0.3                 # a claim on a stream stands unbeaten this long before the stream is served
+    join_after_s = 10.0                  # a new daemon buffers the streams it will take this long, then joins
 
     [defaults]                # per-stream settings applied to every stream
     window_s = 10.0
@@ -96,6 +99,19 @@ class DaemonConfig:
     stream_idle_s
         A discovered stream that received no valid sample for this long gives
         its slot back (counted ``streams_released``; its state file stays).
+    share
+        With ``discover``: divide the streams with the other sharing daemons on
+        the network (:mod:`streamid.daemon.sharing`: liveliness tokens,
+        rendezvous hashing, claims); each stream is served by one of them, and by
+        the next when that one dies.  Every daemon claims a stream before serving
+        it, sharing or not, so two daemons never publish one stream at once.
+    claim_settle_s
+        How long a new claim on a stream must stand unbeaten before the daemon
+        serves the stream (longer than a token takes to cross the network).
+    join_after_s
+        A new sharing daemon buffers the streams it will own for this long before
+        it announces itself (a stream it takes over then has a full window);
+        default: one default window, 10 s.
     defaults
         Settings of every stream.
     overrides
@@ -114,6 +130,9 @@ class DaemonConfig:
     max_identification_bytes: int = 512 * 2**20
     max_identification_s: float = 60.0
     stream_idle_s: float = 60.0
+    share: bool = True
+    claim_settle_s: float = 0.3
+    join_after_s: float = 10.0
     defaults: StreamConfig = field(default_factory=StreamConfig)
     overrides: tuple[tuple[str, StreamConfig], ...] = ()
 
@@ -191,6 +210,9 @@ _DAEMON_KEYS: dict[str, tuple[str, str]] = {
     "max_identification_bytes": ("int", "an integer number of bytes in [1048576, 1099511627776]"),
     "max_identification_s": ("float", "a number of seconds in [0.1, 86400]"),
     "stream_idle_s": ("float", "a number of seconds in [0.5, 31536000]"),
+    "share": ("bool", "true or false"),
+    "claim_settle_s": ("float", "a number of seconds in [0.01, 60]"),
+    "join_after_s": ("float", "a number of seconds in [0, 3600]"),
 }
 #: Ranges of the [daemon] bounds (inclusive), as in the accepted forms above.
 _BOUNDS: dict[str, tuple[float, float]] = {
@@ -199,6 +221,8 @@ _BOUNDS: dict[str, tuple[float, float]] = {
     "max_identification_bytes": (2**20, 2**40),
     "max_identification_s": (0.1, 86400.0),
     "stream_idle_s": (0.5, 365 * 86400.0),
+    "claim_settle_s": (0.01, 60.0),
+    "join_after_s": (0.0, 3600.0),
 }
 _TOP_KEYS = ("daemon", "defaults", "streams")
 

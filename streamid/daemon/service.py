@@ -55,14 +55,17 @@ from streamid.daemon.admission import check_batch, known_channels
 from streamid.daemon.memory import LARGE_PAYLOAD, give_back_freed_memory, retain_freed_memory
 from streamid.daemon.runner import JobRunner
 from streamid.daemon.slots import StreamSlot as _Stream
+from streamid.daemon.slot_keeping import SlotKeeping
 from streamid.daemon.slots import EVICT_GRACE_S, evictable, forward_events
 from streamid.daemon.state_store import StateStore
 from streamid.daemon.identity import daemon_origin
+from streamid.daemon.share_link import ShareLink
+from streamid.daemon.sharing import Life, Shares
 from streamid.daemon.versions import VersionKeeper
 from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, StreamidError
-from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name, model_key, rejected_key, status_key
+from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name
 from streamid.transport import Bus, ZenohSettings
 
 __all__ = ["Daemon"]
@@ -73,7 +76,7 @@ _OWN_KINDS = ("model", "status", "rejected")
 ZENOH_MESSAGE_FACTOR = 8
 
 
-class Daemon:
+class Daemon(SlotKeeping):
     """The streaming identification service.
 
     Parameters
@@ -125,6 +128,11 @@ class Daemon:
         self._large_payload = threading.Event()  # a large payload came in: give heap memory back
         self._released: deque[_Stream] = deque()  # slots taken by new streams, declarations still to close
         self._runner = JobRunner(self._streams, config, self._stop, self._global, self._finish, on_generation)
+        origin = self.versions.origin  # who serves which stream (streamid.daemon.sharing)
+        self.shares = Shares(Life(origin.daemon, origin.epoch_ns), share=config.share and config.discover,
+                             explicit=config.streams, settle_ns=int(config.claim_settle_s * 1e9))
+        self.link = ShareLink(self.shares, join_after_s=config.join_after_s, max_streams=config.max_streams,
+                              max_payload_bytes=config.max_payload_bytes)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Daemon:
@@ -149,8 +157,7 @@ class Daemon:
             for key in keys:
                 self._subs.append(self.bus.subscribe(key, self._on_sample, max_payload_bytes=limit,
                                                      on_too_large=self._on_too_large))
-            for s in names:
-                self._declare(self._streams[s])
+            self.link.start(self.bus)  # a stream's publishers are declared once it is served (housekeeping)
         except Exception:
             self.bus.close()
             self._close_helpers()
@@ -212,6 +219,7 @@ class Daemon:
         else:
             self._close_helpers()  # (a worker still running keeps its helper; the process exit ends both)
         self._save_all()
+        self.link.close()
         if self.viz is not None:
             self.viz.log_event(None, "daemon stopped")
             self.viz.close(timeout_s=max(0.2, min(1.0, deadline - time.monotonic() - 0.2)))
@@ -298,31 +306,12 @@ class Daemon:
             _log.info("stream %s: %s", name, "configured" if name in self.config.streams else "discovered")
             return st
 
-    def _declare(self, st: _Stream) -> None:
-        """Publishers and queryables of one stream (housekeeping thread or start)."""
-        bus, name = self.bus, st.ident.stream
-        if st.declared or bus is None:
-            return
-        self._pubs[f"{name}/model"] = bus.publisher(model_key(name), block=True)
-        self._pubs[f"{name}/status"] = bus.publisher(status_key(name), block=False)
-        self._pubs[f"{name}/rejected"] = bus.publisher(rejected_key(name), block=False)
-        st.handles += [self._pubs[f"{name}/{k}"] for k in ("model", "status", "rejected")]
-
-        def model_reply(_key: str) -> list[bytes]:
-            with st.lock:
-                return list(st.ident.payloads)  # the champion of every output: one reply each
-
-        def status_reply(_key: str) -> bytes | None:
-            return encode_json(self._status(st))
-
-        st.handles += [bus.queryable(model_key(name), model_reply), bus.queryable(status_key(name), status_reply)]
-        st.declared = True
-
     def _daemon_info(self) -> dict[str, Any]:
         return {
             "streams": len(self._streams),
             "uptime_s": round((time.time_ns() - self._started_ns) / 1e9, 3),
             "origin": self.versions.origin_doc,  # who publishes this life's models (daemon id, epoch)
+            "sharing": self.link.info(),  # members, streams served here
             **{k: int(v) for k, v in self._global.items()},
         }
 
@@ -365,6 +354,9 @@ class Daemon:
                 else:
                     self._global["unknown_keys"] += 1
             return
+        if self.shares.role(stream) == "none":  # another daemon serves it, and another stands by
+            self._global["batches_for_others"] += 1
+            return
         st = self._streams.get(stream) or self._ensure(stream)
         if st is None:
             return
@@ -393,6 +385,10 @@ class Daemon:
             if not st.had_valid and not any(ev.kind.startswith("bad.") for ev in events):
                 st.had_valid = True
             due = st.ident.pending > 0
+            if due and not self.shares.serving(stream):
+                if not self.shares.keeps_windows(stream):
+                    st.ident.skip_pending()  # a standby keeps the window, never identifies
+                due = False  # (a claimed stream's windows wait until it is served)
         if due and self.identify:
             self._runner.wake(stream)
 
@@ -400,22 +396,27 @@ class Daemon:
     def _finish(self, st: _Stream, job: UpdateJob, out: Outcome) -> None:
         """Judge a job's outcome, save, publish an accepted model, then draw it (a worker thread)."""
         name, window = st.ident.stream, job.window
+        if not self.shares.serving(name):
+            self._global["results_handed_over"] += 1  # served elsewhere since the job began: not ours to publish
+            return
         persist = self.versions.persist if self.store is not None else None
         self.versions.settle(st.ident, self.bus, st.lock)  # once per stream without state: the network's version
         with st.lock:
             up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
+            state = st.ident.state(now_ns=time.time_ns()).to_json()
         latency_s = None
         with st.lock:
             st.recent_updates.append((time.monotonic(), up.kind, (time.time_ns() - window.received_ns) / 1e9))
-        if up.kind == "rejected" and up.payload is not None and (rej := self._pubs.get(f"{name}/rejected")):
-            rej.put(up.payload)  # a rejected challenger, for subscribers that asked (include_rejected)
-        if up.accepted:
-            pub = self._pubs.get(f"{name}/model")
-            if pub is None:
-                self._declare(st)
-                pub = self._pubs.get(f"{name}/model")
-            if pub is not None and up.payload is not None:
+        with self.shares.publish_lock:  # a release waits for this put to end; no put after it
+            if not self.shares.serving(name):
+                self._global["results_handed_over"] += 1
+                return
+            self.link.hand_off(name, state)  # before the model: the next owner never reuses its version
+            if up.kind == "rejected" and up.payload is not None and (rej := self._pubs.get(f"{name}/rejected")):
+                rej.put(up.payload)  # a rejected challenger, for subscribers that asked (include_rejected)
+            if up.accepted and up.payload is not None and (pub := self._pubs.get(f"{name}/model")) is not None:
                 pub.put(up.payload)
+        if up.accepted:
             latency_s = (time.time_ns() - window.received_ns) / 1e9
             with st.lock:
                 st.latency_s = latency_s
@@ -446,12 +447,8 @@ class Daemon:
         next_status = next_idle = next_trim = 0.0
         every = self.config.status_every_s
         while not self._stop.wait(0.05):
+            self.link.tick(list(self._streams), self._serve, self._release)
             for st in list(self._streams.values()):
-                if not st.declared:
-                    try:
-                        self._declare(st)
-                    except Exception as exc:  # noqa: BLE001
-                        _log.error("stream %s: declarations failed (%s)", st.ident.stream, exc)
                 forward_events(st, self.viz)
             now = time.monotonic()
             if now >= next_status:
@@ -466,40 +463,6 @@ class Daemon:
                 next_trim = now + 1.0
                 self._large_payload.clear()
                 give_back_freed_memory()
-
-    def _release_idle(self, now: float) -> None:
-        """Give back the slots of discovered streams without a valid sample for ``stream_idle_s``."""
-        for st in list(self._streams.values()):
-            with st.lock:
-                samples = st.ident.counters().get("samples_in", 0)
-                if samples != st.samples_seen:
-                    st.samples_seen, st.valid_mono = samples, now
-                    continue
-                if st.configured or st.ident.busy or now - st.valid_mono < self.config.stream_idle_s:
-                    continue
-            with self._streams_lock:
-                if self._streams.get(st.ident.stream) is not st:
-                    continue
-                del self._streams[st.ident.stream]
-                self._global["streams_released"] += 1
-            self._close_slot(st, f"{now - st.valid_mono:.0f} s without a valid sample (daemon.stream_idle_s = "
-                                 f"{self.config.stream_idle_s:g})")
-
-    def _close_slot(self, st: _Stream, why: str) -> None:
-        """Close the declarations of a slot already removed from the table (housekeeping thread)."""
-        name = st.ident.stream
-        if name not in self._streams:  # (not already back in a new slot)
-            self._runner.scheduler.forget(name)
-        for key in (f"{name}/model", f"{name}/status"):
-            if any(self._pubs.get(key) is h for h in st.handles):
-                self._pubs.pop(key, None)
-        for h in st.handles:
-            try:
-                h.close()
-            except Exception:  # noqa: BLE001 - the session may be closing
-                pass
-        forward_events(st, self.viz)
-        _log.info("stream %s: slot released: %s%s", name, why, "; its state file stays" if self.store is not None else "")
 
     def publish_status(self) -> None:
         """Put the status of every stream on its status key."""

@@ -192,6 +192,11 @@ class VersionKeeper:
                 best, where = v, str(path)
         return best, where
 
+    def settled(self, name: str) -> None:
+        """The stream's version is known from elsewhere (a state handed over by its previous owner): no query."""
+        with self._lock:
+            self._to_ask.discard(name)
+
     def needs_settle(self, name: str) -> bool:
         """Whether :meth:`settle` still has a network query to do for this stream."""
         with self._lock:

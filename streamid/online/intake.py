@@ -38,6 +38,7 @@ class StreamIntake:
         self._events_dropped = 0
         self._seq = 0
         self._staged: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
+        self.windows_skipped = 0  # closed windows dropped unidentified (skip_pending)
 
     # ---------------------------------------------------------------- samples in
     def push(self, batch: BatchLike, *, source: str = "samples", now_ns: int = 0) -> list[Event]:
@@ -129,8 +130,22 @@ class StreamIntake:
 
     def counters(self) -> dict[str, object]:
         """The window buffer's counters (samples, batches, bad input, gaps, resets, windows...)."""
-        return self._buffer.counters()
+        out = self._buffer.counters()
+        if self.windows_skipped:
+            out["windows_skipped"] = self.windows_skipped
+        return out
 
+    def skip_pending(self) -> int:
+        """Drop the closed windows waiting to be identified, keep the samples; returns how many.
+
+        A daemon standing by for a stream another one serves keeps its window this way
+        (to take over with a full one) without identifying it.
+        """
+        n = 0
+        while self._buffer.take() is not None:
+            n += 1
+        self.windows_skipped += n
+        return n
 
     def drain_events(self) -> list[Event]:
         """Remove and return the events kept since the last call (the newest :data:`EVENTS_KEPT`)."""

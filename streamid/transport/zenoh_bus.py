@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import re
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -27,6 +26,7 @@ from typing import Any
 import zenoh
 
 from streamid.errors import ConfigError, TransportError
+from streamid.transport.endpoints import check_endpoint, explain_open_error
 
 __all__ = [
     "DEFAULT_ENDPOINT",
@@ -47,24 +47,6 @@ CONNECT_RETRY_S = 0.5
 
 #: Accepted Zenoh session modes.
 MODES: tuple[str, ...] = ("peer", "client", "router")
-
-_ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe")
-
-
-def _check_endpoint(endpoint: str, what: str) -> str:
-    if not isinstance(endpoint, str) or "/" not in endpoint:
-        raise ConfigError(
-            f"{what} endpoint must be a Zenoh locator '<protocol>/<address>' such as "
-            f"'tcp/127.0.0.1:7447'; got {endpoint!r}"
-        )
-    proto = endpoint.split("/", 1)[0]
-    if proto not in _ENDPOINT_PROTOCOLS:
-        raise ConfigError(
-            f"{what} endpoint protocol must be one of {', '.join(_ENDPOINT_PROTOCOLS)}; "
-            f"got {proto!r} in {endpoint!r}"
-        )
-    return endpoint
-
 
 @dataclass(frozen=True)
 class ZenohSettings:
@@ -112,9 +94,9 @@ class ZenohSettings:
         object.__setattr__(self, "connect", tuple(self.connect))
         object.__setattr__(self, "listen", tuple(self.listen))
         for ep in self.connect:
-            _check_endpoint(ep, "connect")
+            check_endpoint(ep, "connect")
         for ep in self.listen:
-            _check_endpoint(ep, "listen")
+            check_endpoint(ep, "listen")
         if self.connect_wait_s is not None and not (
             isinstance(self.connect_wait_s, (int, float)) and 0 <= self.connect_wait_s < float("inf")
         ):
@@ -195,37 +177,6 @@ class ZenohSettings:
         return conf
 
 
-_RUST_WHERE = re.compile(r"\s*at /\S+\.rs:\d+\.?")
-_BOUND_TO = re.compile(r"bound to ([a-z-]+/[^\s:\]]+:\d+)")
-
-
-def explain_open_error(message: str, settings: ZenohSettings) -> str:
-    """One sentence for a failed ``zenoh.open``: the endpoint, what is wrong and the flag that changes it.
-
-    Zenoh's own text (with Rust source paths) is reduced to its first clause.
-    """
-    text = _RUST_WHERE.sub("", message).strip().rstrip(".")
-    if "Address already in use" in text or "address in use" in text.lower():
-        m = _BOUND_TO.search(text)
-        ep = m.group(1) if m else (", ".join(settings.listen) or "the listen endpoint")
-        return (
-            f"cannot listen on {ep}: the address is already in use (another streamid daemon or router running?); "
-            f"stop that process or choose another endpoint with --listen, e.g. --listen tcp/127.0.0.1:7448"
-        )
-    if "Unable to connect" in text:
-        eps = ", ".join(settings.connect) or "the connect endpoints"
-        return (
-            f"cannot open zenoh session: cannot connect to {eps}: nothing answers there, or it refused this session "
-            f"(mode {settings.resolved_mode() or 'from the config file'}; with access control or TLS, check the credentials and "
-            "certificates of --zenoh-config); start `streamid daemon` or `streamid router` there, or point --connect "
-            "at where one listens"
-        )
-    if "Can not create a new" in text and "listener" in text:
-        eps = ", ".join(settings.listen) or "the listen endpoint"
-        return f"cannot listen on {eps} ({text}); choose another endpoint with --listen, e.g. --listen tcp/127.0.0.1:7448"
-    return f"cannot open zenoh session ({text}); listen {list(settings.listen)}, connect {list(settings.connect)}, mode {settings.resolved_mode()}"
-
-
 Callback = Callable[[str, bytes], None]
 QueryHandler = Callable[[str], "bytes | Sequence[bytes] | None"]
 
@@ -233,9 +184,10 @@ QueryHandler = Callable[[str], "bytes | Sequence[bytes] | None"]
 class BusPublisher:
     """A declared publisher on one key: ``put(bytes)``, ``has_subscribers()``."""
 
-    def __init__(self, publisher: Any, key: str) -> None:
+    def __init__(self, publisher: Any, key: str, forget: Callable[[Any], None] | None = None) -> None:
         self._pub = publisher
         self.key = key
+        self._forget = forget
 
     def put(self, payload: bytes) -> None:
         """Publish ``payload`` (``bytes``/``bytearray``) on this publisher's key."""
@@ -263,19 +215,26 @@ class BusPublisher:
             self._pub.undeclare()
         except zenoh.ZError:
             pass
+        if self._forget is not None:
+            self._forget(self._pub)
+            self._forget = None
 
 
 class _Handle:
     """An undeclarable subscription or queryable."""
 
-    def __init__(self, entity: Any) -> None:
+    def __init__(self, entity: Any, forget: Callable[[Any], None] | None = None) -> None:
         self._entity = entity
+        self._forget = forget
 
     def close(self) -> None:
         try:
             self._entity.undeclare()
         except zenoh.ZError:
             pass
+        if self._forget is not None:  # the session stops keeping it (entities declared and closed often)
+            self._forget(self._entity)
+            self._forget = None
 
 
 class Bus:
@@ -356,6 +315,13 @@ class Bus:
         with self._lock:
             self._entities.append(entity)
 
+    def _drop(self, entity: Any) -> None:
+        with self._lock:
+            try:
+                self._entities.remove(entity)
+            except ValueError:
+                pass
+
     # -- pub/sub ---------------------------------------------------------
     def subscribe(
         self,
@@ -396,7 +362,42 @@ class Bus:
                 f"such as 'streamid/**'; got {key_expr!r} ({exc})"
             ) from exc
         self._keep(sub)
-        return _Handle(sub)
+        return _Handle(sub, self._drop)
+
+    # -- liveliness --------------------------------------------------------
+    def liveliness_token(self, key: str) -> _Handle:
+        """Declare a liveliness token on ``key``: alive while this session lives and the handle is open.
+
+        Zenoh withdraws it when ``close()`` is called, the session ends or its transport is lost
+        (a killed process: as soon as its TCP connection closes; a silent link: after the lease).
+        """
+        self._check_open()
+        try:
+            token = self._session.liveliness().declare_token(key)
+        except zenoh.ZError as exc:
+            raise TransportError(f"cannot declare liveliness token: key must be a Zenoh key without "
+                                 f"wildcards such as 'streamid/@daemons/a/1'; got {key!r} ({exc})") from exc
+        self._keep(token)
+        return _Handle(token, self._drop)
+
+    def liveliness_subscribe(self, key_expr: str, callback: Callable[[str, bool], None]) -> _Handle:
+        """Call ``callback(key, alive)`` for every token on ``key_expr``: the ones alive now, then each change."""
+        self._check_open()
+
+        def _on_change(sample: Any) -> None:
+            key = str(sample.key_expr)
+            try:
+                callback(key, sample.kind == zenoh.SampleKind.PUT)
+            except Exception:  # noqa: BLE001 - a callback must not kill zenoh's thread
+                _log.exception("liveliness callback failed on key %s", key)
+
+        try:
+            sub = self._session.liveliness().declare_subscriber(key_expr, _on_change, history=True)
+        except zenoh.ZError as exc:
+            raise TransportError(f"cannot subscribe to liveliness: key expression must be a valid Zenoh key "
+                                 f"expression such as 'streamid/@daemons/*/*'; got {key_expr!r} ({exc})") from exc
+        self._keep(sub)
+        return _Handle(sub, self._drop)
 
     def publisher(self, key: str, block: bool = True, *, express: bool = False) -> BusPublisher:
         """Declare a publisher on ``key``.
@@ -415,7 +416,7 @@ class Bus:
                 f"as 'streamid/demo/samples'; got {key!r} ({exc})"
             ) from exc
         self._keep(pub)
-        return BusPublisher(pub, key)
+        return BusPublisher(pub, key, self._drop)
 
     def put(self, key: str, payload: bytes, block: bool = True) -> None:
         """One-off put of ``payload`` on ``key`` (prefer :meth:`publisher` for streams)."""
@@ -451,7 +452,7 @@ class Bus:
         except zenoh.ZError as exc:
             raise TransportError(f"cannot declare queryable on {key!r} ({exc})") from exc
         self._keep(qbl)
-        return _Handle(qbl)
+        return _Handle(qbl, self._drop)
 
     def wait_connected(self, timeout_s: float) -> bool:
         """Wait until this session has a link to at least one peer or router.

@@ -13,6 +13,16 @@ Every stream lives under ``streamid/<stream>/``:
 
 A stream name is one Zenoh chunk: 1-128 characters from ``A-Z a-z 0-9 _ - .``
 (no ``/``, no wildcard), so it is also a safe file-name component.
+
+Daemons sharing the streams (:mod:`streamid.daemon.sharing`) also use keys whose
+second chunk starts with ``@`` (a Zenoh *verbatim* chunk: no wildcard matches it,
+so ``streamid/*/*`` and ``streamid/**`` subscribers, recorders included, never see them):
+
+=======================================  ==============================================
+``streamid/@daemons/<id>/<epoch>``       liveliness token: a sharing daemon's life
+``streamid/@claims/<s>/<id>/<epoch>``    liveliness token: that life serves (or claims) ``s``
+``streamid/@state/<s>``                  the serving daemon's state of ``s`` (JSON, for its successor)
+=======================================  ==============================================
 """
 
 from __future__ import annotations
@@ -38,6 +48,13 @@ __all__ = [
     "rejected_key",
     "status_key",
     "parse_key",
+    "MEMBERS_ALL",
+    "CLAIMS_ALL",
+    "HANDOFF_ALL",
+    "member_key",
+    "claim_key",
+    "handoff_key",
+    "parse_life_key",
 ]
 
 PREFIX = "streamid"
@@ -49,6 +66,12 @@ SAMPLE_KINDS: tuple[str, ...] = ("samples", "u", "y")
 DOCUMENT_KINDS: tuple[str, ...] = ("model", "rejected", "status")
 #: Key expressions matching every sample batch of every stream.
 ALL_SAMPLES: tuple[str, ...] = tuple(f"{PREFIX}/*/{k}" for k in SAMPLE_KINDS)
+
+#: Liveliness key expressions of every sharing daemon's life and of every claim; every handed-off state.
+MEMBERS_ALL = f"{PREFIX}/@daemons/*/*"
+CLAIMS_ALL = f"{PREFIX}/@claims/*/*/*"
+HANDOFF_ALL = f"{PREFIX}/@state/*"
+_LIFE_RE = re.compile(r"[0-9A-Za-z][0-9A-Za-z._-]{0,63}")
 
 STREAM_NAME_RULE = "1 to 128 characters from A-Z a-z 0-9 _ - . (not '.' or '..')"
 _STREAM_RE = re.compile(r"[A-Za-z0-9_.\-]{1,128}")
@@ -128,3 +151,40 @@ def parse_key(key: str) -> tuple[str, str]:
     if kind not in KINDS:
         raise ConfigError(f"key kind must be one of {', '.join(KINDS)}; got {kind!r} in {key!r}")
     return stream, kind
+
+
+def member_key(daemon: str, epoch_ns: int) -> str:
+    """Liveliness key of a sharing daemon's life: ``streamid/@daemons/<daemon>/<epoch_ns>``."""
+    return f"{PREFIX}/@daemons/{_life(daemon, epoch_ns)}"
+
+
+def claim_key(stream: str, daemon: str, epoch_ns: int) -> str:
+    """Liveliness key of a daemon life's claim on a stream: ``streamid/@claims/<stream>/<daemon>/<epoch_ns>``."""
+    return f"{PREFIX}/@claims/{check_stream_name(stream)}/{_life(daemon, epoch_ns)}"
+
+
+def handoff_key(stream: str) -> str:
+    """Key of the serving daemon's state of a stream, for the daemon that takes it over: ``streamid/@state/<stream>``."""
+    return f"{PREFIX}/@state/{check_stream_name(stream)}"
+
+
+def _life(daemon: str, epoch_ns: int) -> str:
+    if not isinstance(daemon, str) or not _LIFE_RE.fullmatch(daemon):
+        raise ConfigError(f"daemon id must be 1-64 letters, digits, '.', '_' or '-'; got {daemon!r}")
+    if isinstance(epoch_ns, bool) or not isinstance(epoch_ns, int) or epoch_ns < 0:
+        raise ConfigError(f"epoch must be an integer number of ns >= 0; got {epoch_ns!r}")
+    return f"{daemon}/{epoch_ns}"
+
+
+def parse_life_key(key: str) -> tuple[str | None, str, int] | None:
+    """``(stream or None, daemon, epoch_ns)`` of a member or claim key; None if it is not one."""
+    parts = key.split("/") if isinstance(key, str) else []
+    if len(parts) == 4 and parts[:2] == [PREFIX, "@daemons"]:
+        stream, daemon, epoch = None, parts[2], parts[3]
+    elif len(parts) == 5 and parts[:2] == [PREFIX, "@claims"] and is_valid_stream_name(parts[2]):
+        stream, daemon, epoch = parts[2], parts[3], parts[4]
+    else:
+        return None
+    if not _LIFE_RE.fullmatch(daemon) or not epoch.isdigit() or len(epoch) > 20:
+        return None
+    return stream, daemon, int(epoch)

@@ -1,0 +1,183 @@
+"""The daemon's side of stream sharing on the bus: its tokens, the others' tokens, and handed-over state.
+
+:class:`ShareLink` adapts :class:`~streamid.daemon.sharing.Shares` (the rules, no I/O)
+to a :class:`~streamid.transport.Bus`:
+
+* it watches every member and claim token (liveliness subscriptions with history),
+* declares this daemon's member token once ``join_after_s`` has passed, and its claim
+  tokens as :meth:`Shares.step` says,
+* keeps the newest state the serving daemon put on ``streamid/@state/<s>`` for each
+  stream this daemon owns or stands by for (at most ``max_streams`` entries of at most
+  ``max_payload_bytes`` each: only daemons may publish there, see
+  ``examples/zenoh/router.json5``, and what they send is bounded all the same),
+* and puts this daemon's state of a stream it serves there (:meth:`hand_off`).
+
+The daemon calls :meth:`tick` from its housekeeping thread; ``serve`` and ``release``
+actions come back to it (declare or close the stream's publishers, restore the
+handed-over state).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+from streamid.daemon.sharing import Action, Life, Shares  # noqa: F401 (Life: the type of ``me``)
+from streamid.errors import ModelFormatError
+from streamid.online.snapshot import StreamState
+from streamid.transport import Bus
+from streamid.wire.keys import CLAIMS_ALL, HANDOFF_ALL, MEMBERS_ALL, claim_key, handoff_key, member_key, parse_life_key
+
+__all__ = ["ShareLink"]
+
+_log = logging.getLogger("streamid.daemon.service")
+
+
+class ShareLink:
+    """Tokens and handed-over state of one daemon (see the module docstring)."""
+
+    def __init__(self, shares: Shares, *, join_after_s: float, max_streams: int, max_payload_bytes: int) -> None:
+        self.shares = shares
+        self.join_after_s = float(join_after_s)
+        self.max_streams = int(max_streams)
+        self.max_payload_bytes = int(max_payload_bytes)
+        self.counters: Counter[str] = Counter()
+        self._bus: Bus | None = None
+        self._handles: list[Any] = []
+        self._member: Any | None = None
+        self._claims: dict[str, Any] = {}
+        self._handoff: dict[str, bytes] = {}
+        self._lock = threading.Lock()
+        self._started = 0.0
+
+    @property
+    def me(self) -> Life:
+        return self.shares.me
+
+    def start(self, bus: Bus) -> None:
+        """Watch the tokens and the handed-over states; the member token follows after ``join_after_s``."""
+        self._bus = bus
+        self._started = time.monotonic()
+        self._handles.append(bus.liveliness_subscribe(MEMBERS_ALL, self._on_token))
+        self._handles.append(bus.liveliness_subscribe(CLAIMS_ALL, self._on_token))
+        self._handles.append(bus.subscribe(HANDOFF_ALL, self._on_handoff, max_payload_bytes=self.max_payload_bytes,
+                                           on_too_large=lambda _k, _n: self.counters.update(["handoff_too_large"])))
+
+    def _on_token(self, key: str, alive: bool) -> None:
+        parsed = parse_life_key(key)
+        if parsed is None:
+            self.counters["tokens_malformed"] += 1
+            return
+        stream, daemon, epoch = parsed
+        life = Life(daemon, epoch)
+        if stream is None:
+            self.shares.member(life, alive)
+        else:
+            self.shares.claim(stream, life, alive)
+
+    def _on_handoff(self, key: str, payload: bytes) -> None:
+        stream = key.rsplit("/", 1)[-1]
+        if self.shares.role(stream) == "none" or self.shares.serving(stream):
+            return  # not ours to take over (or our own put coming back)
+        with self._lock:
+            if stream not in self._handoff and len(self._handoff) >= self.max_streams:
+                self.counters["handoff_refused"] += 1
+                return
+            self._handoff[stream] = payload
+        self.counters["handoff_received"] += 1
+
+    # ------------------------------------------------------------------ each housekeeping tick
+    def tick(self, streams: list[str], on_serve: Callable[[str], None], on_release: Callable[[str], None],
+             now_ns: int | None = None) -> None:
+        """Join when due, advance the phases; claims declared and withdrawn, ``on_serve``/``on_release`` called, in order."""
+        bus = self._bus
+        if bus is None:
+            return
+        if self.shares.share and self._member is None and self._join_due():
+            self._member = bus.liveliness_token(member_key(self.me.daemon, self.me.epoch_ns))
+            with self.shares.lock:
+                self.shares.joined = True
+            _log.info("stream sharing: joined as daemon %s (members now: %s)", self.me.daemon,
+                      ", ".join(self.shares.members()))
+        actions = self.shares.step(streams, time.time_ns() if now_ns is None else now_ns)
+        self._apply(actions, on_serve, on_release)
+
+    def _join_due(self) -> bool:
+        """Join at once when alone (once the tokens alive before us had time to arrive), else after ``join_after_s``."""
+        waited = time.monotonic() - self._started
+        if waited < self.shares.settle_ns / 1e9:
+            return False
+        alone = all(d == self.me.daemon for d in self.shares.members())
+        return alone or waited >= self.join_after_s
+
+    def forget(self, stream: str, on_release: Callable[[str], None]) -> None:
+        """A stream's slot is gone: stop serving it (``on_release``) and withdraw its claim."""
+        self._apply(self.shares.forget(stream), lambda _s: None, on_release)
+
+    def _apply(self, actions: list[Action], on_serve: Callable[[str], None], on_release: Callable[[str], None]) -> None:
+        bus = self._bus
+        for act in actions:
+            if act.kind == "claim" and bus is not None and act.stream not in self._claims:
+                self._claims[act.stream] = bus.liveliness_token(claim_key(act.stream, self.me.daemon, self.me.epoch_ns))
+            elif act.kind == "unclaim":
+                handle = self._claims.pop(act.stream, None)
+                if handle is not None:
+                    handle.close()
+            elif act.kind == "serve":
+                on_serve(act.stream)
+            elif act.kind == "release":
+                on_release(act.stream)
+
+    # ------------------------------------------------------------------ state for the next owner
+    def take_handoff(self, stream: str) -> StreamState | None:
+        """The newest state of ``stream`` put by its previous owner (None: none, or unreadable: counted)."""
+        with self._lock:
+            payload = self._handoff.pop(stream, None)
+        if payload is None:
+            return None
+        try:
+            state = StreamState.from_json(payload.decode("utf-8"), source=f"the state handed over on {handoff_key(stream)}")
+        except (ModelFormatError, UnicodeDecodeError, ValueError) as exc:
+            self.counters["handoff_unreadable"] += 1
+            _log.warning("stream %s: handed-over state unreadable (%s); resuming from this daemon's own state", stream, exc)
+            return None
+        if state.stream != stream:
+            self.counters["handoff_unreadable"] += 1
+            return None
+        return state
+
+    def hand_off(self, stream: str, state_json: str) -> None:
+        """Put this daemon's state of ``stream`` for whoever serves it next (before the model it goes with)."""
+        bus = self._bus
+        if bus is None:
+            return
+        try:
+            bus.put(handoff_key(stream), state_json.encode("utf-8"), block=True)
+            self.counters["handoff_sent"] += 1
+        except Exception as exc:  # noqa: BLE001 - the model is still published
+            self.counters["handoff_errors"] += 1
+            _log.warning("stream %s: state not handed off (%s)", stream, exc)
+
+    def info(self) -> dict[str, Any]:
+        """The sharing part of the daemon's status."""
+        return {
+            "sharing": self.shares.share,
+            "members": self.shares.members(),
+            "serving": self.shares.served(),
+            **{k: int(v) for k, v in self.counters.items() if v},
+        }
+
+    def close(self) -> None:
+        """Withdraw every token and subscription (the session closing does it too)."""
+        for handle in [*self._handles, *self._claims.values(), *([self._member] if self._member else [])]:
+            try:
+                handle.close()
+            except Exception:  # noqa: BLE001
+                pass
+        self._handles.clear()
+        self._claims.clear()
+        self._member = None
