@@ -86,11 +86,20 @@ def _command(name: str) -> Callable[[], str | None]:
     return lambda: None if shutil.which(name) else f"no `{name}` command on PATH"
 
 
+@functools.cache
+def netns_unavailable() -> str | None:
+    """None when tests can run hosts in network namespaces (tests/hosts.py), else why not (probed once)."""
+    from hosts import netns_unavailable as probe  # creates and deletes a probe namespace
+
+    return probe()
+
+
 #: What tests may need beyond pip: name -> (probe returning None when present or why not, what it is and its
 #: Debian package). Every other tool the tests run comes with a pip package (``rerun`` with rerun-sdk).
 SYSTEM_NEEDS: dict[str, tuple[Callable[[], str | None], str]] = {
     "vulkan": (vulkan_renderer, "a Vulkan renderer (Debian package mesa-vulkan-drivers)"),
     "openssl": (_command("openssl"), "the openssl command (Debian package openssl)"),
+    "netns": (netns_unavailable, "network namespaces: root and the ip command (Debian package iproute2)"),
 }
 
 

@@ -7,23 +7,30 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
-from conftest import endpoint
+import pytest
+
+from conftest import endpoint, free_tcp_port, require
+from hosts import Host, Network, Proc, open_network, wait_listening
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 STREAMID = [sys.executable, "-m", "streamid"]
 README_ENDPOINT = "tcp/127.0.0.1:7447"
+SEVERAL = "## More than one machine"
+#: Upper bounds of the waits of the several-machines recipe: a process up, the first models at the watcher.
+UP_S, MODELS_S = 30.0, 60.0
 
 #: Shell blocks the tests do not run, and why (every other block is run below).
 NOT_RUN = {
     "pip install . && streamid demo": "a minute of real time; CI runs the demo's own test and the command parses",
     "pip install '.[test]' && pytest": "the test suite itself (CI runs it in a fresh virtual environment)",
-    "streamid router --listen tcp/0.0.0.0:7447": "several machines (tests/test_router.py covers the topology)",
     "pip install '.[peers]' && streamid bench --peers --repeat 5": "minutes of benchmarks",
 }
 
@@ -94,7 +101,8 @@ def test_every_shell_block_is_run_or_listed_with_a_reason() -> None:
     text = README.read_text(encoding="utf-8")
     blocks = [b.strip() for b in re.findall(r"```sh\n(.*?)```", text, re.S)]
     run = {_block_after(h, "sh", k).strip() for h, k in (("## 1. Your own data file", 0), ("## 2. Replay a log", 0),
-                                                        ("## 2. Replay a log", 1), ("## 3. Inspect residuals", 0))}
+                                                        ("## 2. Replay a log", 1), ("## 3. Inspect residuals", 0),
+                                                        (SEVERAL, 0))}
     for b in blocks:
         first = b.splitlines()[0].split("#")[0].strip()
         assert b in run or first in NOT_RUN, f"README shell block neither run by the tests nor listed in NOT_RUN: {b!r}"
@@ -190,3 +198,104 @@ def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> N
     assert files and files[0].endswith("mr_damper.rrd") and plan["command"][-len(files):] == files and not plan["no_footer"]
     check = subprocess.run(["rerun", "rrd", "verify", *files], cwd=work, capture_output=True, text=True, timeout=60)
     assert f"{len(files)} file" in check.stdout + check.stderr and check.returncode == 0, (check.stdout, check.stderr)
+
+
+# --------------------------------------------------------------------------- More than one machine
+def _machines(lines: list[str]) -> list[tuple[str, list[str]]]:
+    """The recipe's commands in order, each with the machine it runs on: the certificates and the router on
+    "router", each daemon on its own machine, the publishers on "sensor", the watcher on "analyst"."""
+    out, n = [], 0
+    for line in lines:
+        argv = shlex.split(line, comments=True)
+        what = argv[1] if argv[0] == "streamid" else argv[0]
+        if what == "daemon":
+            n += 1
+        machine = {"sh": "router", "router": "router", "daemon": f"daemon{n}", "replay": "sensor",
+                   "watch": "analyst"}[what]
+        out.append((machine, argv))
+    return out
+
+
+def _published(argv: list[str]) -> str:
+    """The stream a ``streamid replay`` command publishes (its ``--stream NEW``, else the log's name)."""
+    names = [argv[i + 1] for i, a in enumerate(argv) if a == "--stream"]
+    return names[0] if names else argv[2]
+
+
+@pytest.mark.parametrize("kind", ["loopback", "netns"])
+def test_several_machines_recipe_runs_as_printed(kind: str, tmp_path: Path) -> None:
+    """The README's router recipe (TLS + access control) with every machine a directory of its own holding
+    examples/zenoh/ (on loopback, or each in its own network namespace): only ROUTER and the port replaced."""
+    require("openssl")
+    if kind == "netns":
+        require("netns")
+    block = _block_after(SEVERAL, "sh")
+    lines = [ln.strip() for ln in block.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    n_daemons = sum(shlex.split(ln)[:2] == ["streamid", "daemon"] for ln in lines)
+    assert n_daemons >= 2, lines
+    with open_network(kind, n_daemons + 2) as net:
+        port = 7447 if kind == "netns" else free_tcp_port()  # a namespace has its own ports
+        lines = [ln.replace("ROUTER", net.router.address).replace(":7447", f":{port}") for ln in lines]
+        hosts = {"router": net.router, "sensor": net.hosts[-2], "analyst": net.hosts[-1],
+                 **{f"daemon{i + 1}": h for i, h in enumerate(net.hosts[:n_daemons])}}
+        for name in hosts:  # each machine has the repository's examples/zenoh/ (and no certificate yet)
+            shutil.copytree(ROOT / "examples" / "zenoh", tmp_path / name / "examples" / "zenoh",
+                            ignore=lambda d, names: [n for n in names if n.endswith((".pem", ".key"))])
+        seconds = _run_recipe(net, hosts, _machines(lines), port, tmp_path)
+    print(f"\nREADME recipe ({kind}, TLS + ACL): sensors started -> first model at the watcher: "
+          + ", ".join(f"{s} {v:.1f} s" for s, v in seconds.items()))
+
+
+def _run_recipe(net: Network, hosts: dict[str, Host], recipe: list[tuple[str, list[str]]], port: int,
+                tmp_path: Path) -> dict[str, float]:
+    procs: dict[str, list[Proc]] = {}
+    daemon_ids: dict[str, str] = {}
+    served: dict[str, str] = {}  # stream -> daemon id, for daemons whose command names their streams
+    t0 = 0.0
+    for i, (machine, argv) in enumerate(recipe):
+        host, cwd = hosts[machine], tmp_path / machine
+        what = argv[1] if argv[0] == "streamid" else argv[0]
+        if what == "sh":  # the certificates, then ca.pem copied to every other machine
+            done = host.exec(argv, cwd=cwd)
+            assert done.returncode == 0, done.stderr
+            for other in set(hosts) - {machine}:
+                shutil.copy(cwd / "examples/zenoh/certs/ca.pem", tmp_path / other / "examples/zenoh/certs/ca.pem")
+            continue
+        if what == "replay" and not t0:
+            t0 = time.monotonic()
+        proc = host.run([*STREAMID, *argv[1:]], tmp_path / f"{i}-{machine}-{what}.log", cwd=cwd)
+        procs.setdefault(what, []).append(proc)
+        if what == "router":
+            assert wait_listening(proc, UP_S) == [f"tcp/{net.router.address}:{port}"], proc.text()
+        elif what == "daemon":
+            m = proc.wait_for(r"serving on \S+ as daemon (\w+)", UP_S)
+            assert m is not None, proc.text()
+            daemon_ids[proc.name] = m.group(1)
+            served.update({argv[k + 1]: m.group(1) for k, a in enumerate(argv) if a == "--stream"})
+        elif what == "watch":
+            assert proc.wait_for(r"waiting for models", UP_S) is not None, proc.text()
+    streams = {_published(argv) for machine, argv in recipe if machine == "sensor"}
+    assert len(streams) >= 2 and set(served) <= streams, (streams, served)
+    (watch,) = procs["watch"]
+    first: dict[str, float] = {}
+    deadline = time.monotonic() + MODELS_S
+    while set(first) < streams and time.monotonic() < deadline:
+        for s in re.findall(r"^(\S+) v\d+ (?:cold|warm) G=", watch.text(), re.M):
+            first.setdefault(s, time.monotonic() - t0)
+        time.sleep(0.1)
+    listening = {name: h.listening([p.pid for p in h.procs]) for name, h in hosts.items()}
+    codes = {p.name: p.stop() for what in ("replay", "watch", "daemon", "router") for p in procs[what]}
+    text = watch.text()
+    assert set(first) == streams, (text[-3000:], {p.name: p.text()[-1500:] for p in procs["daemon"]})
+    origins = re.findall(r"^(\S+): (?:a new daemon life: )?models from daemon (\w+),", text, re.M)
+    for stream in streams:  # one daemon per stream: the one whose command names it, if one does
+        got = {d for s, d in origins if s == stream}
+        assert got == ({served[stream]} if stream in served else got & set(daemon_ids.values())) and len(got) == 1, \
+            (stream, origins, served)
+    for p in procs["replay"]:
+        assert "no subscriber" not in p.text(), p.text()
+    assert all(code == 0 for code in codes.values()), (codes, {p.name: p.text()[-1500:] for ps in procs.values()
+                                                               for p in ps})
+    assert [f"{ls.proto}/{ls.local}" for ls in listening["router"]] == [f"tcp/{net.router.address}:{port}"]
+    assert all(not listening[m] for m in hosts if m != "router"), listening  # nobody else listens anywhere
+    return first

@@ -202,17 +202,17 @@ def test_example_config_is_accepted_by_zenoh_and_stays_on_loopback(name: str) ->
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
     assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
     usrpwd = json.loads(conf.get_json("transport/auth/usrpwd"))
-    if name == "router.json5":  # the router only checks the others: no identity of its own
+    if name in ("router.json5", "tls/router.json5"):  # the router only checks the others: no identity of its own
         assert usrpwd["user"] is None and usrpwd["password"] is None
     else:
         assert _credentials().get(usrpwd["user"]) == usrpwd["password"], f"{name}: user/password not in credentials.txt"
-    if name in ("daemon.json5", "tls/daemon.json5", "router.json5"):
+    if name in ("daemon.json5", "tls/daemon.json5", "router.json5", "tls/router.json5"):
         assert json.loads(conf.get_json("access_control/enabled")) is True
     else:  # a client's own ACL would apply to its link too: the enforcing side has it
         assert json.loads(conf.get_json("access_control/enabled")) is False
 
 
-@pytest.mark.parametrize("name", ["daemon.json5", "tls/daemon.json5", "router.json5"])
+@pytest.mark.parametrize("name", ["daemon.json5", "tls/daemon.json5", "router.json5", "tls/router.json5"])
 def test_daemon_config_is_default_deny_and_consistent(name: str) -> None:
     conf = ZenohSettings(mode=None, config_file=str(EXAMPLES / name)).to_config()
     acl = json.loads(conf.get_json("access_control"))
