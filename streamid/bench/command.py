@@ -25,6 +25,7 @@ BUILTIN_PROVIDERS: dict[str, str] = {
     "engine": "streamid.bench.engine_cases:bench",
     "peers": "streamid.bench.peers:bench",
     "daemon": "streamid.bench.daemon_cases:bench",
+    "suite": "streamid.bench.suite:bench",
 }
 
 ENTRY_POINT_GROUP = "streamid.benchmarks"
@@ -62,6 +63,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--repeat", type=int, default=5, help="runs each figure is the median of (default 5)")
     p.add_argument("--quick", action="store_true", help="small sizes and few runs: a smoke run, not for quoting")
     p.add_argument("--peers", action="store_true", help="also fit the data sets with SysIdentPy (extra 'peers')")
+    p.add_argument("--suite", action="store_true",
+                   help="only the system suite: per system, free-run validation R2 over 5 seeds of the paper's "
+                        "settings and the defaults (with --peers also SysIdentPy FROLS), seconds per identification")
     p.add_argument("--only", action="append", metavar="SECTION",
                    help=f"run only this section (repeatable); sections: {', '.join(section_names())}")
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
@@ -79,6 +83,10 @@ def run(args: argparse.Namespace) -> int:
     )
     found = providers()
     wanted = list(found) if not args.only else args.only
+    if getattr(args, "suite", False):
+        wanted = ["suite"]
+    elif not args.only:
+        wanted = [w for w in wanted if w != "suite"]  # long: only on request
     unknown = [w for w in wanted if w not in found]
     if unknown:
         import difflib

@@ -48,15 +48,19 @@ def _columns(u_est: np.ndarray, y_est: np.ndarray, u_val: np.ndarray, y_val: np.
             2 * (u_val - lo_u) / span_u - 1, 2 * (y_val - lo_y) / span_y - 1]
 
 
-def _free_run_r2(model: object, u_val: np.ndarray, y_val: np.ndarray) -> float:
+def _free_run_r2(model: object, u_val: np.ndarray, y_val: np.ndarray, periodic: bool = False) -> float:
     max_lag = int(model.max_lag)  # type: ignore[attr-defined]
+    if periodic:  # one steady-state period: simulate two, score the second (the first warms up)
+        n = len(y_val)
+        yhat = np.asarray(model.predict(X=np.vstack([u_val, u_val]), y=y_val[:max_lag])).ravel()  # type: ignore[attr-defined]
+        return r2(y_val.ravel(), yhat[n : 2 * n])
     yhat = np.asarray(model.predict(X=u_val, y=y_val[:max_lag])).ravel()  # type: ignore[attr-defined]
     return r2(y_val.ravel()[max_lag:], yhat[max_lag : len(y_val)])
 
 
 def fit_frols(
     u_est: np.ndarray, y_est: np.ndarray, u_val: np.ndarray, y_val: np.ndarray, *, max_lag: int, degree: int = 3,
-    n_info_values: int = 15, scale: bool = False,
+    n_info_values: int = 15, scale: bool = False, periodic: bool = False,
 ) -> PeerFit:
     """SysIdentPy FROLS polynomial NARX, terms chosen by AIC among the first ``n_info_values``."""
     from sysidentpy.basis_function import Polynomial
@@ -71,7 +75,7 @@ def fit_frols(
     )
     model.fit(X=ue, y=ye)
     seconds = time.perf_counter() - t0
-    return PeerFit(f"SysIdentPy FROLS deg {degree} lag {max_lag} ({'scaled' if scale else 'raw'}, {n_info_values} cand.)", seconds, _free_run_r2(model, uv, yv),
+    return PeerFit(f"SysIdentPy FROLS deg {degree} lag {max_lag} ({'scaled' if scale else 'raw'}, {n_info_values} cand.)", seconds, _free_run_r2(model, uv, yv, periodic),
                    len(model.final_model))
 
 

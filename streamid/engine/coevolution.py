@@ -100,6 +100,10 @@ class Coevolution:
     helper : EvalHelper, optional
         Evaluate half of every batch in this helper process (the second core,
         see :mod:`streamid.engine.parallel`); the result is the same without it.
+    rows : ndarray of int, optional
+        The search's fitness uses only these rows of the regressor matrix (row
+        ``k`` is time ``max_lag + k``): a large record searched on a sample of
+        its rows. Models (:meth:`model_for`) are still fitted on every row.
 
     Raises
     ------
@@ -123,6 +127,7 @@ class Coevolution:
         window: dict[str, Any] | None = None,
         normalisation: Normalisation | None = None,
         helper: EvalHelper | None = None,
+        rows: NDArray[np.intp] | None = None,
     ) -> None:
         cfg = CoEAConfig() if config is None else config
         if not isinstance(cfg, CoEAConfig):
@@ -156,7 +161,10 @@ class Coevolution:
         self.D = len(self.candidates)
         self.DX = (self.D + 1) * M
         self.scale = self.norm.y_half_range**2  # normalised MSE -> output units
-        self.evaluator = BatchEvaluator(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay)
+        # The search's fitness may use a subset of the rows (large N); models are refitted on all of them.
+        r_s, t_s = (self.R, self.target) if rows is None else (self.R[rows], self.target[rows])
+        self.search_rows = int(t_s.shape[0])
+        self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
@@ -176,7 +184,7 @@ class Coevolution:
         self._uni = np.empty(block * (self._n_de + self._n_hs))
         self._batch: BatchEvaluator | HelperBinding = self.evaluator  # or half of each batch in a helper
         if helper is not None:
-            self._batch = helper.bind(self.R, self.target, M, P, cfg.ridge, cfg.weight_decay, self.evaluator,
+            self._batch = helper.bind(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay, self.evaluator,
                                       uniforms=self._uni.shape[0])
         self._k = self._planned = 0  # generation k of a planned block of `_planned`
         self._frozen: NDArray[np.bool_] | None = None
@@ -411,14 +419,18 @@ class Coevolution:
             config=self.config.to_dict(),
         )
 
-    def population_models(self) -> list[Model]:
+    def population_models(self, limit: int | None = None) -> list[Model]:
         """Models of every parameter vector paired with the best harmony, weights refitted.
 
         Candidates for a choice by another criterion than the fitness (e.g. free-run R^2):
         in the second half of a run every member of ``X`` evolved with the best harmony.
+        ``limit``: only that many members, those of lowest fitness (in population order).
         """
         b = int(np.argmin(self.fh))
-        return [self.model_for(self.H[b], self.X[i]) for i in range(self.X.shape[0])]
+        members: list[int] = list(range(self.X.shape[0]))
+        if limit is not None and limit < self.X.shape[0]:
+            members = sorted(np.argsort(self.fx, kind="stable")[: max(0, int(limit))].tolist())
+        return [self.model_for(self.H[b], self.X[i]) for i in members]
 
     def best_model(self) -> Model:
         """Model of the best pair ever evaluated, weights refitted (see :func:`~streamid.engine.rbf.fit_weights`)."""

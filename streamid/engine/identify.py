@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
+from streamid.engine.choice import free_run_scores
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.fanout import fan_out
 from streamid.engine.settings import DEFAULT, CoEAConfig
@@ -171,7 +172,13 @@ def free_run_r2(
 
 
 def select_model(
-    run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], selection: str, *, n_search: int | None = None
+    run: Coevolution,
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    selection: str,
+    *,
+    n_search: int | None = None,
+    range_margin: float | None = None,
 ) -> tuple[Model, float]:
     """The model of a finished run by the selection rule, and its score (higher is better).
 
@@ -181,26 +188,31 @@ def select_model(
     * ``"fitness"``: the run's best pair (lowest one-step-ahead error, the paper's
       choice); score = -fitness.
     * ``"fr_est"``: of the best pair and the final population, the highest
-      free-run R^2 on ``u[:n_search], y[:n_search]``.
-    * ``"holdout_fr"``: the same, scored over the held-out tail ``[n_search:]``,
-      simulated from the samples just before it.
+      free-run R^2 on ``u[:n_search], y[:n_search]`` among the candidates whose
+      free run stays in the data's range (:mod:`streamid.engine.choice`).
+    * ``"holdout_fr"``: the same, the free run simulated over all the data from
+      its start and scored over the held-out tail ``[n_search:]``.
 
-    ``n_search`` defaults to all the data.
+    ``n_search`` defaults to all the data; ``range_margin`` to the run's
+    ``config.range_margin``. A run with no candidate in range scores below
+    -1e9 (any run with one wins over it); its model says ``admissible: 0``.
     """
     best = run.best_model()
     if selection == "fitness":
         return best, -float(best.metrics["fitness"])
+    if selection not in ("fr_est", "holdout_fr"):
+        raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr'; got {selection!r}")
     n = len(y) if n_search is None else int(n_search)
-    cands = [best, *run.population_models()]
+    margin = run.config.range_margin if range_margin is None else float(range_margin)
+    cands = [best, *run.population_models(run.config.fr_candidates or None)]
     with one_blas_thread():
         if selection == "fr_est":
-            scores = free_run_r2(cands, u[:n], y[:n])
-        elif selection == "holdout_fr":
-            scores = free_run_r2(cands, u, y, score_from=n)
+            fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin)
         else:
-            raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr'; got {selection!r}")
-    k = int(np.argmax(scores))
-    return cands[k], float(scores[k])
+            fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin)
+    k = fr.best()
+    score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + fr.excursions[k])
+    return cands[k].with_metrics(free_run_choice=fr.evidence(k)), float(score)
 
 
 def _stage(
@@ -215,6 +227,8 @@ def _stage(
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
+    if job.get("neurons", cfg.neurons) != cfg.neurons:  # this restart's complexity (neuron_alternatives)
+        cfg = cfg.replace(neurons=int(job["neurons"]))
     norm = Normalisation.from_dict(job["normalisation"])
     warm = CoEAState.from_json(job["warm_start"]) if job.get("warm_start") else None
     u, y, n_search = job["u"], job["y"], job["n_search"]
@@ -228,6 +242,9 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "normalisation": norm,
         "helper": helper,
     }
+    n_rows = n_search - cfg.max_lag
+    if cfg.search_rows and n_rows > cfg.search_rows:  # a large record: the search sees a random sample of rows
+        common["rows"] = np.sort(rng.choice(n_rows, cfg.search_rows, replace=False))
     evaluations = 0
     if cfg.lag_search_neurons and warm is None:
         # Two-stage run: a small network's coevolution chooses the lags...
@@ -317,7 +334,7 @@ def identify(
     n = ya.shape[0]
     n_hold = int(round(cfg.holdout_fraction * n)) if cfg.selection == "holdout_fr" else 0
     n_search = n - n_hold
-    need = cfg.max_lag + 2 * cfg.neurons
+    need = cfg.max_lag + 2 * max((cfg.neurons, *cfg.neuron_alternatives))
     if n_hold and n_hold < max(cfg.max_lag + 10, 20):
         raise DataError(
             f"the hold-out of {n_hold} samples (holdout_fraction {cfg.holdout_fraction} of {n}) is too short "
@@ -350,6 +367,7 @@ def identify(
         )
 
     seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.restarts)]
+    sizes = (cfg.neurons, *cfg.neuron_alternatives)
     base = {
         "config": cfg.to_dict(),
         "normalisation": norm.to_dict(),
@@ -361,7 +379,8 @@ def identify(
         "window": win,
     }
     jobs = [
-        {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None}
+        {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
+         "neurons": sizes[i % len(sizes)]}
         for i, s in enumerate(seeds)
     ]
     per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
@@ -385,7 +404,16 @@ def identify(
                 )
             )
 
-    outs = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report)
+    # Fewer restarts when they agree: with agree_tol > 0 the first two runs are made, and the others only
+    # if their scores differ by more than agree_tol (or one has no admissible candidate).
+    first = jobs[:2] if cfg.agree_tol > 0 else jobs
+    outs = fan_out(_one_run, first, cfg.workers, executor=executor, helper=helper, on_result=report)
+    if len(first) < len(jobs):
+        sc = [o["score"] for o in outs]
+        if not (min(sc) > -1e9 and max(sc) - min(sc) <= cfg.agree_tol):
+            made = list(outs)
+            outs = made + fan_out(_one_run, jobs[len(first) :], cfg.workers, executor=executor, helper=helper,
+                                  on_result=lambda rs: report(made + rs))
 
     models = [Model.from_json(o["model"]) for o in outs]
     chosen = int(np.argmax([o["score"] for o in outs]))
@@ -393,7 +421,10 @@ def identify(
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     final = final.with_metrics(
-        restarts=cfg.restarts,
+        restarts=len(outs),
+        restarts_max=cfg.restarts,
+        run_neurons=[int(j["neurons"]) for j in jobs[: len(outs)]],
+        run_scores=[float(o["score"]) for o in outs],
         selection=cfg.selection,
         selection_score=outs[chosen]["score"],
         holdout_samples=n_hold,

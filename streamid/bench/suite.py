@@ -1,0 +1,247 @@
+"""``streamid bench --suite``: the engine on data it was not tuned on, system by system.
+
+Systems (one row per output; estimation / validation split as each source suggests)
+-----------------------------------------------------------------------------------
+==============  =====================================================  ===================  =====================
+system          source                                                 est / val samples    outputs
+==============  =====================================================  ===================  =====================
+ball_and_beam   DaISy, measured (``streamid/data/suite``)              500 / 500            ball position
+heat_exchanger  DaISy, measured (``streamid/data/suite``)              2000 / 2000          outlet temperature
+robot_arm       DaISy, measured (``streamid/data/suite``)              512 / 512            arm acceleration
+cstr            DaISy, simulated (bundled log ``cstr``)                3750 / 3750          Ca, T
+f16             F-16 GVT, measured (bundled log ``f16_gvt``)            8192 / 8192 (files)  3 accelerations
+mr_damper       measured (bundled log ``mr_damper``)                   2000 / 1499          force
+piezo_p885      measured (bundled log ``piezo_p885``)                  4013 / 4014          displacement
+bouc_wen        est: 10,000 samples of a 5-150 Hz multisine from       10000 / 153000       displacement
+                :func:`streamid.sim.simulate_bouc_wen_multisine`;
+                val: the benchmark's sine sweep (a different excitation)
+reactor         :func:`streamid.sim.simulate_reactor` (paper eq. 17)   480 / 480            molecular weight
+==============  =====================================================  ===================  =====================
+
+The figure is the free-run R^2 on the validation part, the simulation started from
+its first ``max_lag`` measured outputs. The F-16 files are one steady-state period
+each: the free run goes through the validation period twice and the second pass
+is scored (the first warms the simulation up), for streamid and the peers alike.
+
+Per system: median and min over 5 seeds of the paper's settings (one run,
+G = 400, M = 10, lags 1..10, chosen by fitness) and of the defaults
+(:data:`~streamid.engine.settings.DEFAULT`), seconds per identification, and with
+``--peers`` the best SysIdentPy FROLS of a lag/degree grid (deterministic, one fit
+each; the best of the grid *on the validation data*: generous to the peer).
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from streamid.engine.identify import identify
+from streamid.engine.model import Model
+from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
+from streamid.engine.validation import r2
+
+__all__ = ["Target", "SYSTEMS", "targets", "free_run_val", "run_suite", "bench"]
+
+SUITE_PAPER = PAPER.replace(neurons=10, generations=400)
+
+
+@dataclass(frozen=True, eq=False)
+class Target:
+    """One output of one system: estimation and validation arrays (``u`` of shape (N, n_inputs))."""
+
+    system: str
+    output: str
+    u_est: np.ndarray
+    y_est: np.ndarray
+    u_val: np.ndarray
+    y_val: np.ndarray
+    periodic_val: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.system if self.output == "" else f"{self.system}:{self.output}"
+
+
+def _suite_file(name: str) -> Path:
+    return Path(str(resources.files("streamid") / "data" / "suite" / name))
+
+
+def _csv(name: str) -> dict[str, np.ndarray]:
+    path = _suite_file(name)
+    with open(path, encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {h: data[:, i] for i, h in enumerate(header)}
+
+
+def _split(system: str, output: str, u: np.ndarray, y: np.ndarray, n_est: int) -> Target:
+    u2 = u.reshape(len(u), -1)
+    return Target(system, output, u2[:n_est], y[:n_est], u2[n_est:], y[n_est:])
+
+
+@lru_cache(maxsize=None)
+def _log(name: str) -> Any:
+    from streamid.logs import bundled_log, read_log_arrays
+
+    return read_log_arrays(bundled_log(name))
+
+
+def _daisy(name: str, inp: str, out: str, n_est: int) -> list[Target]:
+    d = _csv(f"{name}.csv")
+    return [_split(name, "", d[inp], d[out], n_est)]
+
+
+def _bundled(name: str, n_est: int | None = None, periodic: bool = False) -> list[Target]:
+    arr = _log(name)
+    (u,) = (np.asarray(v, dtype=np.float64) for v in arr.inputs.values())
+    k = len(u) // 2 if n_est is None else n_est
+    outs = list(arr.outputs.items())
+    return [
+        Target(name, "" if len(outs) == 1 else key, u[:k, None], np.asarray(y, dtype=np.float64)[:k],
+               u[k:, None], np.asarray(y, dtype=np.float64)[k:], periodic)
+        for key, y in outs
+    ]
+
+
+@lru_cache(maxsize=2)
+def _bouc_wen(n_est: int) -> list[Target]:
+    from streamid.sim import simulate_bouc_wen_multisine
+
+    est = simulate_bouc_wen_multisine(n_est, 0)
+    with np.load(_suite_file("bouc_wen_sinesweep.npz")) as z:
+        uv, yv = np.asarray(z["u_N"]), np.asarray(z["y_m"])
+    return [Target("bouc_wen", "", est.u[:, None], est.y, uv[:, None], yv)]
+
+
+def _reactor() -> list[Target]:
+    from streamid.sim import simulate_reactor
+
+    _, u, y = simulate_reactor(960, 0)
+    return [_split("reactor", "", np.asarray(u), np.asarray(y), 480)]
+
+
+#: name -> loader of its targets (one per output).
+SYSTEMS: dict[str, Callable[[], list[Target]]] = {
+    "ball_and_beam": lambda: _daisy("ball_and_beam", "u", "y", 500),
+    "heat_exchanger": lambda: _daisy("heat_exchanger", "q", "th", 2000),
+    "robot_arm": lambda: _daisy("robot_arm", "u", "y", 512),
+    "cstr": lambda: _bundled("cstr", 3750),
+    "f16": lambda: _bundled("f16_gvt", 8192, periodic=True),
+    "mr_damper": lambda: _bundled("mr_damper", 2000),
+    "piezo_p885": lambda: _bundled("piezo_p885"),
+    "bouc_wen": lambda: _bouc_wen(10_000),
+    "reactor": _reactor,
+}
+
+#: The systems of ``--quick`` (a smoke run: small records).
+QUICK_SYSTEMS = ("ball_and_beam", "robot_arm", "reactor")
+
+
+def targets(names: tuple[str, ...] | None = None) -> list[Target]:
+    """Every target of the named systems (default: all), in :data:`SYSTEMS` order."""
+    return [t for name in (names or tuple(SYSTEMS)) for t in SYSTEMS[name]()]
+
+
+def free_run_val(model: Model, t: Target) -> float:
+    """Free-run R^2 of ``model`` on the validation part (periodic: the second pass scored)."""
+    L = model.max_lag
+    if t.periodic_val:
+        sim = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])
+        return r2(t.y_val, sim[len(t.y_val) :])
+    sim = model.simulate(t.u_val, t.y_val[:L])
+    return r2(t.y_val[L:], sim[L:])
+
+
+def identify_target(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
+    """One identification of ``t`` with ``cfg``: validation free-run R^2, wall seconds, chosen structure."""
+    t0 = time.perf_counter()
+    res = identify(t.u_est, t.y_est, cfg, seed)
+    seconds = time.perf_counter() - t0
+    fr = free_run_val(res.model, t)
+    return {"fr_val": fr, "seconds": seconds, "lags": res.model.lags_text(), "neurons": res.model.neurons,
+            "metrics": {k: v for k, v in res.model.metrics.items() if k != "fitness"}}
+
+
+def frols_best(t: Target, quick: bool = False) -> dict[str, Any]:
+    """SysIdentPy FROLS (polynomial NARX, AIC among 20 terms, data scaled as streamid's) over a lag/degree grid."""
+    from streamid.bench.peers import fit_frols
+
+    grid = [(2, 2)] if quick else [(lag, deg) for lag in (2, 5, 10) for deg in (2, 3)]
+    best: dict[str, Any] = {"fr_val": -np.inf, "seconds": 0.0, "setting": ""}
+    for lag, deg in grid:
+        for scale in (False, True):
+            try:
+                fit = fit_frols(t.u_est, t.y_est, t.u_val, t.y_val, max_lag=lag, degree=deg, n_info_values=20,
+                                scale=scale, periodic=t.periodic_val)
+            except Exception as exc:  # a peer that fails on one setting is reported, not fatal
+                best.setdefault("errors", []).append(f"lag {lag} deg {deg}: {type(exc).__name__}: {exc}")
+                continue
+            best["seconds"] += fit.seconds
+            if fit.r2_fr_val > best["fr_val"]:
+                best.update(fr_val=fit.r2_fr_val, setting=fit.tool)
+    return best
+
+
+def run_suite(
+    names: tuple[str, ...] | None = None,
+    configs: dict[str, CoEAConfig] | None = None,
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4),
+    peers: bool = False,
+    quick: bool = False,
+    progress: Callable[[str], object] | None = None,
+) -> list[dict[str, Any]]:
+    """Every target x config x seed (and the peers): one dict per target."""
+    cfgs = configs if configs is not None else {"paper": SUITE_PAPER, "default": DEFAULT}
+    rows = []
+    for t in targets(names):
+        row: dict[str, Any] = {"target": t.name, "n_est": len(t.y_est), "n_val": len(t.y_val)}
+        for label, cfg in cfgs.items():
+            runs = [identify_target(t, cfg, s) for s in seeds]
+            fr = [r["fr_val"] for r in runs]
+            row[label] = {"fr_val": fr, "median": statistics.median(fr), "min": min(fr),
+                          "seconds": statistics.median(r["seconds"] for r in runs), "runs": runs}
+            if progress is not None:
+                progress(f"{t.name} {label}: median {row[label]['median']:.4f} min {row[label]['min']:.4f} "
+                         f"{row[label]['seconds']:.2f} s")
+        if peers:
+            row["frols"] = frols_best(t, quick)
+            if progress is not None:
+                progress(f"{t.name} frols: {row['frols']['fr_val']:.4f} ({row['frols']['setting']})")
+        rows.append(row)
+    return rows
+
+
+def bench(options: Any) -> Iterator[Any]:
+    """``streamid bench --suite`` provider: per system, paper settings vs defaults (vs FROLS with --peers)."""
+    import sys
+
+    from streamid.bench.kit import Measurement
+
+    quick = bool(options.quick)
+    names = QUICK_SYSTEMS if quick else None
+    seeds = tuple(options.seed + i for i in range(1 if quick else 5))
+    cfgs = {"paper": SUITE_PAPER, "default": DEFAULT}
+    if quick:  # a smoke run of the same code paths, not for quoting
+        cfgs = {"paper": SUITE_PAPER.replace(generations=10),
+                "default": DEFAULT.replace(generations=5, lag_search_generations=5, workers=1)}
+    rows = run_suite(names, cfgs, seeds, peers=bool(options.peers), quick=quick,
+                     progress=lambda s: print(f"[suite] {s}", file=sys.stderr, flush=True))
+    for row in rows:
+        for label in cfgs:
+            r = row[label]
+            yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"FR R2 val, {label}", "",
+                              tuple(r["fr_val"]), "median and min over seeds")
+            yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"seconds, {label}", "s",
+                              tuple(x["seconds"] for x in r["runs"]), "wall per identification")
+        if "frols" in row:
+            f = row["frols"]
+            yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", "FR R2 val, FROLS best", "",
+                              (float(f["fr_val"]),), f"{f['setting']}; grid fitted in {f['seconds']:.1f} s")

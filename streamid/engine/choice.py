@@ -1,0 +1,123 @@
+"""The final choice among candidate models: free-run scores with a range guard.
+
+The rule (the one place it is applied; :func:`~streamid.engine.identify.select_model`
+and through it :func:`~streamid.engine.identify.identify` and the online updates use it)
+------------------------------------------------------------------------------------------
+Every candidate is simulated in free run over the **whole estimation record**, from
+its first ``max_lag`` measured outputs. A candidate is *admissible* when that free
+run is finite and stays, at every sample, within the estimation output's range
+widened by ``range_margin`` of its span on both sides
+(``[min - m * span, max + m * span]``). The measured output never leaves
+``[min, max]`` on that record, so a free run that does is unstable or on its way
+to a wrong equilibrium; such a model is never chosen while an admissible one exists.
+
+Score of an admissible candidate: R^2 of that same free run over the scored part
+of the record (``score_from`` onwards: the held-out tail with
+``selection="holdout_fr"``, everything after the initial lags with ``"fr_est"``).
+One simulation gives both the guard and the score, and a held-out tail is scored
+after the drift accumulated over the whole search part (stricter than a simulation
+restarted just before the tail).
+
+A candidate with no input term is not admissible either: its free run ignores the
+input (an autonomous oscillator can fit an estimation record and says nothing of
+another). If no candidate is admissible, the choice falls back to the candidate with the
+smallest excursion beyond the widened range (the report says ``admissible: 0``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.engine.model import Model, free_run
+from streamid.engine.validation import r2
+from streamid.errors import DataError
+
+__all__ = ["FreeRunScores", "free_run_scores"]
+
+
+@dataclass(frozen=True)
+class FreeRunScores:
+    """Per candidate: score (R^2 over the scored part, -inf when not admissible) and excursion."""
+
+    scores: tuple[float, ...]
+    excursions: tuple[float, ...]  # largest distance beyond the widened range, in spans (0 = admissible)
+    range_margin: float = 0.25
+
+    @property
+    def admissible(self) -> int:
+        return sum(1 for e in self.excursions if e == 0.0)
+
+    def best(self) -> int:
+        """Index of the chosen candidate (see the module docstring)."""
+        if self.admissible:
+            return int(np.argmax(self.scores))
+        return int(np.argmin(self.excursions))
+
+    def evidence(self, k: int) -> dict[str, Any]:
+        """JSON-able: candidates, how many were admissible, the chosen one's score and excursion (None: not finite)."""
+
+        def finite(v: float) -> float | None:
+            return v if np.isfinite(v) else None
+
+        return {
+            "candidates": len(self.scores),
+            "admissible": self.admissible,
+            "score": finite(self.scores[k]),
+            "excursion_spans": finite(self.excursions[k]),
+            "range_margin": self.range_margin,
+        }
+
+
+def free_run_scores(
+    models: list[Model],
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    *,
+    score_from: int | None = None,
+    range_margin: float = 0.25,
+) -> FreeRunScores:
+    """Free-run scores and range guard of ``models`` on ``(u, y)`` (``u`` of shape (N, n_inputs)).
+
+    Models sharing regressors and normalisation are simulated together (one recursion).
+    """
+    if not models:
+        raise DataError("no candidate models to choose from")
+    lo, hi = float(np.min(y)), float(np.max(y))
+    span = hi - lo
+    if not span > 0:
+        raise DataError(f"the output is constant over the estimation record (all values {lo!r}); nothing to score")
+    scores = [-np.inf] * len(models)
+    exc = [np.inf] * len(models)
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    for i, m in enumerate(models):
+        groups.setdefault((m.regressors, m.normalisation), []).append(i)
+    for (regs, norm), idx in groups.items():
+        L = max((r.lag for r in regs), default=0)
+        first = L if score_from is None else max(int(score_from), L)
+        if first >= len(y) - 1:
+            raise DataError(f"free-run scoring from sample {first} leaves fewer than 2 of {len(y)} samples")
+        with np.errstate(over="ignore", invalid="ignore"):
+            sim = free_run(
+                regs,
+                np.stack([models[i].centres for i in idx]),
+                np.stack([models[i].widths for i in idx]),
+                np.stack([models[i].weights for i in idx]),
+                norm.u(u),
+                np.broadcast_to(norm.y(y[:L]), (len(idx), L)),
+            )
+            ys = norm.y_inverse(sim)
+        drives = any(r.signal == "u" for r in regs)
+        for k, i in enumerate(idx):
+            path = ys[k, L:]
+            if not drives or not np.all(np.isfinite(path)):
+                continue
+            beyond = max(float(path.max()) - hi, lo - float(path.min()), 0.0) / span
+            e = max(beyond - range_margin, 0.0)
+            exc[i] = e
+            if e == 0.0:
+                scores[i] = r2(y[first:], ys[k, first:])
+    return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin))

@@ -1,0 +1,84 @@
+"""The final choice never takes a free run that leaves the data's range; searching on a sample of rows."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from streamid.engine import PAPER, identify
+from streamid.engine.choice import free_run_scores
+from streamid.errors import ConfigError
+from streamid.sim import simulate_reactor
+
+
+@pytest.fixture(scope="module")
+def reactor() -> tuple[np.ndarray, np.ndarray]:
+    _, u, y = simulate_reactor(600, 3)
+    return np.asarray(u, dtype=np.float64)[:, None], np.asarray(y, dtype=np.float64)
+
+
+@pytest.fixture(scope="module")
+def good_model(reactor: tuple[np.ndarray, np.ndarray]):  # type: ignore[no-untyped-def]
+    u, y = reactor
+    return identify(u, y, PAPER.replace(generations=40), 1).model
+
+
+def test_a_free_run_leaving_the_range_is_never_chosen(reactor, good_model) -> None:  # type: ignore[no-untyped-def]
+    u, y = reactor
+    wild = replace(good_model, weights=good_model.weights * 4.0)  # same structure, free run far out of range
+    fr = free_run_scores([wild, good_model], u, y, range_margin=0.25)
+    assert fr.excursions[0] > 0.0 and fr.scores[0] == -np.inf
+    assert fr.excursions[1] == 0.0 and fr.scores[1] > 0.9
+    assert fr.best() == 1 and fr.admissible == 1
+    # Even when the wild model had the better score it would not be chosen: only admissible ones compete.
+    ev = fr.evidence(fr.best())
+    assert ev["admissible"] == 1 and ev["candidates"] == 2
+
+
+def test_no_admissible_candidate_falls_back_to_the_smallest_excursion(reactor, good_model) -> None:  # type: ignore[no-untyped-def]
+    u, y = reactor
+    a = replace(good_model, weights=good_model.weights * 4.0)
+    b = replace(good_model, weights=good_model.weights * 2.0)
+    fr = free_run_scores([a, b], u, y, range_margin=0.0)
+    assert fr.admissible == 0
+    assert fr.best() == 1 and fr.excursions[1] < fr.excursions[0]
+
+
+def test_scoring_a_tail_uses_the_simulation_from_the_start(reactor, good_model) -> None:  # type: ignore[no-untyped-def]
+    u, y = reactor
+    whole = free_run_scores([good_model], u, y).scores[0]
+    tail = free_run_scores([good_model], u, y, score_from=450).scores[0]
+    sim = good_model.simulate(u, y[: good_model.max_lag])
+    expect = 1 - np.sum((y[450:] - sim[450:]) ** 2) / np.sum((y[450:] - y[450:].mean()) ** 2)
+    assert tail == pytest.approx(expect, rel=1e-9, abs=1e-12)
+    assert whole != tail
+
+
+def test_search_on_a_sample_of_rows_is_seeded_and_refits_on_all(reactor) -> None:  # type: ignore[no-untyped-def]
+    u, y = reactor
+    cfg = PAPER.replace(neurons=8, generations=20, lag_search_neurons=5, lag_search_generations=20, restarts=2,
+                        selection="holdout_fr", search_rows=120)
+    a = identify(u, y, cfg, 5)
+    b = identify(u, y, cfg, 5)
+    assert a.model.to_json() == b.model.to_json()  # same seed, same result
+    full = identify(u, y, cfg.replace(search_rows=0), 5)
+    assert a.model.to_json() != full.model.to_json()  # the sample changed the search
+    ch = a.model.metrics["free_run_choice"]
+    assert ch["admissible"] >= 1 and ch["candidates"] == 21 and ch["excursion_spans"] == 0.0
+    assert a.model.metrics["holdout_samples"] == 150
+    # The chosen model's free run over the estimation record stays in the widened range.
+    sim = a.model.simulate(u, y[: a.model.max_lag])
+    span = y.max() - y.min()
+    assert sim.max() <= y.max() + 0.25 * span and sim.min() >= y.min() - 0.25 * span
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "text"),
+    [("search_rows", -1, "search_rows must be an integer >= 0"), ("search_rows", 5, "search_rows must be 0"),
+     ("range_margin", -0.1, "range_margin must be a number in [0.0, 100.0]")],
+)
+def test_bad_settings_name_the_field_and_the_accepted_form(field: str, value: object, text: str) -> None:
+    with pytest.raises(ConfigError, match=text.replace("[", r"\[").replace("]", r"\]")):
+        PAPER.replace(**{field: value})
