@@ -1,17 +1,23 @@
 """``streamid router``: a Zenoh router for deployments that outgrow one machine.
 
 Eclipse Zenoh's own router (``zenohd``) is not on PyPI; any Zenoh session opened
-in router mode is a working router, so streamid ships one.  Several daemons
-(each serving some of the streams), the sample publishers and the model
-subscribers then all connect to it::
+in router mode is a working router, so streamid ships one.  Daemons (each serving
+some of the streams), sample publishers and model subscribers on other machines
+all connect to it and listen nowhere (a process that only connects is a Zenoh
+client: everything goes through the router)::
 
-    streamid router --listen tcp/0.0.0.0:7447          # on the machine everyone reaches
-    streamid daemon --connect tcp/ROUTER:7447 --stream piezo
-    streamid daemon --connect tcp/ROUTER:7447 --stream mr_damper --stream reactor
-    streamid replay piezo_sim_20khz --connect tcp/ROUTER:7447
+    streamid router --listen tcp/ROUTER:7447                   # on the machine everyone reaches
+    streamid daemon --connect tcp/ROUTER:7447 --stream mr_damper --state-dir state
+    streamid daemon --connect tcp/ROUTER:7447 --stream piezo --state-dir state
+    streamid replay piezo_p885 --stream piezo --connect tcp/ROUTER:7447 --rate 4 --loop
+    streamid watch --connect tcp/ROUTER:7447                   # which daemon serves which stream, the models
 
-With ``--zenoh-config`` the router enforces Zenoh authentication and access
-control (``examples/zenoh/router.json5``).
+Across machines, use TLS and access control (the router enforces them; the
+README's "More than one machine" shows every machine's command)::
+
+    streamid router --zenoh-config examples/zenoh/tls/router.json5 --listen tls/ROUTER:7447
+
+Only the router's port (TCP 7447 here) needs to be open to the other machines.
 """
 
 from __future__ import annotations
