@@ -225,3 +225,46 @@ def test_two_daemons_share_fail_over_warm_and_take_their_share_back(tmp_path: Pa
         later = _runs([d for t, _, d in by_stream[s] if t >= t_split])  # beta's streams: alpha after the kill, then beta
         assert later == (["alpha"] if owner == "alpha" else ["beta", "alpha", "beta"]), (s, later)
     print(f"\nfailover (SIGKILL to the survivor's first model): {sorted(round(x, 2) for x in resumed.values())} s")
+
+
+def _as_user(user: str, password: str, ep: str) -> ZenohSettings:
+    auth = json.dumps({"user": user, "password": password})
+    return ZenohSettings(connect=(ep,), extra=(("transport/auth/usrpwd", auth),))
+
+
+def test_the_shipped_router_acl_lets_daemons_share_and_nobody_else_forge_a_member_claim_or_state() -> None:
+    """examples/zenoh/router.json5: the sharing keys are the daemons' alone (a forged claim would silence a stream)."""
+    root = Path(__file__).resolve().parents[1]
+    creds = dict(line.split(":", 1) for line in (root / "examples/zenoh/credentials.txt").read_text().split())
+    ep = endpoint()
+    conf = root / "examples/zenoh/router.json5"
+    router = subprocess.Popen([*STREAMID, "router", "--zenoh-config", str(conf), "--listen", ep], cwd=root,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        seen: list[tuple[str, bool]] = []
+        states: list[bytes] = []
+        with Bus(_as_user("daemon", creds["daemon"], ep)) as watcher:
+            watcher.liveliness_subscribe("streamid/@daemons/*/*", lambda k, a: seen.append((k, a)))
+            watcher.liveliness_subscribe("streamid/@claims/*/*/*", lambda k, a: seen.append((k, a)))
+            watcher.subscribe("streamid/@state/*", lambda _k, p: states.append(p))
+            with Bus(_as_user("sensor", creds["sensor"], ep)) as forger:
+                forger.liveliness_token("streamid/@daemons/forged/1")
+                forger.liveliness_token("streamid/@claims/dev/forged/1")
+                for _ in range(20):
+                    forger.put("streamid/@state/dev", b"{}")
+                    time.sleep(0.05)
+                with Bus(_as_user("daemon", creds["daemon"], ep)) as daemon:
+                    daemon.liveliness_token("streamid/@daemons/real/1")
+                    daemon.liveliness_token("streamid/@claims/dev/real/1")
+                    assert _wait(lambda: len(seen) >= 2, 10)
+                    for _ in range(20):
+                        daemon.put("streamid/@state/dev", b"{}")
+                        if states:
+                            break
+                        time.sleep(0.05)
+                    time.sleep(0.5)
+        assert sorted(k for k, alive in seen if alive) == ["streamid/@claims/dev/real/1", "streamid/@daemons/real/1"]
+        assert 1 <= len(states) <= 20  # only the daemon's puts arrived (the control proves the path works)
+    finally:
+        router.terminate()
+        router.wait(10)
