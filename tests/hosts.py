@@ -5,8 +5,9 @@ starts runs on one host (``host.run(argv, log)``), with its stdout and stderr ca
 is ended when the network is torn down.  Two kinds, one interface, so a scenario runs on either:
 
 - :func:`netns_network` (root and ``iproute2`` needed; :func:`netns_unavailable` says why not):
-  one network namespace per host, named ``sid<token>r`` (the router) and ``sid<token>h1`` ...
-  (``token`` random per network, so concurrent runs never collide).  The router's namespace holds a
+  one network namespace per host, named ``sid<pid>-<token>r`` (the router) and ``sid<pid>-<token>h1`` ...
+  (``pid`` the creating process, ``token`` random, so concurrent runs never collide; a later run deletes the
+  namespaces of a creator that is gone, e.g. a SIGKILLed pytest).  The router's namespace holds a
   bridge ``br0`` with ``<subnet>.1/24``; host ``i`` is joined to it by a veth pair and has
   ``<subnet>.<10 + i>/24`` on its ``eth0``.  The veth ends are created directly inside the
   namespaces: the machine's own namespace never gets an interface, an address or a route, so
@@ -29,12 +30,14 @@ deletes the veth pairs and the bridge with them.
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import re
 import secrets
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager
@@ -44,7 +47,7 @@ from typing import IO
 
 #: The addresses of test namespaces: ``<subnet>.1`` the router, ``<subnet>.11`` ... the hosts.
 DEFAULT_SUBNET = "10.231.0"
-#: Upper bound of one ``ip``/``ss`` command.
+#: Upper bound of one ``ip`` command.
 IP_TIMEOUT_S = 10.0
 
 
@@ -187,23 +190,82 @@ class Host:
         return subprocess.run(self.command(argv), capture_output=True, text=True, timeout=timeout_s, cwd=cwd)
 
     def listening(self, pids: Iterable[int] | None = None) -> list[Listener]:
-        """The TCP and UDP sockets listening on this host (of ``pids`` only, if given: needed on loopback,
-        where the host is the whole machine)."""
-        keep = None if pids is None else set(pids)
-        found: list[Listener] = []
-        for proto, flag in (("tcp", "-ltnpH"), ("udp", "-lunpH")):
-            p = self.exec(["ss", flag], timeout_s=IP_TIMEOUT_S)
-            if p.returncode != 0:
-                raise NetnsError(f"ss {flag} on {self.name} exited {p.returncode}: {p.stderr.strip()}")
-            for line in p.stdout.splitlines():
-                cols = line.split()
-                if len(cols) < 4:
-                    continue
-                owners: list[int | None] = [int(x) for x in re.findall(r"pid=(\d+)", line)] or [None]
-                for pid in owners:
-                    if keep is None or pid in keep:
-                        found.append(Listener(proto, cols[3], pid))
-        return found
+        """The TCP sockets in LISTEN state and the bound UDP sockets of this host, read from ``/proc`` (no
+        ``ss`` needed): of ``pids`` only if given (needed on loopback, where the host is the whole machine),
+        else every socket of the host's namespace (owner: the pid of the namespace holding it, or None)."""
+        if pids is None:
+            if self.netns is None:
+                raise ValueError("listening() on a loopback host needs the pids (the host is the whole machine)")
+            owners = [int(x) for x in _ip("netns", "pids", self.netns).split()]
+            names = " ".join(f"/proc/self/net/{n}" for n, _, _ in _TABLES)
+            shown = self.exec(["sh", "-c", f"for f in {names}; do echo \"## $f\"; cat $f 2>/dev/null; done"],
+                              timeout_s=IP_TIMEOUT_S).stdout  # this namespace's tables, also with nobody in it
+            texts = {name: part for name, part in re.findall(r"^## /proc/self/net/(\w+)\n(.*?)(?=^## |\Z)", shown,
+                                                             re.M | re.S)}
+            sockets = _sockets(texts)
+        else:
+            owners = list(pids)
+            sockets = [s for pid in owners for s in _sockets(_tables_of(pid))]
+        inode_pid: dict[str, int] = {}
+        for pid in owners:
+            for inode in _socket_inodes(pid):
+                inode_pid.setdefault(inode, pid)
+        found: dict[tuple[str, str], Listener] = {}
+        for proto, local, inode in sockets:
+            if pids is None or inode in inode_pid:
+                found.setdefault((proto, local), Listener(proto, local, inode_pid.get(inode)))
+        return sorted(found.values(), key=lambda ls: (ls.proto, ls.local))
+
+
+#: /proc/net tables read for listening sockets: (file, protocol, the state that counts: TCP LISTEN, UDP unconnected)
+_TABLES = (("tcp", "tcp", "0A"), ("tcp6", "tcp", "0A"), ("udp", "udp", "07"), ("udp6", "udp", "07"))
+
+
+def _tables_of(pid: int) -> dict[str, str]:
+    texts = {}
+    for name, _, _ in _TABLES:
+        try:
+            texts[name] = Path(f"/proc/{pid}/net/{name}").read_text()
+        except OSError:  # ended
+            pass
+    return texts
+
+
+def _sockets(texts: dict[str, str]) -> list[tuple[str, str, str]]:
+    """(proto, local "ADDR:PORT", inode) of the listening TCP and bound UDP sockets in /proc/net tables."""
+    out = []
+    for name, proto, state in _TABLES:
+        for line in texts.get(name, "").splitlines()[1:]:
+            cols = line.split()
+            if len(cols) > 9 and cols[3] == state:
+                out.append((proto, _hex_address(cols[1]), cols[9]))
+    return out
+
+
+def _socket_inodes(pid: int) -> set[str]:
+    inodes: set[str] = set()
+    try:
+        fds = list(Path(f"/proc/{pid}/fd").iterdir())
+    except OSError:  # ended
+        return inodes
+    for fd in fds:
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    return inodes
+
+
+def _hex_address(text: str) -> str:
+    """``0100007F:1D27`` -> ``127.0.0.1:7463``; IPv6 as ``[addr]:port``."""
+    addr, port = text.split(":")
+    raw = bytes.fromhex(addr)
+    if sys.byteorder == "little":  # /proc prints the address as 32-bit words in host order
+        raw = b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))
+    ip = ipaddress.ip_address(raw)
+    return f"{ip}:{int(port, 16)}" if ip.version == 4 else f"[{ip}]:{int(port, 16)}"
 
 
 @dataclass(frozen=True)
@@ -270,7 +332,8 @@ def netns_network(n_hosts: int, *, subnet: str = DEFAULT_SUBNET) -> Iterator[Net
         raise ValueError(f"n_hosts must be 1..200; got {n_hosts}")
     if not re.fullmatch(r"10\.\d{1,3}\.\d{1,3}", subnet):
         raise ValueError(f"subnet must be the first three numbers of a 10.x.y.0/24 network, e.g. 10.231.0; got {subnet!r}")
-    token = secrets.token_hex(3)
+    _remove_stale()
+    token = f"{os.getpid()}-{secrets.token_hex(3)}"
     router = Host(f"sid{token}r", f"{subnet}.1", f"sid{token}r")
     hosts = tuple(Host(f"sid{token}h{i}", f"{subnet}.{10 + i}", f"sid{token}h{i}") for i in range(1, n_hosts + 1))
     net = Network("netns", router, hosts)
@@ -312,6 +375,26 @@ def open_network(kind: str, n_hosts: int) -> AbstractContextManager[Network]:
     if kind == "loopback":
         return loopback_network(n_hosts)
     raise ValueError(f"kind must be 'netns' or 'loopback'; got {kind!r}")
+
+
+_NAME = re.compile(r"^sid(\d+)-[0-9a-f]{6}(r|h\d+)$")
+
+
+def _remove_stale() -> None:
+    """Delete the test namespaces (``sid<pid>-<token>...``) of runs whose process is gone (killed before teardown)."""
+    try:
+        listed = _ip("netns", "list")
+    except NetnsError:
+        return
+    for line in listed.splitlines():
+        m = _NAME.match(line.split(" ")[0])
+        if m is None or Path(f"/proc/{m.group(1)}").exists():
+            continue
+        _kill_left_in(m.group(0))
+        try:
+            _ip("netns", "del", m.group(0))
+        except NetnsError:
+            pass
 
 
 def _kill_left_in(ns: str) -> None:

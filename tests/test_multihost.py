@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -127,11 +128,12 @@ def test_router_recipe_two_daemons_two_publishers_a_watcher(network: Network, tm
 
 def test_netns_hosts_reach_the_router_only_and_leave_nothing_behind(tmp_path: Path) -> None:
     """The harness itself: hosts reach the router's address, not the machine's; teardown removes every namespace
-    and kills what still ran in it."""
-    import subprocess
-
+    and kills what still ran in it; a namespace left by a run that was killed (its pid gone) is removed."""
     require("netns")
+    stale = "sid999999999-abcdefr"  # pid above any pid_max: its creator is gone
+    subprocess.run(["ip", "netns", "add", stale], check=True, capture_output=True, timeout=10)
     with netns_network(2) as net:
+        assert stale not in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, timeout=10).stdout
         names = [h.netns for h in net.all]
         probe = ("import socket,sys\ns=socket.socket();s.settimeout(2)\n"
                  "try:\n s.connect((sys.argv[1],int(sys.argv[2])));print('connected')\n"
