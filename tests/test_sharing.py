@@ -181,6 +181,11 @@ def test_two_daemons_share_fail_over_warm_and_take_their_share_back(tmp_path: Pa
             assert _wait(lambda: all(last_from(s, d, 0) for d in mine for s in mine[d]), 40), got[-10:]
             t_split = time.monotonic()
             assert _wait(lambda: all(last_from(s, d, t_split) for d in mine for s in mine[d]), 10)
+            shown = subprocess.run([*STREAMID, "status", "--connect", ep], capture_output=True, text=True, timeout=30)
+            assert shown.returncode == 0, shown.stderr
+            rows = {ln.split()[0]: ln.split()[1] for ln in shown.stdout.splitlines()[1:]}
+            assert rows == {s: d for d in mine for s in mine[d]}, shown.stdout  # who serves which stream
+            assert all(" 2  " in ln and ln.endswith("ok") for ln in shown.stdout.splitlines()[1:]), shown.stdout
             # 2. SIGKILL beta: its streams resume on alpha, warm
             procs["beta"].send_signal(signal.SIGKILL)
             procs["beta"].wait(10)

@@ -26,6 +26,7 @@ BUILTIN_COMMANDS: tuple[str, ...] = (
     "streamid.commands.identify",
     "streamid.commands.daemon",
     "streamid.commands.watch",
+    "streamid.commands.status",
     "streamid.commands.demo",
     "streamid.commands.router",
     "streamid.commands.view",

@@ -1,0 +1,103 @@
+"""``streamid status``: which daemon serves which stream, now, and how each stream is doing.
+
+Asks every stream's status queryable (``streamid/<stream>/status``: only the daemon
+serving a stream answers for it) and prints one line per stream: the daemon that
+serves it (its id and the start of its life), the model version, the champion's
+age and current free-run R², the stream's state, and the members sharing the
+streams as that daemon sees them.  Network text is shown escaped.  Exit code 1 when
+no stream answered within ``--timeout``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from streamid.wire.names import printable
+
+__all__ = ["register", "run", "status_line"]
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from streamid.transport import DEFAULT_ENDPOINT
+    from streamid.commands.zenoh_flags import add_connection_flags
+
+    p = sub.add_parser(
+        "status",
+        help="which daemon serves which stream, with each stream's model version and health",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--stream", default="*", metavar="NAME", help="stream to ask about (default: every stream)")
+    add_connection_flags(p, default_connect=(DEFAULT_ENDPOINT,))
+    p.add_argument("--timeout", type=float, default=2.0, metavar="S",
+                   help="how long to collect answers (default 2 s)")
+    p.add_argument("--json", action="store_true", help="print each stream's status document as one JSON line")
+    p.set_defaults(func=run)
+
+
+def _num(v: Any, fmt: str) -> str:
+    return format(v, fmt) if isinstance(v, (int, float)) and not isinstance(v, bool) else "-"
+
+
+def status_line(doc: dict[str, Any]) -> str:
+    """One line of the table for a parsed ``streamid.status/1`` document (escaped)."""
+    daemon = doc.get("daemon") if isinstance(doc.get("daemon"), dict) else {}
+    origin = daemon.get("origin") if isinstance(daemon.get("origin"), dict) else {}
+    sharing = daemon.get("sharing") if isinstance(daemon.get("sharing"), dict) else {}
+    champ = doc.get("champion") if isinstance(doc.get("champion"), dict) else {}
+    current = champ.get("current") if isinstance(champ.get("current"), dict) else {}
+    members = sharing.get("members") if isinstance(sharing.get("members"), list) else []
+    state = "DEGRADED: " + str(doc.get("degraded_reason", "")) if doc.get("degraded") else "ok"
+    text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
+            f"v{_num(doc.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
+            f"{_num(current.get('r2_fr_val'), '.4f'):>8}  {len(members) or 1:>7}  {state}")
+    return printable(text, 400)
+
+
+HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} "
+          f"{'daemons':>7}  state")
+
+
+def run(args: argparse.Namespace) -> int:
+    from streamid.commands.zenoh_flags import settings_from_args
+    from streamid.errors import ConfigError, ModelFormatError
+    from streamid.transport import Bus
+    from streamid.wire.documents import parse_status
+    from streamid.wire.keys import PREFIX, check_stream_name, status_key
+
+    if not args.timeout > 0:
+        raise ConfigError(f"--timeout must be a number of seconds > 0; got {args.timeout}")
+    key = f"{PREFIX}/*/status" if args.stream == "*" else status_key(check_stream_name(args.stream))
+    settings = settings_from_args(args)
+    if settings.connect_wait_s is None:  # a one-shot question: wait for the endpoint at most --timeout
+        import dataclasses
+
+        settings = dataclasses.replace(settings, connect_wait_s=args.timeout)
+    with Bus(settings) as bus:
+        replies = bus.get(key, timeout_s=args.timeout, all_replies=True)
+    docs: dict[str, dict[str, Any]] = {}
+    skipped = 0
+    for _key, payload in replies[:100_000]:
+        try:
+            doc = parse_status(payload)
+        except ModelFormatError:
+            skipped += 1
+            continue
+        docs[str(doc.get("stream"))] = doc
+    if args.json:
+        for name in sorted(docs):
+            print(json.dumps(docs[name]))
+    else:
+        print(HEADER)
+        for name in sorted(docs):
+            print(status_line(docs[name]))
+    if skipped:
+        print(f"streamid status: skipped {skipped} invalid status documents", file=sys.stderr)
+    if not docs:
+        where = ", ".join(settings.connect) or ", ".join(settings.listen) or "the --zenoh-config endpoints"
+        print(f"streamid status: no stream answered at {where} within {args.timeout:g} s", file=sys.stderr)
+        return 1
+    return 0
