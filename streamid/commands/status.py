@@ -42,14 +42,17 @@ def _num(v: Any, fmt: str) -> str:
     return format(v, fmt) if isinstance(v, (int, float)) and not isinstance(v, bool) else "-"
 
 
+def _table(doc: dict[str, Any], key: str) -> dict[str, Any]:
+    value = doc.get(key)
+    return value if isinstance(value, dict) else {}
+
+
 def status_line(doc: dict[str, Any]) -> str:
     """One line of the table for a parsed ``streamid.status/1`` document (escaped)."""
-    daemon = doc.get("daemon") if isinstance(doc.get("daemon"), dict) else {}
-    origin = daemon.get("origin") if isinstance(daemon.get("origin"), dict) else {}
-    sharing = daemon.get("sharing") if isinstance(daemon.get("sharing"), dict) else {}
-    champ = doc.get("champion") if isinstance(doc.get("champion"), dict) else {}
-    current = champ.get("current") if isinstance(champ.get("current"), dict) else {}
-    members = sharing.get("members") if isinstance(sharing.get("members"), list) else []
+    daemon, champ = _table(doc, "daemon"), _table(doc, "champion")
+    origin, sharing, current = _table(daemon, "origin"), _table(daemon, "sharing"), _table(champ, "current")
+    members = sharing.get("members")
+    members = members if isinstance(members, list) else []
     state = "DEGRADED: " + str(doc.get("degraded_reason", "")) if doc.get("degraded") else "ok"
     text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
             f"v{_num(doc.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
