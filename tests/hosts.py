@@ -21,11 +21,12 @@ of what the test started can be there) is killed by its pid; then the namespaces
 deletes the veth pairs and the bridge with them.
 
     with netns_network(3) as net:                     # or loopback_network(3)
-        ep = f"tcp/{net.router.address}:7447"
+        ep = net.router_endpoint(7447)               # a namespace has its own ports; on loopback pick a free one
         router = net.router.run([*STREAMID, "router", "--listen", ep], tmp_path / "router.log")
         assert wait_listening(router, 20.0) == [ep]   # what it listens on, seen from its host
         daemon = net.hosts[0].run([*STREAMID, "daemon", "--connect", ep], tmp_path / "d1.log")
-        m = daemon.wait_for(r"as daemon (\\w+)", 30.0)
+        m = daemon.wait_for(r"as daemon (\\w+)", 30.0)  # its output so far: daemon.text()
+        daemon.kill()                                 # SIGKILL: a crash (failover); .stop() is Ctrl-C
 """
 
 from __future__ import annotations
@@ -281,7 +282,12 @@ class Network:
         return (self.router, *self.hosts)
 
     def procs(self) -> list[Proc]:
+        """Every process started on the hosts of this network."""
         return [p for h in self.all for p in h.procs]
+
+    def router_endpoint(self, port: int, proto: str = "tcp") -> str:
+        """``proto/ROUTER_ADDRESS:port``: what the router listens on and everybody else connects to."""
+        return f"{proto}/{self.router.address}:{port}"
 
 
 def wait_listening(proc: Proc, timeout_s: float) -> list[str]:

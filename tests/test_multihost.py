@@ -58,7 +58,7 @@ def run_recipe(net: Network, port: int, tmp_path: Path) -> dict[str, float]:
     """Router, two daemons, a watcher, two publishers on the hosts of ``net``; checks and returns the seconds
     from the publishers' start to each stream's first model at the watcher."""
     assert len(net.hosts) >= 5
-    ep = f"tcp/{net.router.address}:{port}"
+    ep = net.router_endpoint(port)
     # the daemons and the watcher first: nothing answers yet, they say so and wait for the router
     daemons: dict[str, Proc] = {}
     for host, stream in zip(net.hosts[:2], PUBLISHERS):
