@@ -26,6 +26,9 @@ README_ENDPOINT = "tcp/127.0.0.1:7447"
 SEVERAL = "## More than one machine"
 #: Upper bounds of the waits of the several-machines recipe: a process up, the first models at the watcher.
 UP_S, MODELS_S = 30.0, 60.0
+#: Lines of `streamid watch`: which daemon serves a stream (stream, daemon id), a model (stream).
+ORIGIN_LINE = r"^(\S+): (?:a new daemon life: )?models from daemon (\w+), life began \S+$"
+MODEL_LINE = r"^(\S+) v\d+ (?:cold|warm) G="
 
 #: Shell blocks the tests do not run, and why (every other block is run below).
 NOT_RUN = {
@@ -231,6 +234,9 @@ def test_several_machines_recipe_runs_as_printed(kind: str, tmp_path: Path) -> N
         require("netns")
     block = _block_after(SEVERAL, "sh")
     lines = [ln.strip() for ln in block.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    sample = _section(SEVERAL).split("**It works**", 1)[1].split("```", 2)[1]  # the README's sample of watch's output
+    shown = [ln.strip() for ln in sample.splitlines() if ln.strip()]
+    assert re.fullmatch(ORIGIN_LINE, shown[0]) and re.match(MODEL_LINE, shown[1]), shown  # the lines checked below
     n_daemons = sum(shlex.split(ln)[:2] == ["streamid", "daemon"] for ln in lines)
     assert n_daemons >= 2, lines
     with open_network(kind, n_daemons + 2) as net:
@@ -280,14 +286,14 @@ def _run_recipe(net: Network, hosts: dict[str, Host], recipe: list[tuple[str, li
     first: dict[str, float] = {}
     deadline = time.monotonic() + MODELS_S
     while set(first) < streams and time.monotonic() < deadline:
-        for s in re.findall(r"^(\S+) v\d+ (?:cold|warm) G=", watch.text(), re.M):
+        for s in re.findall(MODEL_LINE, watch.text(), re.M):
             first.setdefault(s, time.monotonic() - t0)
         time.sleep(0.1)
     listening = {name: h.listening([p.pid for p in h.procs]) for name, h in hosts.items()}
     codes = {p.name: p.stop() for what in ("replay", "watch", "daemon", "router") for p in procs[what]}
     text = watch.text()
     assert set(first) == streams, (text[-3000:], {p.name: p.text()[-1500:] for p in procs["daemon"]})
-    origins = re.findall(r"^(\S+): (?:a new daemon life: )?models from daemon (\w+),", text, re.M)
+    origins = re.findall(ORIGIN_LINE, text, re.M)
     for stream in streams:  # served by the daemon whose command names it; else by the daemons of the recipe
         got = {d for s, d in origins if s == stream}  # (sharing them may move a stream when a daemon joins)
         assert (got == {served[stream]}) if stream in served else (got and got <= set(daemon_ids.values())), \
