@@ -82,3 +82,20 @@ def test_search_on_a_sample_of_rows_is_seeded_and_refits_on_all(reactor) -> None
 def test_bad_settings_name_the_field_and_the_accepted_form(field: str, value: object, text: str) -> None:
     with pytest.raises(ConfigError, match=text.replace("[", r"\[").replace("]", r"\]")):
         PAPER.replace(**{field: value})
+
+
+def test_a_model_without_an_input_term_is_not_admissible(reactor, good_model) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from streamid.engine import Model
+    from streamid.engine.regressors import Regressor
+
+    u, y = reactor
+    autonomous = Model(regressors=(Regressor("y", 0, 1),), centres=np.zeros((2, 1)), widths=np.ones(2),
+                       weights=np.array([0.1, 0.2]), normalisation=good_model.normalisation)
+    fr = free_run_scores([autonomous], u, y)
+    assert fr.admissible == 0 and fr.scores[0] == -np.inf and fr.best() == 0
+    ev = fr.evidence(0)
+    assert ev["excursion_spans"] is None and json.loads(json.dumps(ev, allow_nan=False))["admissible"] == 0
+    fr2 = free_run_scores([autonomous, good_model], u, y)
+    assert fr2.best() == 1 and fr2.admissible == 1

@@ -211,7 +211,7 @@ def select_model(
         else:
             fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin)
     k = fr.best()
-    score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + fr.excursions[k])
+    score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
     return cands[k].with_metrics(free_run_choice=fr.evidence(k)), float(score)
 
 
