@@ -256,6 +256,16 @@ def test_two_default_sessions_meet_through_a_router_they_both_connect_to() -> No
             assert _wait(lambda: got == [b"through the router"])
 
 
+def test_a_client_from_a_config_file_waits_for_its_router_too(tmp_path) -> None:
+    ep = endpoint()
+    cfg = tmp_path / "client.json5"
+    cfg.write_text('{ mode: "client", connect: { endpoints: ["%s"] } }' % ep)
+    t0 = time.monotonic()
+    with pytest.raises(TransportError, match="cannot connect"):
+        Bus(ZenohSettings(config_file=str(cfg), connect_wait_s=0.6))
+    assert time.monotonic() - t0 >= 0.5  # the file's client mode retried, like --mode client
+
+
 def test_a_client_waits_for_a_late_router_and_stop_ends_the_wait() -> None:
     ep = endpoint()
     t0 = time.monotonic()

@@ -272,13 +272,15 @@ class Bus:
                 session = zenoh.open(conf)
             except zenoh.ZError as exc:
                 text = str(exc)
-                retry = "Unable to connect" in text and settings.resolved_mode() == "client"
+                mode = settings.resolved_mode() or json.loads(conf.get_json("mode") or '"peer"')  # (or the file's)
+                retry = "Unable to connect" in text and mode == "client"
                 left = None if deadline is None else deadline - time.monotonic()
                 if not retry or (left is not None and left <= 0) or (stop is not None and stop.is_set()):
                     raise TransportError(explain_open_error(text, settings)) from exc
                 if not waited:
                     waited = True
-                    _log.warning("nothing answers at %s yet; retrying every %g s %s", ", ".join(settings.connect),
+                    where = ", ".join(settings.connect) or ", ".join(json.loads(conf.get_json("connect/endpoints") or "[]"))
+                    _log.warning("nothing answers at %s yet; retrying every %g s %s", where,
                                  CONNECT_RETRY_S, "until stopped" if left is None else f"for {left:.0f} s")
                 pause = CONNECT_RETRY_S if left is None else min(CONNECT_RETRY_S, max(0.0, left))
                 if stop is not None:
@@ -287,7 +289,7 @@ class Bus:
                     time.sleep(pause)
                 continue
             if waited:
-                _log.warning("connected to %s", ", ".join(settings.connect))
+                _log.warning("connected to %s", ", ".join(settings.connect) or "the configured endpoints")
             return session
 
     # -- context manager -------------------------------------------------
