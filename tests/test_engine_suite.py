@@ -1,0 +1,63 @@
+"""``streamid bench --suite --quick``: every system loads, the smoke run gives figures for each quick system."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+import pytest
+
+from streamid.bench import command
+from streamid.bench.suite import QUICK_SYSTEMS, SYSTEMS, free_run_val, targets
+
+
+def test_every_system_of_the_suite_loads_with_its_split() -> None:
+    want = {
+        "ball_and_beam": (500, 500), "heat_exchanger": (2000, 2000), "robot_arm": (512, 512),
+        "cstr:concentration_mol_l": (3750, 3750), "cstr:temperature_K": (3750, 3750),
+        "f16_gvt:accel1_au": (8192, 8192), "mr_damper": (2000, 1499), "reactor": (480, 480),
+        "bouc_wen": (10_000, 153_000),
+    }
+    got = {t.name: t for t in targets(tuple(n for n in SYSTEMS if n != "piezo_p885"))}
+    for name, (n_est, n_val) in want.items():
+        t = got[name]
+        assert (len(t.y_est), len(t.y_val)) == (n_est, n_val), name
+        assert t.u_est.shape == (n_est, 1) and np.all(np.isfinite(t.u_val)) and np.ptp(t.y_est) > 0
+    assert sum(1 for n in got if n.startswith("f16_gvt:")) == 3 and got["f16_gvt:accel2_au"].periodic_val
+    # The Bouc-Wen validation is the benchmark's sine sweep (40 N), not the estimation multisine.
+    assert float(np.max(np.abs(got["bouc_wen"].u_val))) == pytest.approx(40.0, abs=1e-6)
+
+
+def test_periodic_validation_scores_the_second_pass() -> None:
+    from streamid.engine import PAPER, identify
+
+    t = targets(("reactor",))[0]
+    model = identify(t.u_est, t.y_est, PAPER.replace(generations=10), 0).model
+    periodic = type(t)(t.system, t.output, t.u_est, t.y_est, t.u_val, t.y_val, periodic_val=True)
+    a, b = free_run_val(model, t), free_run_val(model, periodic)
+    sim = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[: model.max_lag])[len(t.y_val) :]
+    assert b == pytest.approx(1 - np.sum((t.y_val - sim) ** 2) / np.sum((t.y_val - t.y_val.mean()) ** 2))
+    assert a != b
+
+
+def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    command.register(sub)
+    args = parser.parse_args(["bench", "--suite", "--quick", "--json"])
+    t0 = time.perf_counter()
+    assert command.run(args) == 0
+    assert time.perf_counter() - t0 < 30.0
+    doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert doc["failures"] == []
+    rows = doc["measurements"]
+    assert {r["section"] for r in rows} == {"suite"}
+    for system in QUICK_SYSTEMS:
+        mine = [r for r in rows if r["case"].startswith(system)]
+        assert {r["metric"] for r in mine} == {"FR R2 val, paper", "FR R2 val, default", "seconds, paper",
+                                               "seconds, default"}, system
+        assert all(np.isfinite(r["median"]) for r in mine)
+    reactor = [r for r in rows if r["case"].startswith("reactor") and r["metric"] == "FR R2 val, default"]
+    assert reactor[0]["median"] > 0.99  # even the smoke run identifies the reactor
