@@ -116,7 +116,7 @@ def _bouc_wen(n_est: int) -> list[Target]:
     from streamid.sim import simulate_bouc_wen_multisine
 
     est = simulate_bouc_wen_multisine(n_est, 0)
-    with np.load(_suite_file("bouc_wen_sinesweep.npz")) as z:
+    with np.load(_suite_file("bouc_wen_sinesweep.npz"), allow_pickle=False) as z:
         uv, yv = np.asarray(z["u_N"]), np.asarray(z["y_m"])
     return [Target("bouc_wen", "", est.u[:, None], est.y, uv[:, None], yv)]
 
