@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 
 from streamid.online import Update
-from streamid.engine.validation import CorrelationTest
-from streamid.viz.reports import UpdateReport
+from streamid.viz.reports import UpdateReport, first_input_tests
 
 __all__ = ["update_report"]
 
@@ -48,14 +46,3 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         champion_r2_fr=(out.champion_metrics or {}).get("r2_fr_val") if not up.accepted else None,
     )
 
-
-def first_input_tests(tests: tuple[CorrelationTest, ...]) -> tuple[CorrelationTest, ...]:
-    """The tests drawn: ``ee`` and those of the first input, named by their kind (``ue``, not ``ue[force]``)."""
-    seen: set[str] = set()
-    out = []
-    for t in tests:
-        kind = t.name.split("[", 1)[0]
-        if kind not in seen:
-            seen.add(kind)
-            out.append(t if kind == t.name else dataclasses.replace(t, name=kind))
-    return tuple(out)

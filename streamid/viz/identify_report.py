@@ -15,7 +15,6 @@ event log says so.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,8 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.engine.model import Model
-from streamid.engine.validation import CorrelationTest, ValidationReport
-from streamid.viz.reports import UpdateReport, VizSettings
+from streamid.engine.validation import ValidationReport
+from streamid.viz.reports import UpdateReport, VizSettings, first_input_tests
 
 __all__ = ["Clock", "identify_update_report", "draw_identification", "NO_CLOCK_PERIOD_NS"]
 
@@ -48,17 +47,6 @@ class Clock:
                 return cls(int(t_ns[0]), int(period), True)
         return cls(0, NO_CLOCK_PERIOD_NS, False)
 
-
-def _first_input_tests(tests: Sequence[CorrelationTest]) -> tuple[CorrelationTest, ...]:
-    """``ee`` and the first input's tests, named by kind (as :func:`streamid.daemon.report.first_input_tests`)."""
-    seen: set[str] = set()
-    out = []
-    for t in tests:
-        kind = t.name.split("[", 1)[0]
-        if kind not in seen:
-            seen.add(kind)
-            out.append(t if kind == t.name else dataclasses.replace(t, name=kind))
-    return tuple(out)
 
 
 def identify_update_report(
@@ -97,7 +85,7 @@ def identify_update_report(
         input_name=model.input_names[0] if model.input_names else "u",
         output_name=model.output_name,
         fitness=np.asarray(fitness_history, dtype=np.float64),
-        correlations=_first_input_tests(report.correlation_val.tests),
+        correlations=first_input_tests(tuple(report.correlation_val.tests)),
         lags=model.lags,
         metrics={f"r2_{k}": float(v) for k, v in r2.items()},
         identification_s=float(seconds),

@@ -6,6 +6,7 @@ it), so the daemon can build reports and check settings without it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import urllib.parse
 from collections.abc import Mapping
@@ -22,6 +23,7 @@ __all__ = [
     "VizSettings",
     "UpdateReport",
     "parse_rerun_url",
+    "first_input_tests",
     "model_markdown",
     "fmt_metric",
     "TEST_LABELS",
@@ -204,3 +206,15 @@ def model_markdown(r: UpdateReport) -> str:
     if verdicts:
         lines += ["", "correlation tests (validation residual):", *verdicts]
     return "\n".join(lines)
+
+
+def first_input_tests(tests: tuple[CorrelationTest, ...]) -> tuple[CorrelationTest, ...]:
+    """The correlation tests drawn (by the daemon and by ``streamid identify --rrd``): ``ee`` and those of the first input, named by their kind (``ue``, not ``ue[force]``)."""
+    seen: set[str] = set()
+    out = []
+    for t in tests:
+        kind = t.name.split("[", 1)[0]
+        if kind not in seen:
+            seen.add(kind)
+            out.append(t if kind == t.name else dataclasses.replace(t, name=kind))
+    return tuple(out)
