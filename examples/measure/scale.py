@@ -16,10 +16,11 @@ paced in real time; piezo physics decimated), an observer.  After ``--warmup`` s
 per second, so a stream is *kept up with* when it got at least 0.9 decisions per second;
 the daemons keep up with the count when every stream is.
 
-``failover``: two daemons, ``--streams`` streams; KILLS times: SIGKILL the daemon serving
-the first stream, record for each of its streams the time from the kill to the survivor's
-first model of it, restart the killed daemon on its state directory and wait until it
-serves its share again.
+``failover``: two daemons, ``--streams`` streams; KILLS times (the two daemons in turn):
+SIGKILL one, record for each stream it served the time from the kill to the survivor's
+first decision on it (an accepted model, or a rejected challenger: the champion it took
+over stayed), restart the killed daemon on its state directory and let it take its share
+back.
 
 Prints one JSON line per measurement.
 """
@@ -43,8 +44,8 @@ BATCH = 100
 
 
 # --------------------------------------------------------------------------- processes run on hosts
-def publish_main(ep: str, prefix: str, streams: int, seconds: float) -> None:
-    """``streams`` streams ``<prefix><k>`` at 2 kHz, real time, until ``seconds`` have passed."""
+def publish_main(ep: str, prefix: str, streams: int, seconds: float, rate_hz: float = RATE_HZ) -> None:
+    """``streams`` streams ``<prefix><k>`` at ``rate_hz``, real time, until ``seconds`` have passed."""
     import numpy as np
 
     from streamid.sim import get_device
@@ -52,11 +53,11 @@ def publish_main(ep: str, prefix: str, streams: int, seconds: float) -> None:
     from streamid.wire.codec import SampleBatch, encode
 
     dev = get_device("piezo")
-    step = max(1, round(1e9 / RATE_HZ / dev.period_ns))
+    step = max(1, round(1e9 / rate_hz / dev.period_ns))
     period = dev.period_ns * step
     sigs = []
     for k in range(streams):
-        _, u, y = dev.simulate_seconds(10.0, seed=k)
+        _, u, y = dev.simulate_seconds(max(10.0, 10.0 * RATE_HZ / rate_hz), seed=k)
         sigs.append((np.ascontiguousarray(u[::step]), np.ascontiguousarray(y[::step])))
     n = len(sigs[0][1]) // BATCH * BATCH
     names = [f"{prefix}{k}" for k in range(streams)]
@@ -65,8 +66,8 @@ def publish_main(ep: str, prefix: str, streams: int, seconds: float) -> None:
         for p in pubs:
             p.wait_for_subscribers(30.0)
         t0 = time.perf_counter()
-        for j in range(int(seconds * RATE_HZ) // BATCH):
-            due = t0 + (j + 1) * BATCH / RATE_HZ
+        for j in range(int(seconds * rate_hz) // BATCH):
+            due = t0 + (j + 1) * BATCH / rate_hz
             now = time.perf_counter()
             if due > now:
                 time.sleep(due - now)
@@ -102,7 +103,7 @@ def _script(*args: object) -> list[str]:
 
 def _start_daemon(host: Any, ep: str, state: Path, log: Path) -> Any:
     state.mkdir(parents=True, exist_ok=True)
-    proc = host.run([*STREAMID, "daemon", "--connect", ep, "--no-rerun", "--state-dir", str(state)], log)
+    proc = host.run([*STREAMID, "daemon", "--connect", ep, "--no-rerun", "--state-dir", str(state), "-v"], log)
     m = proc.wait_for(r"as daemon (\w+)", 60.0)
     if m is None:
         raise RuntimeError(f"daemon did not start: {proc.text()[-2000:]}")
@@ -155,12 +156,12 @@ def capacity(n_daemons: int, n_streams: int, kind: str, warmup_s: float, seconds
             "streams_per_daemon": {d.daemon_id: sum(d.daemon_id in v for v in served_by.values()) for d in daemons}}
 
 
-def failover(kills: int, kind: str, n_streams: int) -> dict[str, Any]:
+def failover(kills: int, kind: str, n_streams: int, rate_hz: float) -> dict[str, Any]:
     from hosts import wait_listening
 
     tmp = Path(tempfile.mkdtemp(prefix="streamid-failover-"))
     times: list[float] = []
-    total_s = 60.0 + kills * 40.0
+    total_s = 45.0 + kills * 30.0
     with _network(kind, 4) as net:
         ep = f"tcp/{net.router.address}:7447"
         router = net.router.run([*STREAMID, "router", "--listen", ep], tmp / "router.log")
@@ -170,7 +171,8 @@ def failover(kills: int, kind: str, n_streams: int) -> dict[str, Any]:
         obs_file = tmp / "decisions.json"
         observer = net.hosts[2].run(_script("observe", ep, total_s, obs_file), tmp / "observer.log")
         observer.wait_for("observing", 30.0)
-        pub = net.hosts[3].run(_script("publish", ep, "fo", n_streams, total_s), tmp / "publisher.log")
+        pub = net.hosts[3].run(_script("publish", ep, "fo", n_streams, total_s, "--rate-hz", rate_hz),
+                               tmp / "publisher.log")
         # the observer writes its file only at the end: follow the daemons' own logs to pace the kills
         time.sleep(35.0)  # both joined (join_after_s 10 s), first windows identified
         events: list[tuple[int, str, list[str]]] = []
@@ -192,10 +194,12 @@ def failover(kills: int, kind: str, n_streams: int) -> dict[str, Any]:
             d.stop()
     for t_kill, dead, streams in events:
         for s in streams:
-            after = [t for t, kind_, stream, _v, d in got if stream == s and kind_ == "model" and t > t_kill and d != dead]
+            after = [t for t, _kind, stream, _v, d in got if stream == s and t > t_kill and d != dead]
             if after:
                 times.append((min(after) - t_kill) / 1e9)
-    return {"measure": "failover", "net": kind, "kills": kills, "streams": n_streams, "moved_streams": len(times),
+    return {"measure": "failover", "net": kind, "kills": kills, "streams": n_streams, "rate_hz": rate_hz,
+            "moved_streams": len(times),
+            "served_at_kill": [len(s) for _, _, s in events],
             "seconds": sorted(round(x, 3) for x in times),
             "median_s": round(statistics.median(times), 3) if times else None,
             "max_s": round(max(times), 3) if times else None}
@@ -224,25 +228,28 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("kills", type=int)
     f.add_argument("--net", choices=("netns", "loopback"), default="netns")
     f.add_argument("--streams", type=int, default=4)
+    f.add_argument("--rate-hz", type=float, default=200.0,
+                   help="sample rate of the streams (default 200 Hz: one survivor keeps up with all of them)")
     pu = sub.add_parser("publish")
     pu.add_argument("ep")
     pu.add_argument("prefix")
     pu.add_argument("streams", type=int)
     pu.add_argument("seconds", type=float)
+    pu.add_argument("--rate-hz", type=float, default=RATE_HZ)
     ob = sub.add_parser("observe")
     ob.add_argument("ep")
     ob.add_argument("seconds", type=float)
     ob.add_argument("out")
     a = p.parse_args(argv)
     if a.what == "publish":
-        publish_main(a.ep, a.prefix, a.streams, a.seconds)
+        publish_main(a.ep, a.prefix, a.streams, a.seconds, a.rate_hz)
     elif a.what == "observe":
         observe_main(a.ep, a.seconds, a.out)
     elif a.what == "capacity":
         for n in a.streams:
             print(json.dumps(capacity(a.daemons, n, a.net, a.warmup, a.seconds)), flush=True)
     else:
-        print(json.dumps(failover(a.kills, a.net, a.streams)), flush=True)
+        print(json.dumps(failover(a.kills, a.net, a.streams, a.rate_hz)), flush=True)
     return 0
 
 
