@@ -150,6 +150,11 @@ class Deadline:
         """Seconds this run has taken, other jobs run in between left out."""
         return time.monotonic() - self._t0 - self._paused_s
 
+    @property
+    def paused_s(self) -> float:
+        """Seconds spent on other jobs run in between."""
+        return self._paused_s
+
     def pause(self, seconds: float) -> None:
         """Leave ``seconds`` (spent on another job) out of this run's time."""
         self._paused_s += seconds

@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 from streamid.daemon.admission import Deadline, identification_bytes
 from streamid.daemon.config import DaemonConfig
-from streamid.daemon.scheduler import SLICE_S, Scheduler
+from streamid.daemon.scheduler import NESTED_SHARE, SLICE_S, Scheduler
 from streamid.daemon.slots import StreamSlot
 from streamid.engine.parallel import EvalHelper
 from streamid.online import Outcome, Stopped, UpdateJob
@@ -158,6 +158,8 @@ class JobRunner:
     def _let_short_jobs_in(self, st: StreamSlot, deadline: Deadline) -> None:
         """Between two generations of ``st``'s run: run other streams' short jobs to their end."""
         for _ in range(max(1, len(self.streams))):  # each waiting stream at most once per generation
+            if deadline.paused_s > NESTED_SHARE * deadline.own_s:  # the long run keeps its share of the worker
+                return
             nxt = self.scheduler.take_short(self._try_take, self._expected_s, exclude=st.ident.stream)
             if nxt is None:
                 return

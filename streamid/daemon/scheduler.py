@@ -15,7 +15,10 @@ Two rules keep one stream from starving the others:
   seconds per generation -- is run right there, on the same worker, to its
   end, and then the long run goes on.  A healthy stream's update therefore
   waits at most one generation of a long run (bounded by
-  ``daemon.max_identification_bytes``), not the whole run.  Nested jobs are
+  ``daemon.max_identification_bytes``), not the whole run.  The short jobs
+  run inside one long run take at most :data:`NESTED_SHARE` times its own
+  time (measured: without that bound, an overloaded daemon's long runs never
+  ended while the others' short jobs kept coming).  Nested jobs are
   never interrupted themselves (one level), and the time they take is not
   counted against the long run's ``max_identification_s``.
 
@@ -32,12 +35,15 @@ from collections import deque
 from collections.abc import Callable
 from typing import Generic, Literal, TypeVar
 
-__all__ = ["Scheduler", "SLICE_S", "SHORT_JOB_S"]
+__all__ = ["Scheduler", "SLICE_S", "SHORT_JOB_S", "NESTED_SHARE"]
 
 #: A running job takes this many seconds of its own time before it lets short jobs in.
 SLICE_S = 0.05
 #: A job expected to take less than this is short: it may run between two generations of a longer one.
 SHORT_JOB_S = 1.0
+#: The short jobs run inside a long one take at most this many times the long run's own time: it keeps
+#: at least half of its worker, so an endless supply of short jobs (an overloaded daemon) cannot starve it.
+NESTED_SHARE = 1.0
 _EMA = 0.5
 
 T = TypeVar("T")
