@@ -403,7 +403,8 @@ class Daemon(SlotKeeping):
         self.versions.settle(st.ident, self.bus, st.lock)  # once per stream without state: the network's version
         with st.lock:
             up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
-            state = st.ident.state(now_ns=time.time_ns()).to_json()
+            # the state for a successor (~2 ms and ~100 kB for the MR damper): only when there may be one
+            state = st.ident.state(now_ns=time.time_ns()).to_json() if self.link.has_successor() else None
         latency_s = None
         with st.lock:
             st.recent_updates.append((time.monotonic(), up.kind, (time.time_ns() - window.received_ns) / 1e9))
@@ -411,7 +412,8 @@ class Daemon(SlotKeeping):
             if not self.shares.serving(name):
                 self._global["results_handed_over"] += 1
                 return
-            self.link.hand_off(name, state)  # before the model: the next owner never reuses its version
+            if state is not None:
+                self.link.hand_off(name, state)  # before the model: the next owner never reuses its version
             if up.kind == "rejected" and up.payload is not None and (rej := self._pubs.get(f"{name}/rejected")):
                 rej.put(up.payload)  # a rejected challenger, for subscribers that asked (include_rejected)
             if up.accepted and up.payload is not None and (pub := self._pubs.get(f"{name}/model")) is not None:

@@ -26,7 +26,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
-from streamid.daemon.sharing import Action, Life, Shares  # noqa: F401 (Life: the type of ``me``)
+from streamid.daemon.sharing import Action, Life, Shares
 from streamid.errors import ModelFormatError
 from streamid.online.snapshot import StreamState
 from streamid.transport import Bus
@@ -149,6 +149,11 @@ class ShareLink:
             self.counters["handoff_unreadable"] += 1
             return None
         return state
+
+    def has_successor(self) -> bool:
+        """Whether another daemon may take a stream over (a state is worth putting): another member lives,
+        or this daemon is not a member (a daemon waiting on the same ``--stream`` cannot be seen)."""
+        return not self.shares.share or any(d != self.me.daemon for d in self.shares.members())
 
     def hand_off(self, stream: str, state_json: str) -> None:
         """Put this daemon's state of ``stream`` for whoever serves it next (before the model it goes with)."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import Counter
 from typing import TYPE_CHECKING, Any
 
@@ -94,9 +95,16 @@ class SlotKeeping:
             self._runner.wake(name)
 
     def _release(self, name: str) -> None:
-        """Another daemon serves ``name`` now (nothing is published from here on): close its declarations."""
+        """Another daemon serves ``name`` now (nothing is published from here on): hand the state over, close.
+
+        Called before the claim is withdrawn, so the next owner has the newest state (and version) first.
+        """
         st = self._streams.get(name)
         if st is not None:
+            with st.lock:
+                state = st.ident.state(now_ns=time.time_ns()).to_json() if st.ident.version > 0 else None
+            if state is not None:
+                self.link.hand_off(name, state)
             self._undeclare(st)
         _log.info("stream %s: handed over (members: %s)", name, ", ".join(self.shares.members()) or "none")
 
