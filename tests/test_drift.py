@@ -1,56 +1,123 @@
-"""Drift detection: the Page-Hinkley test against river's published example, the block monitor, and the
-identifier's drift event on a simulated device whose gain changes at a known time."""
+"""Drift detection: the CUSUM against published average run lengths, the block monitor, the block levels, the
+recalibration of a drifted champion, and the identifier's drift event on a simulated device whose gain changes at a
+known time."""
 
 from __future__ import annotations
 
-import random
+import dataclasses
 
 import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
-from streamid.online.drift import DriftMonitor, DriftSettings, PageHinkley, block_errors
+from streamid.online.drift import Cusum, DriftMonitor, DriftSettings, block_levels, reference_monitor
+from streamid.online.recalibrate import MAX_GAIN_CHANGE, recalibrate
 from streamid.sim.drift import drift_start_ns, simulate_drift
 
 
-def test_page_hinkley_reproduces_rivers_documented_example() -> None:
-    """river.drift.PageHinkley's docstring: two distributions, 'Change detected at index 1006, input value: 5'."""
-    rng = random.Random(12345)
-    data = rng.choices([0, 1], k=1000) + rng.choices(range(4, 8), k=1000)
-    ph = PageHinkley()
-    hits = [(i, v) for i, v in enumerate(data) if ph.update(v)]
-    assert hits[0] == (1006, 5)
+def _run_lengths(k: float, h: float, shift: float, runs: int, seed: int) -> np.ndarray:
+    """Values until the first signal of a fresh two-sided CUSUM, N(shift, 1) values, ``runs`` times."""
+    rng = np.random.default_rng(seed)
+    out = np.empty(runs)
+    for r in range(runs):
+        c, n = Cusum(k, h), 0
+        while n < 100_000:  # bounded: the in-control mean is ~465
+            n += 1
+            if c.update(float(rng.normal(shift, 1.0))):
+                break
+        out[r] = n
+    return out
 
 
-def test_page_hinkley_is_quiet_on_a_stationary_sequence_and_validates_its_settings() -> None:
-    rng = np.random.default_rng(0)
-    ph = DriftSettings().detector()
-    assert not any(ph.update(float(x)) for x in rng.normal(0.0, 0.3, 20_000))
-    with pytest.raises(ValueError, match="threshold must be a number > 0; got 0"):
-        PageHinkley(threshold=0)
+@pytest.mark.parametrize(("h", "shift", "published"), [(5.0, 1.0, 10.4), (5.0, 2.0, 4.01), (4.0, 1.0, 8.38)])
+def test_cusum_run_lengths_after_a_shift_are_the_published_ones(h: float, shift: float, published: float) -> None:
+    """Montgomery, Introduction to Statistical Quality Control, Table 9.3 (k = 0.5): ARL after a shift of the mean."""
+    rl = _run_lengths(0.5, h, shift, 4000, 1)
+    se = rl.std() / np.sqrt(rl.size)
+    assert abs(rl.mean() - published) < 4 * se + 0.02 * published
 
 
-def test_one_outlying_block_alone_never_raises_a_drift_but_a_sustained_rise_does() -> None:
-    s = DriftSettings()
-    mon = DriftMonitor(s, 50)
-    levels = [1.0] * 20 + [1e6] + [1.0] * 20  # a glitch: one block a million times worse
-    assert all(mon.block(v, i) is None for i, v in enumerate(levels))
-    hits = [mon.block(np.e ** 2, 100 + i) for i in range(10)]  # the error level x7.4 from block 100 on
+def test_cusum_in_control_run_length_is_the_published_two_sided_one() -> None:
+    """Table 9.3: in-control ARL 465 for k = 0.5, h = 5 (Siegmund's approximation: 938 a side, 469 for both)."""
+    rl = _run_lengths(0.5, 5.0, 0.0, 1500, 2)
+    se = rl.std() / np.sqrt(rl.size)
+    assert abs(rl.mean() - 465.0) < 4 * se + 0.03 * 465.0
+
+
+def test_cusum_counts_back_to_the_change_and_validates_its_settings() -> None:
+    c = Cusum(0.5, 5.0)
+    assert [c.update(0.0) for _ in range(10)] == [0] * 10
+    sides = [c.update(2.0) for _ in range(4)]  # +1.5 a value: 6 >= 5 after four
+    assert sides == [0, 0, 0, 1] and c.run == 4 and c.upper == 0.0  # four values above zero, then reset
+    assert [c.update(-3.0) for _ in range(2)][-1] == -1 and c.run == 2  # a fall: the lower side
+    for bad in (0, -1.0, float("nan"), True):
+        with pytest.raises(ValueError, match=r"CUSUM k must be a number > 0; got"):
+            Cusum(k=bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="CUSUM h must be a finite number > 0; got inf"):
+        Cusum(h=float("inf"))
+
+
+def _monitor(spread: float = 0.1) -> DriftMonitor:
+    rng = np.random.default_rng(5)
+    return DriftMonitor(DriftSettings(), 100, rng.normal(0.0, spread, 40), np.ones(40))
+
+
+def test_one_outlying_block_alone_never_raises_a_drift_but_a_sustained_change_does() -> None:
+    mon = _monitor()
+    glitch = [0.0] * 20 + [np.inf] + [0.0] * 20 + [-50.0] + [0.0] * 20  # a diverged run, then a collapse
+    assert all(mon.block(v, 1.0, i) is None for i, v in enumerate(glitch))
+    hits = [mon.block(np.log(1.2), 1.0, 100 + i) for i in range(10)]  # the output 20 % above the model from 100 on
     first = next(i for i, h in enumerate(hits) if h is not None)
-    assert 2 <= first <= 4 and hits[first] == 40  # at least three blocks; it began after the last quiet block
+    assert 2 <= first <= 4 and hits[first] == len(glitch) - 1  # it began after the last block with a zero sum
+    low = [mon.block(np.log(0.8), 1.0, 200 + i) for i in range(10)]  # and 20 % below: the other side
+    assert any(h is not None for h in low)
 
 
-def test_block_errors_are_those_of_short_free_runs() -> None:
+def test_blocks_without_excitation_are_not_judged() -> None:
+    mon = _monitor()
+    assert all(mon.block(np.log(3.0), 0.2, i) is None for i in range(50))  # rms 0.2 < 0.25 x the reference's 1
+    assert mon.skipped == 50 and all(mon.block(np.nan, 1.0, i) is None for i in range(5))
+    assert mon.skipped == 55
+
+
+def test_block_levels_are_those_of_short_free_runs() -> None:
     t, u, y = simulate_drift("piezo", 0.2, 0.1, 0.0, 3)  # no change: a plain record
     ident = OnlineIdentifier(StreamConfig(window_s=0.1, update_every_s=0.1), stream="p")
     ident.learn_many(t[:2001], u[:2001], y[:2001])
     ident.update_all()
     m = ident.model
     assert m is not None
-    e = block_errors(m, u[2000:3000, None], y[2000:3000], 100)
+    levels, rms = block_levels(m, u[2000:3000, None], y[2000:3000], 100)
     L = m.max_lag
-    sim = m.simulate(u[2000 : 2000 + L + 100, None], y[2000 : 2000 + L])  # the first block by hand
-    assert e.shape == ((1000 - L) // 100,) and e[0] == pytest.approx(np.mean((y[2000 + L : 2000 + L + 100] - sim[L:]) ** 2))
+    sim = m.simulate(u[2000 : 2000 + L + 100, None], y[2000 : 2000 + L])[L:]  # the first block by hand
+    yb = y[2000 + L : 2000 + L + 100]
+    assert levels.shape == rms.shape == ((1000 - L) // 100,)
+    assert levels[0] == pytest.approx(np.log(np.std(yb) / np.std(sim)))
+    assert rms[0] == pytest.approx(np.std(yb))
+    mon = reference_monitor(DriftSettings(), m, u[2000:3000, None], y[2000:3000], int(t[1] - t[0]))
+    assert mon is not None and mon.block_samples == (1000 - L) // 8  # 0.5 s blocks cut to give 8 reference blocks
+    assert reference_monitor(DriftSettings(), m, u[2000:2100, None], y[2000:2100], int(t[1] - t[0])) is None
+
+
+def test_recalibration_recovers_a_gain_and_offset_change_exactly() -> None:
+    t, u, y = simulate_drift("piezo", 0.2, 0.1, 0.0, 3)
+    ident = OnlineIdentifier(StreamConfig(window_s=0.1, update_every_s=0.1), stream="p")
+    ident.learn_many(t[:2001], u[:2001], y[:2001])
+    ident.update_all()
+    m = ident.model
+    assert m is not None
+    uu = u[2000:3000, None]
+    own = m.simulate(uu, y[2000 : 2000 + m.max_lag])  # a device that is exactly the model...
+    drifted = 1.3 * own - 0.7  # ...whose gain rose 30 % and offset moved
+    r = recalibrate(m, uu, drifted)
+    assert r is not None
+    assert r.metrics["recalibrated_gain"] == pytest.approx(1.3, rel=1e-6)
+    assert r.metrics["recalibrated_offset"] == pytest.approx(-0.7, abs=1e-6 * np.ptp(drifted))
+    assert np.allclose(r.simulate(uu, drifted[: m.max_lag]), drifted, atol=1e-6 * np.ptp(drifted))
+    assert np.array_equal(r.centres, m.centres) and np.array_equal(r.weights, m.weights)  # the same network
+    assert recalibrate(m, uu, (MAX_GAIN_CHANGE + 0.5) * own) is None  # too large a change: identify anew
+    assert recalibrate(m, uu, -own) is None
+    assert recalibrate(dataclasses.replace(m), uu, np.full(1000, 2.0)) is None  # a constant output
 
 
 def test_a_gain_change_of_the_simulated_piezo_raises_a_drift_and_a_new_champion_follows() -> None:

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from streamid.engine import Model
+from streamid.online.recalibrate import describe
 from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome
 from streamid.online.window_types import Event, Window
@@ -156,11 +157,12 @@ def decide(outcome: Outcome, cfg: StreamConfig, champion_version: int) -> Decisi
     if fr >= c_fr + margin:
         word = "beats" if fr > c_fr else "is within the margin of"
         return Decision(True, "better", f"FR R² {fr:.4f} {word} champion v{champion_version}'s {c_fr:.4f} on the same "
-                        f"held-out data ({fr - c_fr:+.4f}, margin {margin:g})", margin, champ_doc)
+                        f"held-out data ({fr - c_fr:+.4f}, margin {margin:g}){describe(outcome.model)}", margin,
+                        champ_doc)
     champion_valid = c_fr >= cfg.min_r2_fr and c_osa >= cfg.min_r2_osa
     if not champion_valid and fr > c_fr:
         return Decision(True, "champion_invalid", f"champion v{champion_version} no longer valid on current data "
                         f"(FR R² {c_fr:.4f}, OSA R² {c_osa:.4f} vs floors {cfg.min_r2_fr:g}/{cfg.min_r2_osa:g}); "
-                        f"challenger FR R² {fr:.4f}", margin, champ_doc)
+                        f"challenger FR R² {fr:.4f}{describe(outcome.model)}", margin, champ_doc)
     return Decision(False, "not_better", f"FR R² {fr:.4f} not better than champion v{champion_version}'s {c_fr:.4f} "
                     f"on the same held-out data by margin {margin:g}", margin, champ_doc)

@@ -31,8 +31,8 @@ too short, constant signal, missing output) and the champion stays.  After
 ``cold_after_failures`` failed or invalid updates in a row the next run starts cold; a run
 whose signals, period or search size differ from the populations' starts cold too.
 
-**Drift.**  Between updates, every sample pushed is predicted one step ahead by the
-champion and the residual level watched by a Page-Hinkley test
+**Drift.**  Between updates, every block of samples pushed is run through the champion in a
+short free run and the output's level relative to it watched by a CUSUM test
 (:mod:`streamid.online.drift`).  A ``drift`` event then makes the next identification of
 that output use only the data from the estimated change on, with ``drift_generations``.
 
@@ -55,13 +55,13 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine import CoEAState, EvalHelper, Model
 from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidError
 from streamid.online.acceptance import Decision, Update, decide
-from streamid.online.drift import DriftMonitor, DriftSettings, block_errors
+from streamid.online.drift import DriftMonitor, DriftSettings, block_levels, reference_monitor
 from streamid.online.head import OutputHead
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
 from streamid.online.snapshot import StreamState
 from streamid.online.status import stream_status
 from streamid.online.stream_config import StreamConfig
-from streamid.online.update import Outcome, StopFlag, UpdateJob
+from streamid.online.update import Outcome, StopFlag, UpdateJob, cut_window
 from streamid.online.window_types import Window
 from streamid.wire.documents import encode_json, model_update_message
 from streamid.wire.keys import check_stream_name
@@ -247,8 +247,10 @@ class OnlineIdentifier(StreamIntake):
         self._version = version
         head.version, head.document, head.payload = version, doc, payload
         head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
-        monitor = None if self._drift is None else self._drift.monitor(w.period_ns, outcome.y_val.shape[0] - model.max_lag)
-        head.new_champion(model, monitor)
+        seen = w if job.cut_t_ns is None else cut_window(w, job.cut_t_ns)  # its reference: the data it won on
+        head.new_champion(model, None if self._drift is None or head.output not in w.output_names else
+                          reference_monitor(self._drift, model, seen.u, seen.y[:, w.output_names.index(head.output)],
+                                            w.period_ns))
         head.since_t_ns, head.since_unix_ns = w.t_end_ns, now_ns
         saved = True
         if persist is not None:
@@ -512,18 +514,20 @@ class OnlineIdentifier(StreamIntake):
                 continue
             B = mon.block_samples
             n_blocks = (complete - first) // B
-            errors = block_errors(m, u[: m.max_lag + n_blocks * B], y[: m.max_lag + n_blocks * B], B)
+            levels, rms = block_levels(m, u[: m.max_lag + n_blocks * B], y[: m.max_lag + n_blocks * B], B)
             period = int(self._buffer.period_ns or 0)
             ends = self._buffer.times_ns(first + B - 1, 1)[0] + np.arange(n_blocks, dtype=np.int64) * B * period
             mon.next_index = first + n_blocks * B
-            for mse, t_end in zip(errors, ends, strict=True):
-                change_ns = mon.block(float(mse), int(t_end))
+            for level, r, t_end in zip(levels, rms, ends, strict=True):
+                change_ns = mon.block(float(level), float(r), int(t_end))
                 if change_ns is None:
                     continue
                 head.drift_t_ns, head.escalate = change_ns, True
                 head.drifts += 1
-                self._event("drift", f"{head.output}: champion v{head.version}'s free-run error rose (block log-MSE "
-                            f"{mon.last_level:+.2f} above its running level); change estimated at stream time "
+                ratio = "diverged" if not np.isfinite(mon.last_level) else f"{np.exp(mon.last_level):.2f} x"
+                self._event("drift", f"{head.output}: the output's level moved away from champion v{head.version}'s "
+                            f"free run (last block: measured/model amplitude {ratio} its reference); change "
+                            "estimated at stream time "
                             f"{change_ns / 1e9:.2f} s: the next identification uses data from then on with "
                             f"{self.config.drift_generations} generations", int(t_end), now_ns)
 

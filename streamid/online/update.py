@@ -38,6 +38,7 @@ from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine.identify import select_model
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import StreamidError
+from streamid.online.recalibrate import recalibrate
 from streamid.online.stream_config import StreamConfig
 from streamid.online.summary import ValidationSummary, r2_or_nan, summarise
 from streamid.online.window_types import Window
@@ -308,6 +309,13 @@ def identify_window(
         state = co.state()
         fitness = np.asarray(co.history, dtype=np.float64)
         summary = summarise(model, u_est, y_est, u_val, y_val)
+        if generations is not None and champion is not None and champion.n_inputs == u_est.shape[1]:
+            # after a drift (an escalated run): the champion rescaled to the new output level competes too
+            recal = recalibrate(champion, u_est, y_est)
+            alt = None if recal is None else summarise(recal, u_est, y_est, u_val, y_val)
+            if alt is not None and recal is not None and alt.finite and not (
+                    alt.metrics["r2_fr_val"] <= summary.metrics["r2_fr_val"]):
+                model, summary = recal, alt
         champ, champ_fr = champion_figures(champion, u_val, y_val)
     except Stopped:
         raise
