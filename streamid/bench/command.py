@@ -25,6 +25,7 @@ BUILTIN_PROVIDERS: dict[str, str] = {
     "engine": "streamid.bench.engine_cases:bench",
     "peers": "streamid.bench.peers:bench",
     "daemon": "streamid.bench.daemon_cases:bench",
+    "online": "streamid.bench.online_cases:bench",
     "suite": "streamid.bench.suite:bench",
 }
 

@@ -62,10 +62,12 @@ class StreamConfig:
         Negative: a challenger up to that much worse still replaces the champion
         (-1: every valid challenger does, one model per window as in the paper).
     drift_detection
-        Watch the champion's one-step-ahead residuals on incoming data with a
-        Page-Hinkley test (:mod:`streamid.online.drift`); on a drift, the next
-        identification of that output uses only the data after the estimated
-        change and runs ``drift_generations`` generations.
+        Watch the output's level relative to the champion's short free runs on
+        incoming data with a CUSUM test (:mod:`streamid.online.drift`); on a
+        drift, the next identification of that output uses only the data after
+        the estimated change, runs ``drift_generations`` generations, and the
+        champion recalibrated to the new level competes with it
+        (:mod:`streamid.online.recalibrate`).
     drift_generations
         Generations of the identification after a drift (default 100, warm
         from the previous populations: the lag structure usually survives a
