@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
-from streamid.online.drift import Cusum, DriftMonitor, DriftSettings, block_levels, reference_monitor
+from streamid.online.drift import BlockLevels, Cusum, DriftMonitor, DriftSettings, block_levels, reference_monitor
 from streamid.online.recalibrate import MAX_GAIN_CHANGE, recalibrate
 from streamid.sim.drift import drift_start_ns, simulate_drift
 
@@ -57,27 +57,59 @@ def test_cusum_counts_back_to_the_change_and_validates_its_settings() -> None:
         Cusum(h=float("inf"))
 
 
-def _monitor(spread: float = 0.1) -> DriftMonitor:
+def _monitor(spread: float = 0.05) -> DriftMonitor:
     rng = np.random.default_rng(5)
-    return DriftMonitor(DriftSettings(), 100, rng.normal(0.0, spread, 40), np.ones(40))
+    return DriftMonitor(DriftSettings(), 100, BlockLevels(rng.normal(0.0, spread, 40), np.ones(40), np.ones(40)))
 
 
 def test_one_outlying_block_alone_never_raises_a_drift_but_a_sustained_change_does() -> None:
     mon = _monitor()
     glitch = [0.0] * 20 + [np.inf] + [0.0] * 20 + [-50.0] + [0.0] * 20  # a diverged run, then a collapse
-    assert all(mon.block(v, 1.0, i) is None for i, v in enumerate(glitch))
-    hits = [mon.block(np.log(1.2), 1.0, 100 + i) for i in range(10)]  # the output 20 % above the model from 100 on
+    assert all(mon.block(v, 1.0, 1.0, i) is None for i, v in enumerate(glitch))
+    hits = [mon.block(np.log(1.2), 1.0, 1.0, 100 + i) for i in range(10)]  # the output 20 % above the model from 100
     first = next(i for i, h in enumerate(hits) if h is not None)
     assert 2 <= first <= 4 and hits[first] == len(glitch) - 1  # it began after the last block with a zero sum
-    low = [mon.block(np.log(0.8), 1.0, 200 + i) for i in range(10)]  # and 20 % below: the other side
+    low = [mon.block(np.log(0.8), 1.0, 1.0, 200 + i) for i in range(10)]  # and 20 % below: the other side
     assert any(h is not None for h in low)
 
 
 def test_blocks_without_excitation_are_not_judged() -> None:
     mon = _monitor()
-    assert all(mon.block(np.log(3.0), 0.2, i) is None for i in range(50))  # rms 0.2 < 0.25 x the reference's 1
-    assert mon.skipped == 50 and all(mon.block(np.nan, 1.0, i) is None for i in range(5))
+    assert all(mon.block(np.log(3.0), 0.2, 1.0, i) is None for i in range(50))  # rms 0.2 < 0.25 x the reference's 1
+    assert mon.skipped == 50 and all(mon.block(np.nan, 1.0, 1.0, i) is None for i in range(5))
     assert mon.skipped == 55
+
+
+def test_the_level_expected_follows_the_models_amplitude() -> None:
+    """A model whose amplitude error grows with the drive: levels on the reference's line raise nothing, at any
+    amplitude of its range, and a 20 % gain change on top of the line is found within 5 blocks; a reference that
+    ignores the amplitude sees the line's swing as spread and misses it."""
+    rng = np.random.default_rng(8)
+    amp = np.exp(rng.uniform(-1.0, 1.0, 40))
+    ref = BlockLevels(0.3 * np.log(amp) + rng.normal(0.0, 0.02, 40), np.ones(40), amp)
+    mon = DriftMonitor(DriftSettings(), 100, ref)
+    assert mon.slope == pytest.approx(0.3, abs=0.03) and 0.05 <= mon.spread < 0.08  # the floor (x persistence)
+    a2 = np.exp(rng.uniform(-1.0, 1.0, 400))
+    assert all(mon.block(0.3 * np.log(a) + rng.normal(0.0, 0.02), 1.0, a, i) is None for i, a in enumerate(a2))
+    hits = [mon.block(0.3 * np.log(a) + np.log(1.2), 1.0, a, 1000 + i) for i, a in enumerate(a2[:10])]
+    assert any(h is not None for h in hits[:5])
+    flat = DriftMonitor(DriftSettings(), 100, BlockLevels(ref.level, ref.rms, np.ones(40)))  # ignoring amplitude
+    assert flat.spread > 0.15
+    assert all(flat.block(0.3 * np.log(a) + np.log(1.2), 1.0, 1.0, i) is None for i, a in enumerate(a2[:10]))
+
+
+def test_residuals_in_runs_widen_the_spread() -> None:
+    """Reference residuals that come in runs (autocorrelated) and a stream wider than its reference both widen the
+    spread the test uses, so neither alone raises alarms."""
+    rng = np.random.default_rng(9)
+    runs = np.repeat(rng.normal(0.0, 0.1, 10), 4)  # ten runs of four equal blocks
+    mon = DriftMonitor(DriftSettings(), 100, BlockLevels(runs, np.ones(40), np.ones(40)))
+    assert mon.persistence > 1.5
+    wide = _monitor(0.02)
+    assert wide.current_spread() < 0.08
+    for i, x in enumerate(rng.normal(0.0, 0.2, 40)):
+        wide.block(float(x), 1.0, 1.0, i)
+    assert wide.current_spread() > 0.15
 
 
 def test_block_levels_are_those_of_short_free_runs() -> None:
@@ -87,13 +119,13 @@ def test_block_levels_are_those_of_short_free_runs() -> None:
     ident.update_all()
     m = ident.model
     assert m is not None
-    levels, rms = block_levels(m, u[2000:3000, None], y[2000:3000], 100)
+    bl = block_levels(m, u[2000:3000, None], y[2000:3000], 100)
     L = m.max_lag
     sim = m.simulate(u[2000 : 2000 + L + 100, None], y[2000 : 2000 + L])[L:]  # the first block by hand
     yb = y[2000 + L : 2000 + L + 100]
-    assert levels.shape == rms.shape == ((1000 - L) // 100,)
-    assert levels[0] == pytest.approx(np.log(np.std(yb) / np.std(sim)))
-    assert rms[0] == pytest.approx(np.std(yb))
+    assert bl.level.shape == bl.rms.shape == bl.model_rms.shape == ((1000 - L) // 100,)
+    assert bl.level[0] == pytest.approx(np.log(np.std(yb) / np.std(sim)))
+    assert bl.rms[0] == pytest.approx(np.std(yb)) and bl.model_rms[0] == pytest.approx(np.std(sim))
     mon = reference_monitor(DriftSettings(), m, u[2000:3000, None], y[2000:3000], int(t[1] - t[0]))
     assert mon is not None and mon.block_samples == (1000 - L) // 8  # 0.5 s blocks cut to give 8 reference blocks
     assert reference_monitor(DriftSettings(), m, u[2000:2100, None], y[2000:2100], int(t[1] - t[0])) is None

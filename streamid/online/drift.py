@@ -25,10 +25,30 @@ The reference
 -------------
 When a challenger becomes champion its levels are computed at once on the
 window it was accepted on (estimation and held-out parts: its own data, so
-no warm-up is needed and the first block after it can already count); the
-reference is their median ``m`` and spread ``s`` (1.4826 x the median absolute
-deviation, never below ``min_spread``: a handful of reference blocks can agree
-by chance more closely than the stream will).  A window with fewer than
+no warm-up is needed and the first block after it can already count).  A
+model's amplitude error depends on how hard the device is driven (a
+hysteretic device's gain changes with amplitude, and so does the misfit of its
+model), so the reference is a line in the model's own amplitude::
+
+    g_expected = a + b log rms(yhat - mean yhat)
+
+fitted by least squares on the reference blocks (the amplitude clamped to
+the range they span), and a block's value is its *residual* ``g - g_expected``.
+Both sides of it come from the model and the input, never from the measured
+output, so a gain change of the device moves the residual by the full
+``log(1 + change)``.  On the simulated MR damper this conditioning cut the
+stationary spread of a 0.5 s block from 0.08-0.13 to 0.03-0.05 and made the
+shift after a 20 % change 0.13-0.23 in every seed (0.07-0.21 without).
+
+The spread ``s`` of the residuals is 1.4826 x their median absolute deviation,
+never below ``min_spread`` (a handful of reference blocks can agree by chance
+more closely than the stream will), times ``sqrt((1 + r1) / (1 - r1))`` with
+``r1`` their lag-one autocorrelation (in [0, 0.8]): residuals that come in runs
+accumulate in a CUSUM like a shift, and this is their long-run spread.  The
+spread used is also never below that of the last ``spread_blocks`` judged
+blocks about their own median: a reference window that did not see the
+variety of the excitation is widened by what the stream shows (a shift moves
+the median of those blocks, not their spread about it).  A window with fewer than
 ``min_reference_blocks`` blocks gets shorter blocks; one that cannot give
 them (or no excited block) leaves the champion unwatched.
 
@@ -39,7 +59,7 @@ read.  A free run that diverges counts as a maximal rise.
 The test
 --------
 The tabular CUSUM of Page (1954), as in Montgomery, *Introduction to
-Statistical Quality Control* (ch. 9): with ``z = clip((g - m) / s, -clip, clip)``::
+Statistical Quality Control* (ch. 9): with ``z = clip((g - g_expected) / s, -clip, clip)``::
 
     C+ = max(0, C+ + z - k)        C- = max(0, C- - z - k)
 
@@ -49,25 +69,27 @@ side was zero (Montgomery's ``N+``/``N-`` counters).  ``tests/test_drift.py``
 checks the implementation against the published in-control and shifted average
 run lengths.  The clip keeps one outlying block (the loop point of a replayed
 log, a glitch) from raising an alarm alone: with the defaults at least
-``ceil(h / (clip - k))`` = 3 blocks are needed.  With ``k`` 0.75 and ``h`` 6 the in-control
-average run length is about 41,000 blocks a side for independent normal values (Siegmund's
-approximation), i.e. about 20,000 blocks (2.9 h of 0.5 s blocks) for the two sides, and a shift of two
-spreads is signalled after about 5.4 blocks.  ``k`` 0.5 (465-block ARL at ``h`` 5, 1,290 at 6: a
-false alarm every ~11 minutes) gave one false alarm in 600 s on two of three stationary simulated
-dampers.  When the champion changes, the
-monitor restarts with the new champion's reference.
+``ceil(h / (clip - k))`` = 3 blocks are needed.  With ``k`` 1 and ``h`` 6 the in-control
+average run length is about 840,000 blocks a side for independent normal values (Siegmund's
+approximation; ~58 h of 0.5 s blocks for the two sides): real residuals are neither independent nor
+normal, and this margin is what kept every stationary record of docs/benchmarks.md free of alarms.
+A shift of two spreads is signalled after about 6.7 blocks, of three after about 3.5.  ``k`` 0.5
+(1,290 blocks at ``h`` 6: an alarm every ~11 minutes) gave one false alarm in 600 s on two of three
+stationary simulated dampers.  When the champion changes, the monitor restarts with the new
+champion's reference.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Cusum", "DriftMonitor", "DriftSettings", "block_levels", "reference_monitor"]
+__all__ = ["BlockLevels", "Cusum", "DriftMonitor", "DriftSettings", "block_levels", "reference_monitor"]
 
 
 class Cusum:
@@ -129,11 +151,13 @@ class DriftSettings:
     min_block_samples: int = 25
     #: a champion's window must give at least this many blocks for its reference (else shorter blocks)
     min_reference_blocks: int = 8
-    #: smallest spread of one block's level trusted (0.1: about +-10 % of amplitude)
-    min_spread: float = 0.1
+    #: smallest spread of one block's level trusted (0.05: about +-5 % of amplitude)
+    min_spread: float = 0.05
     #: blocks whose output rms is below this fraction of the reference blocks' median are not judged
     min_excitation: float = 0.25
-    k: float = 0.75
+    #: the spread used is also never below that of the last this many judged blocks (about their own median)
+    spread_blocks: int = 40
+    k: float = 1.0
     h: float = 6.0
     clip: float = 3.0
 
@@ -153,21 +177,34 @@ class DriftMonitor:
         Test parameters.
     block_samples
         Samples per block (the free runs' length).
-    reference, reference_rms
-        The champion's levels and output rms on the blocks of its own window.
+    reference : BlockLevels
+        The champion's blocks of its own window.
     """
 
-    def __init__(self, settings: DriftSettings, block_samples: int, reference: NDArray[np.float64],
-                 reference_rms: NDArray[np.float64]) -> None:
-        ok = np.isfinite(reference) & np.isfinite(reference_rms)
-        ref = np.asarray(reference, dtype=np.float64)[ok]
-        if ref.size == 0:
+    def __init__(self, settings: DriftSettings, block_samples: int, reference: BlockLevels) -> None:
+        ok = np.isfinite(reference.level) & (reference.rms > 0) & np.isfinite(reference.model_rms)
+        if not np.any(ok):
             raise ValueError("a drift monitor needs at least one finite reference level")
+        g, x = reference.level[ok], np.log(reference.model_rms[ok])
         self.settings = settings
         self.block_samples = max(2, int(block_samples))
-        self.centre = float(np.median(ref))
-        self.spread = max(settings.min_spread, 1.4826 * float(np.median(np.abs(ref - self.centre))))
-        self.quiet_rms = settings.min_excitation * float(np.median(np.asarray(reference_rms)[ok]))
+        self.amplitude_range = (float(x.min()), float(x.max()))
+        if x.size >= 3 and x.max() > x.min():
+            self.slope, self.centre = (float(v) for v in np.polyfit(x - x.mean(), g, 1))
+            self.centre -= self.slope * float(x.mean())
+        else:
+            self.slope, self.centre = 0.0, float(np.median(g))
+        res = g - self.expected(np.exp(x))
+        self.spread = max(settings.min_spread, 1.4826 * float(np.median(np.abs(res - np.median(res)))))
+        self.persistence = 1.0  # sqrt((1 + r1) / (1 - r1)): a long-run spread for residuals that come in runs
+        if res.size >= settings.min_reference_blocks:
+            c = res - res.mean()
+            r1 = float(c[1:] @ c[:-1] / (c @ c)) if c @ c > 0 else 0.0
+            r1 = min(max(r1, 0.0), 0.8)
+            self.persistence = math.sqrt((1 + r1) / (1 - r1))
+        self.spread *= self.persistence
+        self.quiet_rms = settings.min_excitation * float(np.median(reference.rms[ok]))
+        self._recent: deque[float] = deque(maxlen=settings.spread_blocks)
         self._test = Cusum(settings.k, settings.h, settings.clip)
         self._zero_ns = [0, 0]  # end of the last block after which the upper / lower side was zero
         self.next_index: int | None = None  # first sample of the next block (stream's current epoch)
@@ -176,15 +213,29 @@ class DriftMonitor:
         self.skipped = 0
         self.last_level = 0.0  # the last judged block's level relative to the reference (log of a ratio)
 
-    def block(self, level: float, rms: float, t_end_ns: int) -> int | None:
-        """Add one block; returns the estimated start (ns) of a change if a drift is signalled."""
+    def current_spread(self) -> float:
+        """The reference's spread, or the recent blocks' own (about their median) if it is wider."""
+        if len(self._recent) < self.settings.min_reference_blocks:
+            return self.spread
+        r = np.fromiter(self._recent, dtype=np.float64)
+        return max(self.spread, self.persistence * 1.4826 * float(np.median(np.abs(r - np.median(r)))))
+
+    def expected(self, model_rms: Any) -> Any:
+        """The reference's level for blocks of this model amplitude (clamped to the reference's range)."""
+        lo, hi = self.amplitude_range
+        return self.centre + self.slope * np.clip(np.log(model_rms), lo, hi)
+
+    def block(self, level: float, rms: float, model_rms: float, t_end_ns: int) -> int | None:
+        """Add one block (its level, output rms and model rms); returns the estimated start (ns) of a change
+        if a drift is signalled."""
         self.blocks += 1
         if math.isnan(level) or (math.isfinite(level) and not rms >= self.quiet_rms):
             self.skipped += 1  # no excitation: a level cannot be read
             return None
         if math.isfinite(level):
-            self.last_level = level - self.centre
-            z = self.last_level / self.spread
+            self.last_level = level - float(self.expected(model_rms))
+            self._recent.append(self.last_level)
+            z = self.last_level / self.current_spread()
         else:  # the free run diverged or collapsed on this block
             self.last_level, z = math.inf, self.settings.clip
         if self.blocks - self.skipped == 1:
@@ -201,9 +252,17 @@ class DriftMonitor:
         return None
 
 
-def block_levels(model: Any, u: NDArray[np.float64], y: NDArray[np.float64],
-                 block: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Levels ``log(rms(y_c) / rms(yhat_c))`` of ``model``'s free runs over consecutive blocks, and ``rms(y_c)``.
+@dataclass(frozen=True)
+class BlockLevels:
+    """Per block: ``level = log(rms / model_rms)``, the output's ``rms`` and the free run's ``model_rms``."""
+
+    level: NDArray[np.float64]
+    rms: NDArray[np.float64]
+    model_rms: NDArray[np.float64]
+
+
+def block_levels(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], block: int) -> BlockLevels:
+    """Levels ``log(rms(y_c) / rms(yhat_c))`` of ``model``'s free runs over consecutive blocks (:class:`BlockLevels`).
 
     Each block's run starts from the ``max_lag`` measured outputs before it (the first block from
     the data's first ``max_lag`` samples); ``_c``: about the block's mean.  A run that diverges, or
@@ -212,7 +271,7 @@ def block_levels(model: Any, u: NDArray[np.float64], y: NDArray[np.float64],
     L = model.max_lag
     starts = list(range(L, y.shape[0] - block + 1, block))
     if not starts:
-        return np.empty(0), np.empty(0)
+        return BlockLevels(np.empty(0), np.empty(0), np.empty(0))
     runs = [(u[a - L : a + block], y[a - L : a]) for a in starts]
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         sims = np.stack([s[L:] for s in model.simulate_many(runs)])
@@ -222,7 +281,7 @@ def block_levels(model: Any, u: NDArray[np.float64], y: NDArray[np.float64],
         level = np.log(ry / rs)
     level = np.where(np.isfinite(rs) & (rs > 0), level, np.inf)
     level = np.where(ry > 0, level, np.nan)
-    return level, ry
+    return BlockLevels(level, ry, rs)
 
 
 def reference_monitor(settings: DriftSettings, model: Any, u: NDArray[np.float64], y: NDArray[np.float64],
@@ -231,7 +290,7 @@ def reference_monitor(settings: DriftSettings, model: Any, u: NDArray[np.float64
     block = settings.block_samples(period_ns, y.shape[0] - model.max_lag)
     if not block:
         return None
-    levels, rms = block_levels(model, u, y, block)
-    if not np.any(np.isfinite(levels) & (rms > 0)):
+    ref = block_levels(model, u, y, block)
+    if not np.any(np.isfinite(ref.level) & (ref.rms > 0)):
         return None
-    return DriftMonitor(settings, block, levels, rms)
+    return DriftMonitor(settings, block, ref)
