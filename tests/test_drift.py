@@ -52,7 +52,7 @@ def test_cusum_counts_back_to_the_change_and_validates_its_settings() -> None:
     assert [c.update(-3.0) for _ in range(2)][-1] == -1 and c.run == 2  # a fall: the lower side
     for bad in (0, -1.0, float("nan"), True):
         with pytest.raises(ValueError, match=r"CUSUM k must be a number > 0; got"):
-            Cusum(k=bad)  # type: ignore[arg-type]
+            Cusum(k=bad)
     with pytest.raises(ValueError, match="CUSUM h must be a finite number > 0; got inf"):
         Cusum(h=float("inf"))
 

@@ -514,12 +514,12 @@ class OnlineIdentifier(StreamIntake):
                 continue
             B = mon.block_samples
             n_blocks = (complete - first) // B
-            levels, rms = block_levels(m, u[: m.max_lag + n_blocks * B], y[: m.max_lag + n_blocks * B], B)
+            lv = block_levels(m, u[: m.max_lag + n_blocks * B], y[: m.max_lag + n_blocks * B], B)
             period = int(self._buffer.period_ns or 0)
             ends = self._buffer.times_ns(first + B - 1, 1)[0] + np.arange(n_blocks, dtype=np.int64) * B * period
             mon.next_index = first + n_blocks * B
-            for level, r, t_end in zip(levels, rms, ends, strict=True):
-                change_ns = mon.block(float(level), float(r), int(t_end))
+            for level, r, mr, t_end in zip(lv.level, lv.rms, lv.model_rms, ends, strict=True):
+                change_ns = mon.block(float(level), float(r), float(mr), int(t_end))
                 if change_ns is None:
                     continue
                 head.drift_t_ns, head.escalate = change_ns, True
