@@ -74,11 +74,13 @@ def every_window(name: str = "mr_damper", loops: int = 4, **overrides: Any) -> d
 
 
 def drift_run(device: str, seconds: float, drift_at_s: float, change: float, seed: int,
-              window_s: float = 10.0, record: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> dict[str, Any]:
+              window_s: float = 10.0, record: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+              **overrides: Any) -> dict[str, Any]:
     """Drift events and champions of ``device`` simulated with a change (``drift_at_s`` 0: stationary).
 
     Samples go in 0.1 s batches and every due window is identified at once (update every 1 s).
-    ``record`` replaces the simulation by a given ``(t_ns, u, y)`` (stationary).
+    ``record`` replaces the simulation by a given ``(t_ns, u, y)`` (stationary); ``overrides`` are
+    :class:`~streamid.StreamConfig` fields.
     """
     from streamid import OnlineIdentifier, StreamConfig
     from streamid.sim import get_device
@@ -94,7 +96,7 @@ def drift_run(device: str, seconds: float, drift_at_s: float, change: float, see
         t, u, y = get_device(device).simulate_seconds(seconds, seed=seed)
     u2 = u.reshape(t.size, -1)
     y2 = y.reshape(t.size, -1)
-    ident = OnlineIdentifier(StreamConfig(window_s=window_s, update_every_s=1.0), stream="d")
+    ident = OnlineIdentifier(StreamConfig(**{"window_s": window_s, "update_every_s": 1.0, **overrides}), stream="d")
     step = max(1, int(round(0.1e9 / (t[1] - t[0]))))
     drifts: list[int] = []
     champions: list[tuple[int, float, bool]] = []  # (window end, FR R2 held out, recalibrated)
