@@ -169,3 +169,6 @@ def test_a_gain_change_of_the_simulated_piezo_raises_a_drift_and_a_new_champion_
     assert after[0].outcome.generations == 100 and after[0].window.t0_ns >= change_ns - 200_000_000  # escalated, cut
     st = ident.status()
     assert st["drifts"] == len(drifts) and st["models"]["x"]["drifts"] == len(drifts)
+    watch = st["models"]["x"]["drift_watch"]  # the current champion's watch, as the status shows it
+    assert watch["h"] == DriftSettings().h and watch["blocks"] > 0 and 0 <= watch["cusum_up"] < watch["h"]
+    assert watch["spread"] >= DriftSettings().min_spread

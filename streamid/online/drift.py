@@ -213,6 +213,13 @@ class DriftMonitor:
         self.skipped = 0
         self.last_level = 0.0  # the last judged block's level relative to the reference (log of a ratio)
 
+    def summary(self) -> dict[str, Any]:
+        """What the status shows of this watch (levels are natural logs of amplitude ratios)."""
+        last = self.last_level if math.isfinite(self.last_level) else None
+        return {"block_samples": self.block_samples, "blocks": self.blocks, "skipped": self.skipped,
+                "last_level": last, "spread": self.current_spread(), "cusum_up": self._test.upper,
+                "cusum_down": self._test.lower, "h": self._test.h}
+
     def current_spread(self) -> float:
         """The reference's spread, or the recent blocks' own (about their median) if it is wider."""
         if len(self._recent) < self.settings.min_reference_blocks:

@@ -54,6 +54,7 @@ def stream_status(
             "drifts": h.drifts,
             "drift_t_ns": h.drift_t_ns,
             "escalated": h.escalate,
+            "drift_watch": h.monitor.summary() if h.monitor is not None else None,
         }
         for h in heads
     }
