@@ -44,14 +44,44 @@ def _same_run(a: Coevolution, b: Coevolution) -> None:
     assert a.best_f == b.best_f and a.evaluations == b.evaluations
 
 
+def _bound(run: Coevolution, timeout_s: float = 10.0) -> Coevolution:
+    """``run`` once the helper has taken its data (the helper runs at idle priority: on a busy machine that
+    can take longer than a short run lasts, and the run then never offers it a batch)."""
+    deadline = time.monotonic() + timeout_s
+    while not run._batch._usable() and time.monotonic() < deadline:
+        time.sleep(0.001)
+    return run
+
+
 def test_a_run_with_the_helper_is_bitwise_the_run_without(helper, data):
     ue, ye = data
     before = helper.stats.offloaded + helper.stats.missed
     for seed in (0, 1):
         alone = Coevolution(ue, ye, CFG, np.random.default_rng(seed)).solve()
-        both = Coevolution(ue, ye, CFG, np.random.default_rng(seed), helper=helper).solve()
+        both = _bound(Coevolution(ue, ye, CFG, np.random.default_rng(seed), helper=helper)).solve()
         _same_run(alone, both)
     assert helper.stats.offloaded + helper.stats.missed > before  # batches were offered to the helper
+
+
+def test_the_faster_path_is_chosen_by_measuring(helper, data):
+    ue, ye = data
+    decided = helper.stats.chose_split + helper.stats.chose_local
+    run = _bound(Coevolution(ue, ye, CFG, np.random.default_rng(3), helper=helper))
+    run._batch.MAX_BACKOFF = 0  # a busy machine's misses must not skip the trial's batches in so short a run
+    run.solve()
+    assert run._batch.mode in ("split", "alone")  # 40 generations: the trial (6 + 6 batches) ended in a choice
+    assert helper.stats.chose_split + helper.stats.chose_local == decided + 1
+    # A helper that cannot answer (stopped) makes the split path slower: the caller then keeps evaluating alone.
+    alone = Coevolution(ue, ye, CFG, np.random.default_rng(4)).solve()
+    run = _bound(Coevolution(ue, ye, CFG, np.random.default_rng(4), helper=helper))
+    os.kill(helper.pid, signal.SIGSTOP)
+    try:
+        run._batch.MAX_BACKOFF = 0  # every batch that is not skipped for a miss counts in the trial
+        run.solve()
+    finally:
+        os.kill(helper.pid, signal.SIGCONT)
+    _same_run(alone, run)
+    assert run._batch.mode == "alone"
 
 
 def test_the_helper_computes_exactly_what_the_local_evaluator_computes(helper, data):

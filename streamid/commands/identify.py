@@ -135,6 +135,8 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         changes["max_lag_y"] = args.max_lag_y
     if args.max_lag_u is not None:
         changes["max_lag_u"] = args.max_lag_u
+    if any(v is not None for v in (args.max_lag, args.max_lag_y, args.max_lag_u)):
+        changes["max_lag_cap"] = 0  # lags as given, not chosen from the data
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1; got {args.workers}")
     if args.runs < 1:
@@ -266,6 +268,10 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
     b = runs[best]
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = F[{_lags_text(b)}]\n")
+    lag = Model.from_json(b["model"]).metrics.get("max_lag_choice")
+    if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.lagspace)
+        w(f"candidate lags 1..{lag['max_lag']} chosen from the data: input-output correlation peak at lag {lag['k_u']}, "
+          f"output autocorrelation below 0.5 from lag {lag['k_y']} (floor {lag['floor']}, cap {lag['cap']})\n")
     for part, title in (("est", "estimation"), ("val", "validation")):
         c = b["correlation"][part]
         w(f"correlation tests on the {title} residual ({c['n']} samples, 95 % band ±{c['band']:.3g}):\n")

@@ -159,6 +159,8 @@ class Coevolution:
         self.target = yn[L:]
         self.candidates = candidate_regressors(cfg.max_lag_y, cfg.max_lag_u, self.n_inputs)
         self.D = len(self.candidates)
+        u_bits = np.array([c.signal == "u" for c in self.candidates], dtype=bool)
+        self._u_bits: NDArray[np.bool_] | None = u_bits if (cfg.require_input and u_bits.any()) else None
         self.DX = (self.D + 1) * M
         self.scale = self.norm.y_half_range**2  # normalised MSE -> output units
         # The search's fitness may use a subset of the rows (large N); models are refitted on all of them.
@@ -215,6 +217,8 @@ class Coevolution:
     ) -> NDArray[np.float64]:
         c, s = self._split(x)
         f = self._batch.evaluate(masks, c, s, shared=shared) * self.scale  # type: ignore[operator]
+        if self._u_bits is not None:  # require_input: a lag set without an input term is infeasible
+            f = np.where(masks[:, self._u_bits].any(axis=1), f, np.inf)
         self.evaluations += masks.shape[0]
         i = int(f.argmin())
         if f[i] < self.best_f:

@@ -19,7 +19,18 @@ Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
   - ``"holdout_fr"``: the runs search on the first ``1 - holdout_fraction`` of
     the estimation data; highest free-run R^2 over the held-out tail; the chosen
     structure's weights are then refitted on all the estimation data;
+  - ``"cv_fr"``: as ``"fr_est"`` for the range guard; among admissible candidates
+    the highest blocked cross-validated free-run R^2 (weights refitted on the other
+    blocks, :func:`~streamid.engine.choice.blocked_cv_scores`);
   - ``"fitness"``: lowest OSA MSE.
+
+Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen
+from the estimation data (:mod:`streamid.engine.lagspace`; evidence in the model's
+``metrics.max_lag_choice``); when ``L`` is at least twice the floor and
+``lag_alternation`` is set, the odd restarts keep ``1..floor``. A two-stage run's
+second stage always trains on a lag set with an input term. After the runs, if no
+run has an admissible candidate, one more run is made with each of
+``fallback_neurons`` in turn until one has (``metrics.fallback_runs``).
 
 The normalisation is always the min/max of all the estimation data. Validation
 data are never looked at.
@@ -31,21 +42,20 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine._blas import one_blas_thread
-from streamid.engine.choice import free_run_scores
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.fanout import fan_out
-from streamid.engine.settings import DEFAULT, CoEAConfig
-from streamid.engine.model import Model, free_run
+from streamid.engine.lagspace import memory_lag, with_input_term
+from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
-from streamid.engine.rbf import activations, fit_weights
 from streamid.engine.regressors import Normalisation, as_data
-from streamid.engine.validation import r2
+from streamid.engine.selection import free_run_r2, refit_weights, select_model
+from streamid.engine.settings import DEFAULT, CoEAConfig
 from streamid.errors import ConfigError, DataError
 
 __all__ = ["Result", "RunSummary", "free_run_r2", "identify", "identify_each", "refit_weights", "select_model"]
@@ -110,111 +120,6 @@ class Result:
         return float(self.model.metrics["fitness"])
 
 
-def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight_decay: float = 0.0) -> Model:
-    """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
-
-    The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.rbf.fit_weights`.
-    """
-    ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
-    un, yn = model.normalisation.u(ua), model.normalisation.y(ya)
-    L, n = model.max_lag, ya.shape[0]
-    r = np.empty((n - L, len(model.regressors)))
-    for j, reg in enumerate(model.regressors):
-        src = yn if reg.signal == "y" else un[:, reg.index]
-        r[:, j] = src[L - reg.lag : n - reg.lag]
-    with one_blas_thread():
-        phi = activations(r, model.centres, model.widths)
-        w = fit_weights(phi, yn[L:], ridge, weight_decay)
-    if not np.all(np.isfinite(w)):
-        raise DataError("refitted weights are not finite (numerically degenerate data)")
-    mse = float(np.mean((phi @ w - yn[L:]) ** 2)) * model.normalisation.y_half_range**2
-    from dataclasses import replace
-
-    return replace(model, weights=w, metrics={**model.metrics, "fitness": mse})
-
-
-def free_run_r2(
-    models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64], score_from: int | None = None
-) -> list[float]:
-    """Free-run R^2 of several models (batched: models sharing their regressors run together).
-
-    Parameters
-    ----------
-    models : list of Model
-    u, y : ndarray
-        Data (``u`` of shape (N, n_inputs)).
-    score_from : int, optional
-        First sample scored; each model's simulation starts ``max_lag`` samples
-        earlier from the measured outputs. Default: each model's own ``max_lag``
-        (simulation from the start of the data).
-    """
-    out = [0.0] * len(models)
-    groups: dict[tuple[Any, ...], list[int]] = {}
-    for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation), []).append(i)
-    for (regs, norm), idx in groups.items():
-        L = max((r.lag for r in regs), default=0)
-        first = L if score_from is None else score_from
-        if first < L:
-            raise DataError(f"free-run scoring from sample {first} needs max_lag = {L} earlier samples")
-        us, ys = u[first - L :], y[first - L :]
-        sim = free_run(
-            regs,
-            np.stack([models[i].centres for i in idx]),
-            np.stack([models[i].widths for i in idx]),
-            np.stack([models[i].weights for i in idx]),
-            norm.u(us),
-            np.broadcast_to(norm.y(ys[:L]), (len(idx), L)),
-        )
-        for k, i in enumerate(idx):
-            out[i] = r2(ys[L:], norm.y_inverse(sim[k, L:]))
-    return out
-
-
-def select_model(
-    run: Coevolution,
-    u: NDArray[np.float64],
-    y: NDArray[np.float64],
-    selection: str,
-    *,
-    n_search: int | None = None,
-    range_margin: float | None = None,
-) -> tuple[Model, float]:
-    """The model of a finished run by the selection rule, and its score (higher is better).
-
-    The one final-model choice of streamid: :func:`identify` and the online
-    updates (:mod:`streamid.online.update`) both call it.
-
-    * ``"fitness"``: the run's best pair (lowest one-step-ahead error, the paper's
-      choice); score = -fitness.
-    * ``"fr_est"``: of the best pair and the final population, the highest
-      free-run R^2 on ``u[:n_search], y[:n_search]`` among the candidates whose
-      free run stays in the data's range (:mod:`streamid.engine.choice`).
-    * ``"holdout_fr"``: the same, the free run simulated over all the data from
-      its start and scored over the held-out tail ``[n_search:]``.
-
-    ``n_search`` defaults to all the data; ``range_margin`` to the run's
-    ``config.range_margin``. A run with no candidate in range scores below
-    -1e9 (any run with one wins over it); its model says ``admissible: 0``.
-    """
-    best = run.best_model()
-    if selection == "fitness":
-        return best, -float(best.metrics["fitness"])
-    if selection not in ("fr_est", "holdout_fr"):
-        raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr'; got {selection!r}")
-    n = len(y) if n_search is None else int(n_search)
-    margin = run.config.range_margin if range_margin is None else float(range_margin)
-    cands = [best, *run.population_models(run.config.fr_candidates or None)]
-    with one_blas_thread():
-        if selection == "fr_est":
-            fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin)
-        else:
-            fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin)
-    k = fr.best()
-    score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
-    return cands[k].with_metrics(free_run_choice=fr.evidence(k)), float(score)
-
-
 def _stage(
     tick: Callable[[Progress], object] | None, gen0: int, evals0: int
 ) -> Callable[[Progress], object] | None:
@@ -229,6 +134,8 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     cfg = CoEAConfig.from_dict(job["config"])
     if job.get("neurons", cfg.neurons) != cfg.neurons:  # this restart's complexity (neuron_alternatives)
         cfg = cfg.replace(neurons=int(job["neurons"]))
+    if job.get("max_lag", cfg.max_lag) != cfg.max_lag:  # this restart's lag space (max_lag_cap)
+        cfg = cfg.replace(max_lag_y=int(job["max_lag"]), max_lag_u=int(job["max_lag"]), max_lag_cap=0)
     norm = Normalisation.from_dict(job["normalisation"])
     warm = CoEAState.from_json(job["warm_start"]) if job.get("warm_start") else None
     u, y, n_search = job["u"], job["y"], job["n_search"]
@@ -246,6 +153,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     if cfg.search_rows and n_rows > cfg.search_rows:  # a large record: the search sees a random sample of rows
         common["rows"] = np.sort(rng.choice(n_rows, cfg.search_rows, replace=False))
     evaluations = 0
+    lag_rule = "search"
     if cfg.lag_search_neurons and warm is None:
         # Two-stage run: a small network's coevolution chooses the lags...
         lag_cfg = cfg.replace(
@@ -253,8 +161,11 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         )
         lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
+        # ...(always with an input term: streamid.engine.lagspace)...
+        mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,
+                                         lag_run.R, lag_run.target)
         # ...then DE trains the full network on those lags.
-        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, fixed_mask=lag_run.best_h, **common).solve(
+        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, fixed_mask=mask, **common).solve(
             _stage(tick, lag_cfg.generations, evaluations))
     else:
         run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
@@ -269,7 +180,15 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "seconds": time.perf_counter() - t0,
         "fitness": float(run.best_f),
         "score": score,
+        "lag_rule": lag_rule,
+        "neurons": cfg.neurons,
+        "max_lag": cfg.max_lag,
     }
+
+
+def _report_after(report: Callable[[list[dict[str, Any]]], None], made: list[dict[str, Any]],
+                  rs: list[dict[str, Any]]) -> None:
+    report(made + rs)
 
 
 def identify(
@@ -332,6 +251,13 @@ def identify(
     win = dict(window) if window else {"n_samples": int(ya.shape[0])}
 
     n = ya.shape[0]
+    lag_evidence: dict[str, int] | None = None
+    floor = cfg.max_lag
+    if cfg.max_lag_cap and warm_start is None and (cfg.restarts > 1 or cfg.lag_search_neurons):
+        lag, lag_evidence = memory_lag(ua, ya, cfg.max_lag, cfg.max_lag_cap)
+        lag = min(lag, max(cfg.max_lag, (n - 2 * max((cfg.neurons, *cfg.neuron_alternatives))) // 2))
+        lag_evidence["max_lag"] = lag
+        cfg = cfg.replace(max_lag_y=lag, max_lag_u=lag, max_lag_cap=max(lag, cfg.max_lag_cap))
     n_hold = int(round(cfg.holdout_fraction * n)) if cfg.selection == "holdout_fr" else 0
     n_search = n - n_hold
     need = cfg.max_lag + 2 * max((cfg.neurons, *cfg.neuron_alternatives))
@@ -367,6 +293,8 @@ def identify(
         )
 
     seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.restarts)]
+    # A long lag space chosen from the data (>= twice the floor) is hedged: the odd restarts use the floor's.
+    hedge = cfg.lag_alternation and lag_evidence is not None and cfg.max_lag >= 2 * floor
     sizes = (cfg.neurons, *cfg.neuron_alternatives)
     base = {
         "config": cfg.to_dict(),
@@ -380,7 +308,7 @@ def identify(
     }
     jobs = [
         {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
-         "neurons": sizes[i % len(sizes)]}
+         "neurons": sizes[i % len(sizes)], "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag}
         for i, s in enumerate(seeds)
     ]
     per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
@@ -415,6 +343,19 @@ def identify(
             outs = made + fan_out(_one_run, jobs[len(first) :], cfg.workers, executor=executor, helper=helper,
                                   on_result=lambda rs: report(made + rs))
 
+    # No run admissible (every candidate's free run leaves the data's range or ignores the input): smaller
+    # networks, one run each in the order of fallback_neurons, until one has an admissible candidate.
+    fallback_made: list[int] = []
+    for m in cfg.fallback_neurons:
+        if max(o["score"] for o in outs) > -1e9:
+            break
+        made = list(outs)
+        job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor}
+        jobs.append(job)
+        fallback_made.append(m)
+        outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
+                              on_result=partial(_report_after, report, made))
+
     models = [Model.from_json(o["model"]) for o in outs]
     chosen = int(np.argmax([o["score"] for o in outs]))
     final = models[chosen]
@@ -423,12 +364,16 @@ def identify(
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
-        run_neurons=[int(j["neurons"]) for j in jobs[: len(outs)]],
+        run_neurons=[int(o.get("neurons", cfg.neurons)) for o in outs],
+        fallback_runs=fallback_made,
+        run_max_lags=[int(o.get("max_lag", cfg.max_lag)) for o in outs],
         run_scores=[float(o["score"]) for o in outs],
+        run_lag_rules=[str(o.get("lag_rule", "search")) for o in outs],
         selection=cfg.selection,
         selection_score=outs[chosen]["score"],
         holdout_samples=n_hold,
         evaluations=int(sum(o["evaluations"] for o in outs)),
+        max_lag_choice=lag_evidence,
     )
     runs = tuple(
         RunSummary(o["seed"], o["fitness"], o["evaluations"], o["seconds"], o["score"], m.lags)

@@ -23,6 +23,13 @@ Why this is safe and exact
   writes later (every result is tagged with its batch's sequence number). After
   the n-th miss in a row the caller evaluates alone for 2**n batches. A busy
   machine therefore costs a few extra half-batches per run, never a hang.
+* **Never slower than one core, decided by measuring.** Whether the split pays
+  depends on the machine (measured: slower on some of the project's 2-core VMs,
+  faster on others) and on the batch size. Each binding (one run) therefore
+  alternates the split path and the caller alone over its first
+  ``2 * TRIAL_BATCHES`` batches, keeps the one of lower median time per member,
+  and makes the trial again every ``RETRIAL_BATCHES`` batches (the load changes).
+  The cost of being wrong is bounded by the trial batches.
 * **Handshake through shared memory.** The helper spins on the sequence number
   while batches keep coming (a round trip is ~1.5 us here, a semaphore or pipe
   wake-up tens of us) and sleeps on a pipe after ``spin_s`` without work, so an
@@ -117,6 +124,8 @@ class _Stats:
     missed: int = 0
     local: int = 0
     predrawn: int = 0
+    chose_split: int = 0  # decisions after a trial (see HelperBinding.TRIAL_BATCHES)
+    chose_local: int = 0
 
 
 class EvalHelper:
@@ -316,6 +325,11 @@ class HelperBinding:
     #: After the n-th miss in a row the caller evaluates alone for ``2**n`` batches (at most this many):
     #: a helper whose core is busy elsewhere is soon left alone, and retried now and then.
     MAX_BACKOFF = 512
+    #: Never slower than one core: the first batches of a binding alternate between the split
+    #: path and the caller alone; after this many of each, the one of lower median time per
+    #: member is kept, and the trial is made again every ``RETRIAL_BATCHES`` batches.
+    TRIAL_BATCHES = 6
+    RETRIAL_BATCHES = 2000
 
     def __init__(self, helper: EvalHelper, seq: int, local: BatchEvaluator, views: dict[str, NDArray[Any]], cap: int):
         self.helper, self.seq, self.local, self.cap = helper, seq, local, cap
@@ -323,6 +337,9 @@ class HelperBinding:
         self._misses = 0
         self._skip = 0
         self._draw: tuple[int, int, tuple[int, int]] | None = None  # (request, count, PCG64 state basis)
+        self._timings: tuple[list[float], list[float]] = ([], [])  # seconds per member: (split, alone)
+        self._mode: str | None = None  # None while trying both; then "split" or "alone"
+        self._since = 0  # batches since the last decision
 
     def remote(
         self,
@@ -421,6 +438,49 @@ class HelperBinding:
             self._skip = max(0, self._skip - 1)
             h.stats.local += 1
             return self.local.evaluate(masks, centres, widths, return_weights=return_weights, shared=shared)
+        if self._mode is not None:
+            self._since += 1
+            if self._since >= self.RETRIAL_BATCHES:
+                self._mode, self._timings = None, ([], [])
+        split, alone = self._timings
+        if self._mode == "alone" or (self._mode is None and len(alone) < len(split)):
+            t0 = time.perf_counter()
+            h.stats.local += 1
+            f_alone = self.local.evaluate(masks, centres, widths, shared=shared)
+            if self._mode is None:
+                alone.append((time.perf_counter() - t0) / p)
+                self._decide()
+            return f_alone
+        t0 = time.perf_counter()
+        f_split = self._split(masks, centres, widths, shared)
+        if self._mode is None:
+            split.append((time.perf_counter() - t0) / p)
+            self._decide()
+        return f_split
+
+    def _decide(self) -> None:
+        split, alone = self._timings
+        if min(len(split), len(alone)) < self.TRIAL_BATCHES:
+            return
+        faster = float(np.median(split)) < float(np.median(alone))
+        self._mode, self._since = ("split" if faster else "alone"), 0
+        if faster:
+            self.helper.stats.chose_split += 1
+        else:
+            self.helper.stats.chose_local += 1
+
+    @property
+    def mode(self) -> str | None:
+        """``"split"`` or ``"alone"`` once decided by measuring; None while the trial runs."""
+        return self._mode
+
+    def _split(
+        self, masks: NDArray[np.bool_], centres: NDArray[np.float64], widths: NDArray[np.float64], shared: bool | None
+    ) -> NDArray[np.float64]:
+        """The second half of the batch in the helper, the first here (see the module notes)."""
+        p = masks.shape[0]
+        h = self.helper
+        q = p - (p + 1) // 2
         k = p - q
         if shared is None:
             shared = p == 1 or not np.any(masks[1:] != masks[0])

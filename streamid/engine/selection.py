@@ -1,0 +1,143 @@
+"""Scoring and choosing finished runs' models: refits, batched free runs, the selection rule.
+
+:func:`select_model` is the one final-model choice of streamid (:func:`~streamid.engine.identify.identify`
+and the online updates use it); the rule itself is in :mod:`streamid.engine.choice`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from streamid.engine._blas import one_blas_thread
+from streamid.engine.choice import blocked_cv_scores, free_run_scores
+from streamid.engine.model import Model, free_run
+from streamid.engine.rbf import activations, fit_weights
+from streamid.engine.regressors import as_data
+from streamid.engine.validation import r2
+from streamid.errors import ConfigError, DataError
+
+if TYPE_CHECKING:
+    from streamid.engine.coevolution import Coevolution
+
+__all__ = ["free_run_r2", "refit_weights", "select_model"]
+
+
+def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight_decay: float = 0.0) -> Model:
+    """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
+
+    The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.rbf.fit_weights`.
+    """
+    ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
+    un, yn = model.normalisation.u(ua), model.normalisation.y(ya)
+    L, n = model.max_lag, ya.shape[0]
+    r = np.empty((n - L, len(model.regressors)))
+    for j, reg in enumerate(model.regressors):
+        src = yn if reg.signal == "y" else un[:, reg.index]
+        r[:, j] = src[L - reg.lag : n - reg.lag]
+    with one_blas_thread():
+        phi = activations(r, model.centres, model.widths)
+        w = fit_weights(phi, yn[L:], ridge, weight_decay)
+    if not np.all(np.isfinite(w)):
+        raise DataError("refitted weights are not finite (numerically degenerate data)")
+    mse = float(np.mean((phi @ w - yn[L:]) ** 2)) * model.normalisation.y_half_range**2
+    from dataclasses import replace
+
+    return replace(model, weights=w, metrics={**model.metrics, "fitness": mse})
+
+
+def free_run_r2(
+    models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64], score_from: int | None = None
+) -> list[float]:
+    """Free-run R^2 of several models (batched: models sharing their regressors run together).
+
+    Parameters
+    ----------
+    models : list of Model
+    u, y : ndarray
+        Data (``u`` of shape (N, n_inputs)).
+    score_from : int, optional
+        First sample scored; each model's simulation starts ``max_lag`` samples
+        earlier from the measured outputs. Default: each model's own ``max_lag``
+        (simulation from the start of the data).
+    """
+    out = [0.0] * len(models)
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    for i, m in enumerate(models):
+        groups.setdefault((m.regressors, m.normalisation), []).append(i)
+    for (regs, norm), idx in groups.items():
+        L = max((r.lag for r in regs), default=0)
+        first = L if score_from is None else score_from
+        if first < L:
+            raise DataError(f"free-run scoring from sample {first} needs max_lag = {L} earlier samples")
+        us, ys = u[first - L :], y[first - L :]
+        sim = free_run(
+            regs,
+            np.stack([models[i].centres for i in idx]),
+            np.stack([models[i].widths for i in idx]),
+            np.stack([models[i].weights for i in idx]),
+            norm.u(us),
+            np.broadcast_to(norm.y(ys[:L]), (len(idx), L)),
+        )
+        for k, i in enumerate(idx):
+            out[i] = r2(ys[L:], norm.y_inverse(sim[k, L:]))
+    return out
+
+
+def select_model(
+    run: Coevolution,
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    selection: str,
+    *,
+    n_search: int | None = None,
+    range_margin: float | None = None,
+) -> tuple[Model, float]:
+    """The model of a finished run by the selection rule, and its score (higher is better).
+
+    The one final-model choice of streamid: :func:`identify` and the online
+    updates (:mod:`streamid.online.update`) both call it.
+
+    * ``"fitness"``: the run's best pair (lowest one-step-ahead error, the paper's
+      choice); score = -fitness.
+    * ``"fr_est"``: of the best pair and the final population, the highest
+      free-run R^2 on ``u[:n_search], y[:n_search]`` among the candidates whose
+      free run stays in the data's range (:mod:`streamid.engine.choice`).
+    * ``"holdout_fr"``: the same, the free run simulated over all the data from
+      its start and scored over the held-out tail ``[n_search:]``.
+
+    ``n_search`` defaults to all the data; ``range_margin`` to the run's
+    ``config.range_margin``. A run with no candidate in range scores below
+    -1e9 (any run with one wins over it); its model says ``admissible: 0``.
+    """
+    best = run.best_model()
+    if selection == "fitness":
+        return best, -float(best.metrics["fitness"])
+    if selection not in ("fr_est", "holdout_fr", "cv_fr"):
+        raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr', 'cv_fr'; got {selection!r}")
+    n = len(y) if n_search is None else int(n_search)
+    margin = run.config.range_margin if range_margin is None else float(range_margin)
+    cands = [best, *run.population_models(run.config.fr_candidates or None)]
+    with one_blas_thread():
+        if selection in ("fr_est", "cv_fr"):
+            fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin)
+        else:
+            fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin)
+        cv: list[float] | None = None
+        if selection == "cv_fr" and fr.admissible:
+            ok = [i for i, e in enumerate(fr.excursions) if e == 0.0]
+            got = blocked_cv_scores([cands[i] for i in ok], u[:n], y[:n], folds=run.config.cv_folds,
+                                    ridge=run.config.ridge, weight_decay=run.config.weight_decay)
+            cv = [-np.inf] * len(cands)
+            for i, v in zip(ok, got):
+                cv[i] = v
+    if cv is not None:
+        k = int(np.argmax(cv))
+        ev = {**fr.evidence(k), "cv_score": float(cv[k]) if np.isfinite(cv[k]) else None, "cv_folds": run.config.cv_folds}
+        score = float(cv[k]) if np.isfinite(cv[k]) else -1e8  # admissible, but no finite CV score: below any finite
+        return cands[k].with_metrics(free_run_choice=ev), score
+    k = fr.best()
+    score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
+    return cands[k].with_metrics(free_run_choice=fr.evidence(k)), float(score)

@@ -1,0 +1,130 @@
+"""Issue 13, second round: lags from the data's memory, an input term always, smaller networks when nothing is
+admissible, the blocked cross-validation score."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from streamid.engine import PAPER, identify
+from streamid.engine.choice import blocked_cv_scores
+from streamid.engine.coevolution import Coevolution
+from streamid.engine.lagspace import memory_lag, with_input_term
+from streamid.engine.regressors import candidate_regressors
+from streamid.engine.settings import DEFAULT, CoEAConfig
+from streamid.errors import ConfigError
+from streamid.sim import simulate_reactor
+
+
+@pytest.fixture(scope="module")
+def reactor() -> tuple[np.ndarray, np.ndarray]:
+    _, u, y = simulate_reactor(600, 3)
+    return np.asarray(u, dtype=np.float64)[:, None], np.asarray(y, dtype=np.float64)
+
+
+def _delayed(delay: int, n: int = 3000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A fast first-order system driven by white noise through a dead time of ``delay`` samples."""
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal(n)
+    y = np.zeros(n)
+    for t in range(delay, n):
+        y[t] = 0.2 * y[t - 1] + u[t - delay]
+    return u[:, None], y
+
+
+def test_the_maximum_lag_follows_a_dead_time() -> None:
+    u, y = _delayed(12)
+    lag, ev = memory_lag(u, y, 10, 30)
+    assert ev["k_u"] == 12 and lag == 30  # 3 x 12 capped at 30
+    u, y = _delayed(4)
+    lag, ev = memory_lag(u, y, 10, 30)
+    assert ev["k_u"] == 4 and lag == 12
+    u, y = _delayed(1)
+    lag, ev = memory_lag(u, y, 10, 30)
+    assert lag == 10 and ev == {"k_u": 1, "k_y": 1, "max_lag": 10, "floor": 10, "cap": 30}
+
+
+def test_a_slow_output_takes_the_cap() -> None:
+    rng = np.random.default_rng(1)
+    u = rng.standard_normal(4000)
+    y = np.zeros(4000)
+    for t in range(1, 4000):
+        y[t] = 0.995 * y[t - 1] + 0.01 * u[t - 1]  # autocorrelation still ~0.86 at lag 30
+    lag, ev = memory_lag(u[:, None], y, 10, 30)
+    assert lag == 30 and ev["k_y"] == 30
+
+
+def test_identify_reports_the_chosen_maximum_lag() -> None:
+    u, y = _delayed(12, n=800)
+    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, restarts=1, neurons=8, lag_search_neurons=4,
+                          max_lag_cap=30)
+    m = identify(u, y, cfg, 0).model
+    assert m.metrics["max_lag_choice"]["max_lag"] == 30
+    assert m.config is not None and m.config["max_lag_y"] == 30 and m.config["max_lag_u"] == 30
+    off = identify(u, y, cfg.replace(max_lag_cap=0), 0).model
+    assert off.metrics["max_lag_choice"] is None and off.max_lag <= 10
+
+
+def test_a_cap_below_the_floor_is_refused() -> None:
+    with pytest.raises(ConfigError, match="max_lag_cap must be 0 .* >= max\\(max_lag_y, max_lag_u\\) = 10.* got 5"):
+        CoEAConfig(max_lag_cap=5)
+    with pytest.raises(ConfigError, match="fallback_neurons must be a tuple"):
+        CoEAConfig(fallback_neurons=(0,))
+    with pytest.raises(ConfigError, match="require_input must be true or false"):
+        CoEAConfig(require_input=1)  # type: ignore[arg-type]
+
+
+def test_require_input_makes_an_output_only_lag_set_infeasible(reactor) -> None:
+    u, y = reactor
+    cfg = PAPER.replace(generations=20, max_lag_y=3, max_lag_u=3, require_input=True)
+    run = Coevolution(u, y, cfg, 0)
+    y_only = np.zeros((cfg.population, run.D), dtype=bool)
+    y_only[:, 0] = True
+    f = run._evaluate(y_only, run.X)
+    assert np.all(np.isinf(f))
+    run.solve()
+    assert run.best_h[cfg.max_lag_y :].any()  # the best lag set has an input term
+    plain = Coevolution(u, y, cfg.replace(require_input=False), 0)
+    assert np.all(np.isfinite(plain._evaluate(y_only, plain.X)))
+
+
+def test_a_lag_set_without_an_input_gets_one() -> None:
+    cands = candidate_regressors(3, 3, 1)
+    best = np.array([1, 1, 0, 0, 0, 0], dtype=bool)
+    memory = np.array([[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 1, 0], [1, 0, 0, 1, 0, 0]], dtype=bool)
+    mask, how = with_input_term(best, memory, np.array([0.1, 0.3, 0.2]), cands, np.zeros((5, 6)), np.zeros(5))
+    assert how == "memory" and mask.tolist() == [1, 0, 0, 1, 0, 0]  # the fittest memory member with an input
+    rng = np.random.default_rng(0)
+    R = rng.standard_normal((200, 6))
+    target = 2.0 * R[:, 4] + 0.1 * rng.standard_normal(200)  # the input's lag 2 (bit 4) explains the output
+    mask, how = with_input_term(best, memory[:1], np.array([0.1]), cands, R, target)
+    assert how == "correlation" and mask.tolist() == [1, 1, 0, 0, 1, 0]
+    same, how = with_input_term(memory[1], memory, np.zeros(3), cands, R, target)
+    assert how == "best" and same.tolist() == memory[1].tolist()
+
+
+def test_smaller_networks_are_tried_when_no_run_is_admissible(reactor) -> None:
+    u, y = reactor
+    # With no input lag at all nothing is ever admissible: every fallback size is tried, in order.
+    cfg = DEFAULT.replace(generations=4, lag_search_generations=4, restarts=2, neurons=10, lag_search_neurons=4,
+                          max_lag_u=0, max_lag_cap=0, fallback_neurons=(6, 3))
+    res = identify(u, y, cfg, 0)
+    m = res.model.metrics
+    assert m["fallback_runs"] == [6, 3] and m["run_neurons"] == [10, 10, 6, 3] and len(res.runs) == 4
+    assert m["free_run_choice"]["admissible"] == 0
+    # An admissible run: no fallback.
+    ok = identify(u, y, cfg.replace(max_lag_u=2, max_lag_y=2, max_lag_cap=0), 0).model.metrics
+    assert ok["fallback_runs"] == [] and ok["free_run_choice"]["admissible"] > 0
+
+
+def test_blocked_cross_validation_ranks_a_structure_by_data_it_did_not_fit(reactor) -> None:
+    u, y = reactor
+    good = identify(u, y, PAPER.replace(generations=40), 1).model
+    narrow = replace(good, widths=good.widths * 0.02)  # needle-like neurons: fit their own block, not the other
+    cv = blocked_cv_scores([good, narrow], u, y, folds=2)
+    assert cv[0] > 0.9 and cv[0] > cv[1]
+    res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, selection="cv_fr"), 0)
+    ev = res.model.metrics["free_run_choice"]
+    assert ev["cv_folds"] == 2 and ev["cv_score"] == pytest.approx(res.model.metrics["selection_score"])
