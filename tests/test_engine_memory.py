@@ -128,3 +128,20 @@ def test_blocked_cross_validation_ranks_a_structure_by_data_it_did_not_fit(react
     res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, selection="cv_fr"), 0)
     ev = res.model.metrics["free_run_choice"]
     assert ev["cv_folds"] == 2 and ev["cv_score"] == pytest.approx(res.model.metrics["selection_score"])
+
+
+def test_an_ensemble_of_networks_with_the_same_lags_is_one_network(reactor) -> None:  # type: ignore[no-untyped-def]
+    from streamid.engine.selection import _ensemble
+
+    u, y = reactor
+    a = identify(u, y, PAPER.replace(generations=20), 1).model
+    b = replace(a, widths=a.widths * 1.1)  # another network on the same regressors
+    ens, score = _ensemble([a, b], (0.9, 0.8), 0, 3, u, y, 0.25)
+    assert ens is not None and ens.neurons == 2 * a.neurons
+    assert ens.metrics["free_run_choice"]["ensemble"] == 2
+    y0 = y[: a.max_lag]
+    want = (a.predict_osa(u, y) + b.predict_osa(u, y)) / 2  # one step ahead the mean network is the mean
+    np.testing.assert_allclose(ens.predict_osa(u, y)[a.max_lag :], want[a.max_lag :], rtol=1e-9, atol=1e-9)
+    assert np.isfinite(score) and ens.simulate(u, y0).shape == y.shape
+    res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, ensemble=3), 0)
+    assert res.model.metrics["free_run_choice"].get("ensemble") in (None, 2, 3)

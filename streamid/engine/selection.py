@@ -6,6 +6,7 @@ and the online updates use it); the rule itself is in :mod:`streamid.engine.choi
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -107,6 +108,11 @@ def select_model(
       free run stays in the data's range (:mod:`streamid.engine.choice`).
     * ``"holdout_fr"``: the same, the free run simulated over all the data from
       its start and scored over the held-out tail ``[n_search:]``.
+    * ``"cv_fr"``: the range guard of ``"fr_est"``, then the highest blocked
+      cross-validated free-run R^2 (:func:`~streamid.engine.choice.blocked_cv_scores`).
+
+    With ``config.ensemble = K > 1`` and ``"fr_est"``, the mean of the run's K best
+    admissible candidates (one network of K x M neurons) competes too, by the same score.
 
     ``n_search`` defaults to all the data; ``range_margin`` to the run's
     ``config.range_margin``. A run with no candidate in range scores below
@@ -140,4 +146,40 @@ def select_model(
         return cands[k].with_metrics(free_run_choice=ev), score
     k = fr.best()
     score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
-    return cands[k].with_metrics(free_run_choice=fr.evidence(k)), float(score)
+    chosen = cands[k].with_metrics(free_run_choice=fr.evidence(k))
+    size = run.config.ensemble
+    if size > 1 and fr.admissible >= 2 and selection == "fr_est":
+        ens, ens_score = _ensemble(cands, fr.scores, k, size, u[:n], y[:n], margin)
+        if ens is not None and ens_score >= score:
+            return ens, float(ens_score)
+    return chosen, float(score)
+
+
+def _ensemble(
+    cands: list[Model], scores: tuple[float, ...], k: int, size: int,
+    u: NDArray[np.float64], y: NDArray[np.float64], margin: float,
+) -> tuple[Model | None, float]:
+    """The mean of the ``size`` best admissible candidates sharing candidate ``k``'s regressors, as one network.
+
+    Networks with the same regressors and normalisation average into one RBF network:
+    their neurons side by side, each weight divided by the number of members. It is
+    scored like any candidate (free run over the estimation record, range guard).
+    """
+    base = cands[k]
+    same = [i for i in np.argsort(scores)[::-1] if np.isfinite(scores[i])
+            and cands[i].regressors == base.regressors and cands[i].normalisation == base.normalisation][:size]
+    if len(same) < 2:
+        return None, -np.inf
+    ens = replace(
+        base,
+        centres=np.concatenate([cands[i].centres for i in same]),
+        widths=np.concatenate([cands[i].widths for i in same]),
+        weights=np.concatenate([cands[i].weights for i in same]) / len(same),
+    )
+    fr = free_run_scores([ens], u, y, range_margin=margin)
+    if not fr.admissible:
+        return None, -np.inf
+    osa = ens.predict_osa(u, y)
+    L = ens.max_lag
+    mse = float(np.mean((osa[L:] - y[L:]) ** 2))
+    return ens.with_metrics(fitness=mse, free_run_choice={**fr.evidence(0), "ensemble": len(same)}), fr.scores[0]

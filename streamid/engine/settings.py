@@ -161,6 +161,10 @@ class CoEAConfig:
         free run leaves the data's range or ignores the input), one more run with
         each of these numbers of neurons, in order, until one has (a smaller
         network extrapolates less wildly). Empty: the smallest excursion is taken.
+    ensemble : int
+        0 or 1: none. K > 1 with ``selection="fr_est"``: in each run the mean of its K
+        best admissible candidates (same lags: one RBF network of K x neurons, each
+        weight divided by K) competes with them by the same free-run score.
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.
     require_input : bool
@@ -203,6 +207,7 @@ class CoEAConfig:
     max_lag_cap: int = 0
     fallback_neurons: tuple[int, ...] = ()
     lag_alternation: bool = False
+    ensemble: int = 0
 
     def __post_init__(self) -> None:
         _int("neurons", self.neurons, 1, 1000)
@@ -241,6 +246,7 @@ class CoEAConfig:
             )
         object.__setattr__(self, "neuron_alternatives", tuple(alts))
         _int("cv_folds", self.cv_folds, 2, 20)
+        _int("ensemble", self.ensemble, 0, 20)
         _int("max_lag_cap", self.max_lag_cap, 0, 1000)
         fb = self.fallback_neurons
         if not (isinstance(fb, (tuple, list)) and len(fb) <= 10
