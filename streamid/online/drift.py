@@ -42,7 +42,11 @@ shift after a 20 % change 0.13-0.23 in every seed (0.07-0.21 without).
 
 The spread ``s`` of the residuals is 1.4826 x their median absolute deviation,
 never below ``min_spread`` (a handful of reference blocks can agree by chance
-more closely than the stream will), times ``sqrt((1 + r1) / (1 - r1))`` with
+more closely than the stream will; a window shorter than ``reference_s`` widens
+that floor by ``sqrt(reference_s / window)``: 0.5 s windows saw too little of
+the excitation, and the piezo-like 2 kHz streams of the load run raised 1-5
+alarms in 120 s where the level of a champion referenced on its first 0.5 s
+window sat 10 % low for 2 s of every 10 s loop), times ``sqrt((1 + r1) / (1 - r1))`` with
 ``r1`` their lag-one autocorrelation (in [0, 0.8]): residuals that come in runs
 accumulate in a CUSUM like a shift, and this is their long-run spread.  The
 spread used is also never below that of the last ``spread_blocks`` judged
@@ -151,8 +155,10 @@ class DriftSettings:
     min_block_samples: int = 25
     #: a champion's window must give at least this many blocks for its reference (else shorter blocks)
     min_reference_blocks: int = 8
-    #: smallest spread of one block's level trusted (0.05: about +-5 % of amplitude)
+    #: smallest spread of one block's level trusted (0.05: about +-5 % of amplitude), for a reference of at least
+    #: ``reference_s`` of stream time; a shorter one has it widened by ``sqrt(reference_s / its duration)``
     min_spread: float = 0.05
+    reference_s: float = 3.0
     #: blocks whose output rms is below this fraction of the reference blocks' median are not judged
     min_excitation: float = 0.25
     #: the spread used is also never below that of the last this many judged blocks (about their own median)
@@ -181,7 +187,8 @@ class DriftMonitor:
         The champion's blocks of its own window.
     """
 
-    def __init__(self, settings: DriftSettings, block_samples: int, reference: BlockLevels) -> None:
+    def __init__(self, settings: DriftSettings, block_samples: int, reference: BlockLevels,
+                 reference_duration_s: float | None = None) -> None:
         ok = np.isfinite(reference.level) & (reference.rms > 0) & np.isfinite(reference.model_rms)
         if not np.any(ok):
             raise ValueError("a drift monitor needs at least one finite reference level")
@@ -195,7 +202,10 @@ class DriftMonitor:
         else:
             self.slope, self.centre = 0.0, float(np.median(g))
         res = g - self.expected(np.exp(x))
-        self.spread = max(settings.min_spread, 1.4826 * float(np.median(np.abs(res - np.median(res)))))
+        floor = settings.min_spread
+        if reference_duration_s is not None and 0 < reference_duration_s < settings.reference_s:
+            floor *= math.sqrt(settings.reference_s / reference_duration_s)  # a short window saw little variety
+        self.spread = max(floor, 1.4826 * float(np.median(np.abs(res - np.median(res)))))
         self.persistence = 1.0  # sqrt((1 + r1) / (1 - r1)): a long-run spread for residuals that come in runs
         if res.size >= settings.min_reference_blocks:
             c = res - res.mean()
@@ -300,4 +310,4 @@ def reference_monitor(settings: DriftSettings, model: Any, u: NDArray[np.float64
     ref = block_levels(model, u, y, block)
     if not np.any(np.isfinite(ref.level) & (ref.rms > 0)):
         return None
-    return DriftMonitor(settings, block, ref)
+    return DriftMonitor(settings, block, ref, y.shape[0] * period_ns / 1e9)
