@@ -196,8 +196,6 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
         finally:
             for p in reversed(procs):
                 _stop(p)
-            log.seek(0)
-            drift_lines = [ln.rstrip() for ln in log if " drift" in ln or "drift:" in ln][:50]
             log.close()
     publisher = json.loads(pub_out.strip().splitlines()[-1])
     replay = json.loads(rep_out.strip().splitlines()[-1])
@@ -212,7 +210,6 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
                 "drifts": st.get("drifts"), "model_t": models.get(n, [])}
             for n, st in status.items()
         },
-        "drift_lines": drift_lines,
         "rss_mb": rss,
         "hwm_mb": hwm,
         "smaps": smaps,
