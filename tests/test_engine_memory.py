@@ -145,3 +145,14 @@ def test_an_ensemble_of_networks_with_the_same_lags_is_one_network(reactor) -> N
     assert np.isfinite(score) and ens.simulate(u, y0).shape == y.shape
     res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, ensemble=3), 0)
     assert res.model.metrics["free_run_choice"].get("ensemble") in (None, 2, 3)
+
+
+def test_a_long_lag_space_is_hedged_by_short_restarts() -> None:
+    u, y = _delayed(12, n=800)
+    cfg = DEFAULT.replace(generations=3, lag_search_generations=3, neurons=8, lag_search_neurons=4, restarts=4,
+                          max_lag_cap=30, lag_alternation=True, hedge_neurons=5)
+    m = identify(u, y, cfg, 0).model.metrics
+    assert m["run_max_lags"] == [30, 10, 30, 10]
+    assert m["run_neurons"] == [8, 5, 8, 8]
+    plain = identify(u, y, cfg.replace(lag_alternation=False), 0).model.metrics
+    assert plain["run_max_lags"] == [30, 30, 30, 30] and plain["run_neurons"] == [8, 8, 8, 8]

@@ -27,7 +27,8 @@ Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
 Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen
 from the estimation data (:mod:`streamid.engine.lagspace`; evidence in the model's
 ``metrics.max_lag_choice``); when ``L`` is at least twice the floor and
-``lag_alternation`` is set, the odd restarts keep ``1..floor``. A two-stage run's
+``lag_alternation`` is set, the odd restarts keep ``1..floor`` (restart 1 of every 4
+with ``hedge_neurons`` neurons when > 0). A two-stage run's
 second stage always trains on a lag set with an input term. After the runs, if no
 run has an admissible candidate, one more run is made with each of
 ``fallback_neurons`` in turn until one has (``metrics.fallback_runs``).
@@ -308,7 +309,8 @@ def identify(
     }
     jobs = [
         {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
-         "neurons": sizes[i % len(sizes)], "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag}
+         "neurons": (cfg.hedge_neurons or sizes[i % len(sizes)]) if (hedge and i % 4 == 1) else sizes[i % len(sizes)],
+         "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag}
         for i, s in enumerate(seeds)
     ]
     per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
