@@ -156,3 +156,18 @@ def test_a_long_lag_space_is_hedged_by_short_restarts() -> None:
     assert m["run_neurons"] == [8, 5, 8, 8]
     plain = identify(u, y, cfg.replace(lag_alternation=False), 0).model.metrics
     assert plain["run_max_lags"] == [30, 30, 30, 30] and plain["run_neurons"] == [8, 8, 8, 8]
+
+
+def test_screening_on_the_search_rows_refits_the_chosen_model_on_all_rows(reactor) -> None:  # type: ignore[no-untyped-def]
+    from streamid.engine.selection import select_model
+
+    u, y = reactor
+    cfg = PAPER.replace(generations=15, search_rows=200, screen_rows=True, fr_candidates=5, selection="fr_est")
+    rows = np.sort(np.random.default_rng(0).choice(len(y) - cfg.max_lag, 200, replace=False))
+    run = Coevolution(u, y, cfg, 0, rows=rows).solve()
+    model, score = select_model(run, u, y, "fr_est")
+    ev = model.metrics["free_run_choice"]
+    assert ev["screened_on_rows"] == 200 and ev["candidates"] == 6
+    full = [run.model_for(h, x) for h, x in run.candidate_pairs(5)]  # fitted on every row
+    assert any(np.array_equal(model.weights, m.weights) for m in full)
+    assert score == pytest.approx(ev["score"])

@@ -165,6 +165,7 @@ class Coevolution:
         self.scale = self.norm.y_half_range**2  # normalised MSE -> output units
         # The search's fitness may use a subset of the rows (large N); models are refitted on all of them.
         r_s, t_s = (self.R, self.target) if rows is None else (self.R[rows], self.target[rows])
+        self._rows = rows
         self.search_rows = int(t_s.shape[0])
         self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
@@ -398,16 +399,20 @@ class Coevolution:
             meta={"evaluations": self.evaluations},
         )
 
-    def model_for(self, mask: NDArray[np.bool_], x: NDArray[np.float64]) -> Model:
-        """The model of one pair, weights refitted by SVD least squares on this run's data."""
+    def model_for(self, mask: NDArray[np.bool_], x: NDArray[np.float64], *, search_rows: bool = False) -> Model:
+        """The model of one pair, weights refitted by SVD least squares on this run's data
+        (``search_rows``: on the rows the search used only; a cheaper fit for screening candidates)."""
         M, D = self.config.neurons, self.D
         cols = np.flatnonzero(mask)
         centres = x[: M * D].reshape(M, D)[:, cols]
         widths = x[M * D :]
+        R, target = self.R, self.target
+        if search_rows and self._rows is not None:
+            R, target = R[self._rows], target[self._rows]
         with one_blas_thread():
-            phi = activations(self.R[:, cols], centres, widths)
-            w = fit_weights(phi, self.target, self.config.ridge, self.config.weight_decay)
-            mse = float(np.mean((phi @ w - self.target) ** 2)) * self.scale
+            phi = activations(R[:, cols], centres, widths)
+            w = fit_weights(phi, target, self.config.ridge, self.config.weight_decay)
+            mse = float(np.mean((phi @ w - target) ** 2)) * self.scale
         if not np.all(np.isfinite(w)) or not np.isfinite(mse):
             raise DataError("the least-squares weights are not finite (the data are numerically degenerate)")
         return Model(
@@ -423,7 +428,15 @@ class Coevolution:
             config=self.config.to_dict(),
         )
 
-    def population_models(self, limit: int | None = None) -> list[Model]:
+    def candidate_pairs(self, limit: int | None = None) -> list[tuple[NDArray[np.bool_], NDArray[np.float64]]]:
+        """(mask, parameters) of the best pair and of the members :meth:`population_models` would give."""
+        b = int(np.argmin(self.fh))
+        members: list[int] = list(range(self.X.shape[0]))
+        if limit is not None and limit < self.X.shape[0]:
+            members = sorted(np.argsort(self.fx, kind="stable")[: max(0, int(limit))].tolist())
+        return [(self.best_h, self.best_x), *((self.H[b], self.X[i]) for i in members)]
+
+    def population_models(self, limit: int | None = None, *, search_rows: bool = False) -> list[Model]:
         """Models of every parameter vector paired with the best harmony, weights refitted.
 
         Candidates for a choice by another criterion than the fitness (e.g. free-run R^2):
@@ -434,7 +447,7 @@ class Coevolution:
         members: list[int] = list(range(self.X.shape[0]))
         if limit is not None and limit < self.X.shape[0]:
             members = sorted(np.argsort(self.fx, kind="stable")[: max(0, int(limit))].tolist())
-        return [self.model_for(self.H[b], self.X[i]) for i in members]
+        return [self.model_for(self.H[b], self.X[i], search_rows=search_rows) for i in members]
 
     def best_model(self) -> Model:
         """Model of the best pair ever evaluated, weights refitted (see :func:`~streamid.engine.rbf.fit_weights`)."""

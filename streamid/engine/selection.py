@@ -125,6 +125,10 @@ def select_model(
         raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr', 'cv_fr'; got {selection!r}")
     n = len(y) if n_search is None else int(n_search)
     margin = run.config.range_margin if range_margin is None else float(range_margin)
+    if selection == "fr_est" and run.config.screen_rows and run.search_rows < len(run.target):
+        screened = _screened(run, u[:n], y[:n], margin)
+        if screened is not None:
+            return screened
     cands = [best, *run.population_models(run.config.fr_candidates or None)]
     with one_blas_thread():
         if selection in ("fr_est", "cv_fr"):
@@ -153,6 +157,24 @@ def select_model(
         if ens is not None and ens_score >= score:
             return ens, float(ens_score)
     return chosen, float(score)
+
+
+def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float) -> tuple[Model, float] | None:
+    """``"fr_est"`` on a large record with candidates fitted on the search's rows only, the chosen one refitted on
+    all rows and scored again; None (choose the full way) when that refit is not admissible."""
+    pairs = run.candidate_pairs(run.config.fr_candidates or None)
+    cands = [run.model_for(h, x, search_rows=True) for h, x in pairs]
+    with one_blas_thread():
+        fr = free_run_scores(cands, u, y, range_margin=margin)
+        if not fr.admissible:
+            return None
+        k = fr.best()
+        final = run.model_for(*pairs[k])
+        again = free_run_scores([final], u, y, range_margin=margin)
+    if not again.admissible:
+        return None
+    ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible, "screened_on_rows": run.search_rows}
+    return final.with_metrics(free_run_choice=ev), float(again.scores[0])
 
 
 def _ensemble(

@@ -165,6 +165,11 @@ class CoEAConfig:
         With the ``lag_alternation`` hedge: 0, the hedged restarts keep ``neurons``;
         > 0, restart 1 of every 4 (lags ``1..floor``) trains this many neurons instead
         (restart 3 keeps ``neurons``): a small and a large model on the short lag space.
+    screen_rows : bool
+        With ``search_rows`` in effect (a large record) and ``selection="fr_est"``: the
+        candidates are fitted on the search's rows only for the free-run choice, and
+        the chosen one is refitted on all rows and scored again (the full way if that
+        refit is not admissible). False: every candidate is fitted on all rows.
     ensemble : int
         0 or 1: none. K > 1 with ``selection="fr_est"``: in each run the mean of its K
         best admissible candidates (same lags: one RBF network of K x neurons, each
@@ -213,6 +218,7 @@ class CoEAConfig:
     lag_alternation: bool = False
     ensemble: int = 0
     hedge_neurons: int = 0
+    screen_rows: bool = False
 
     def __post_init__(self) -> None:
         _int("neurons", self.neurons, 1, 1000)
@@ -253,6 +259,8 @@ class CoEAConfig:
         _int("cv_folds", self.cv_folds, 2, 20)
         _int("ensemble", self.ensemble, 0, 20)
         _int("hedge_neurons", self.hedge_neurons, 0, 1000)
+        if not isinstance(self.screen_rows, bool):
+            raise ConfigError(f"CoEAConfig.screen_rows must be true or false; got {self.screen_rows!r}")
         _int("max_lag_cap", self.max_lag_cap, 0, 1000)
         fb = self.fallback_neurons
         if not (isinstance(fb, (tuple, list)) and len(fb) <= 10
