@@ -171,3 +171,13 @@ def test_screening_on_the_search_rows_refits_the_chosen_model_on_all_rows(reacto
     full = [run.model_for(h, x) for h, x in run.candidate_pairs(5)]  # fitted on every row
     assert any(np.array_equal(model.weights, m.weights) for m in full)
     assert score == pytest.approx(ev["score"])
+
+
+def test_a_warm_start_takes_the_lag_space_of_its_state() -> None:
+    u, y = _delayed(12, n=800)
+    cfg = DEFAULT.replace(generations=3, lag_search_generations=3, neurons=8, lag_search_neurons=4, restarts=2,
+                          max_lag_cap=30, hedge_neurons=0)
+    first = identify(u, y, cfg, 0)
+    assert first.state.max_lag_y == 30
+    again = identify(u, y, cfg, 1, warm_start=first.state)  # lags 1..30 and 8 neurons, as the state's
+    assert again.model.metrics["max_lag_choice"] is None and again.state.max_lag_y == 30

@@ -259,6 +259,10 @@ def identify(
         lag = min(lag, max(cfg.max_lag, (n - 2 * max((cfg.neurons, *cfg.neuron_alternatives))) // 2))
         lag_evidence["max_lag"] = lag
         cfg = cfg.replace(max_lag_y=lag, max_lag_u=lag, max_lag_cap=max(lag, cfg.max_lag_cap))
+    elif warm_start is not None and cfg.max_lag_cap:  # the lag space (and size) of the state warm-started from
+        st = warm_start
+        cfg = cfg.replace(max_lag_y=st.max_lag_y, max_lag_u=st.max_lag_u, neurons=st.neurons,
+                          max_lag_cap=max(st.max_lag_y, st.max_lag_u, cfg.max_lag_cap))
     n_hold = int(round(cfg.holdout_fraction * n)) if cfg.selection == "holdout_fr" else 0
     n_search = n - n_hold
     need = cfg.max_lag + 2 * max((cfg.neurons, *cfg.neuron_alternatives))
