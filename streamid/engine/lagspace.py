@@ -2,14 +2,23 @@
 
 The maximum candidate lag from the data (``CoEAConfig.max_lag_cap > 0``, the default)
 ------------------------------------------------------------------------------------
-On the estimation data, ``L = clip(max(3 k_u, k_y), max_lag_floor, max_lag_cap)`` with
-``k_u`` the lag (0..2 cap) of the largest absolute cross-correlation between any
-input and the output (a dead time or a resonance: the model needs the input up to
-about three times that far back: a resonance rings on), and ``k_y`` the first lag at which the output's
-autocorrelation falls below 0.5 (a slow output needs its own past that far back;
-one that never falls within the cap takes the cap). Candidate lags are then
-``1..L`` for the output and every input. The evidence (``k_u``, ``k_y``, ``L``) is in
-the model's metrics (``max_lag_choice``) and the identify report.
+On the estimation data, ``L = clip(max(3 k_u, k_y), floor, max_lag_cap)`` with
+``floor = max(max_lag_y, max_lag_u)`` (10 by default), ``k_u`` the lag (0..2 cap) of
+the largest absolute cross-correlation between any input and the output (a dead
+time or a resonance: the model needs the input about three times that far back, a
+resonance rings on), and ``k_y`` the first lag at which the output's autocorrelation
+falls below 0.5 (a slow output needs its own past that far back; one that never
+falls within the cap takes the cap). Candidate lags are then ``1..L`` for the output
+and every input. The evidence (``k_u``, ``k_y``, ``L``) is in the model's metrics
+(``max_lag_choice``) and the identify report. The cost grows only where the data
+call for it, and a long lag space is hedged by restarts on ``1..floor``
+(``CoEAConfig.lag_alternation``, ``hedge_neurons``): the final choice decides.
+
+The input-term rule (every run with ``require_input``; the two-stage runs' second stage always)
+----------------------------------------------------------------------------------------------
+With ``require_input`` a lag set without an input term is infeasible in the search
+(:class:`~streamid.engine.coevolution.Coevolution`). Without it, the rule below
+still applies to what a second stage trains on.
 
 The input-term rule (every two-stage run, :func:`~streamid.engine.identify.identify`)
 ------------------------------------------------------------------------------------
