@@ -55,13 +55,14 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine import CoEAState, EvalHelper, Model
 from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidError
 from streamid.online.acceptance import Decision, Update, decide
-from streamid.online.drift import DriftMonitor, DriftSettings, block_levels, reference_monitor
+from streamid.online.drift import DriftSettings, reference_monitor
 from streamid.online.head import OutputHead
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
 from streamid.online.snapshot import StreamState
 from streamid.online.status import stream_status
 from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome, StopFlag, UpdateJob, cut_window
+from streamid.online.watch import watch_blocks
 from streamid.online.window_types import Window
 from streamid.wire.documents import encode_json, model_update_message
 from streamid.wire.keys import check_stream_name
@@ -493,43 +494,15 @@ class OnlineIdentifier(StreamIntake):
         return next(iter(self._heads.values()), None)
 
     def _watch(self, now_ns: int) -> None:
-        """Run each champion free over the blocks of samples just completed; feed the errors to its drift test."""
-        epoch, complete = self._buffer.position
-        names, cap = self._buffer.output_names, self._buffer.lengths[2]
-        due: list[tuple[OutputHead, DriftMonitor, Model, int, int]] = []  # (..., first sample, samples it needs)
-        for head in self._heads.values():
-            mon, m = head.monitor, head.model
-            if mon is None or m is None or head.output not in names:
-                continue
-            if mon.epoch != epoch or mon.next_index is None or complete - mon.next_index + m.max_lag > cap:
-                mon.epoch, mon.next_index = epoch, complete  # (re)start at the newest sample
-            elif complete - mon.next_index >= mon.block_samples:
-                due.append((head, mon, m, mon.next_index, complete - mon.next_index + m.max_lag))
-        got = self._buffer.recent(max(n for *_, n in due)) if due else None  # one copy for every output
-        if got is None:
-            return
-        for head, mon, m, first, need in due:
-            u, y = got[0][-need:], got[1][-need:, names.index(head.output)]
-            if u.shape[1] != m.n_inputs:
-                continue
-            B = mon.block_samples
-            n_blocks = (complete - first) // B
-            lv = block_levels(m, u[: m.max_lag + n_blocks * B], y[: m.max_lag + n_blocks * B], B)
-            period = int(self._buffer.period_ns or 0)
-            ends = self._buffer.times_ns(first + B - 1, 1)[0] + np.arange(n_blocks, dtype=np.int64) * B * period
-            mon.next_index = first + n_blocks * B
-            for level, r, mr, t_end in zip(lv.level, lv.rms, lv.model_rms, ends, strict=True):
-                change_ns = mon.block(float(level), float(r), float(mr), int(t_end))
-                if change_ns is None:
-                    continue
-                head.drift_t_ns, head.escalate = change_ns, True
-                head.drifts += 1
-                ratio = "diverged" if not np.isfinite(mon.last_level) else f"{np.exp(mon.last_level):.2f} x"
-                self._event("drift", f"{head.output}: the output's level moved away from champion v{head.version}'s "
-                            f"free run (last block: measured/model amplitude {ratio} its reference); change "
-                            "estimated at stream time "
-                            f"{change_ns / 1e9:.2f} s: the next identification uses data from then on with "
-                            f"{self.config.drift_generations} generations", int(t_end), now_ns)
+        """Run each champion free over the blocks of samples just completed (:mod:`streamid.online.watch`)."""
+        for d in watch_blocks(self._heads.values(), self._buffer):
+            mon = d.head.monitor
+            level = mon.last_level if mon is not None else float("nan")
+            ratio = "diverged" if not np.isfinite(level) else f"{np.exp(level):.2f} x"
+            self._event("drift", f"{d.head.output}: the output's level moved away from champion v{d.head.version}'s "
+                        f"free run (last block: measured/model amplitude {ratio} its reference); change estimated "
+                        f"at stream time {d.change_ns / 1e9:.2f} s: the next identification uses data from then on "
+                        f"with {self.config.drift_generations} generations", d.t_end_ns, now_ns)
 
     def _outcomes_count(self, outcome: Outcome) -> None:
         if outcome.kind == "dropped":
