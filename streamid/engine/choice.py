@@ -37,7 +37,22 @@ from streamid.engine.rbf import activations, fit_weights
 from streamid.engine.validation import r2
 from streamid.errors import DataError
 
-__all__ = ["FreeRunScores", "blocked_cv_scores", "free_run_scores"]
+__all__ = ["FreeRunScores", "blocked_cv_scores", "free_run_scores", "group_free_run"]
+
+
+def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Free runs (normalised units, one row per model) of models sharing their regressors and normalisation,
+    simulated together from the same measured initial outputs ``y_init`` (``max_lag`` of them)."""
+    m0 = models[0]
+    L = max((r.lag for r in m0.regressors), default=0)
+    return free_run(
+        m0.regressors,
+        np.stack([m.centres for m in models]),
+        np.stack([m.widths for m in models]),
+        np.stack([m.weights for m in models]),
+        m0.normalisation.u(u),
+        np.broadcast_to(m0.normalisation.y(y_init[:L]), (len(models), L)),
+    )
 
 
 @dataclass(frozen=True)
@@ -102,14 +117,7 @@ def free_run_scores(
         if first >= len(y) - 1:
             raise DataError(f"free-run scoring from sample {first} leaves fewer than 2 of {len(y)} samples")
         with np.errstate(over="ignore", invalid="ignore"):
-            sim = free_run(
-                regs,
-                np.stack([models[i].centres for i in idx]),
-                np.stack([models[i].widths for i in idx]),
-                np.stack([models[i].weights for i in idx]),
-                norm.u(u),
-                np.broadcast_to(norm.y(y[:L]), (len(idx), L)),
-            )
+            sim = group_free_run([models[i] for i in idx], u, y[:L])
             ys = norm.y_inverse(sim)
         drives = any(r.signal == "u" for r in regs)
         for k, i in enumerate(idx):

@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
-from streamid.engine.choice import blocked_cv_scores, free_run_scores
-from streamid.engine.model import Model, free_run
+from streamid.engine.choice import blocked_cv_scores, free_run_scores, group_free_run
+from streamid.engine.model import Model
 from streamid.engine.rbf import activations, fit_weights
 from streamid.engine.regressors import as_data
 from streamid.engine.validation import r2
@@ -74,14 +74,7 @@ def free_run_r2(
         if first < L:
             raise DataError(f"free-run scoring from sample {first} needs max_lag = {L} earlier samples")
         us, ys = u[first - L :], y[first - L :]
-        sim = free_run(
-            regs,
-            np.stack([models[i].centres for i in idx]),
-            np.stack([models[i].widths for i in idx]),
-            np.stack([models[i].weights for i in idx]),
-            norm.u(us),
-            np.broadcast_to(norm.y(ys[:L]), (len(idx), L)),
-        )
+        sim = group_free_run([models[i] for i in idx], us, ys[:L])
         for k, i in enumerate(idx):
             out[i] = r2(ys[L:], norm.y_inverse(sim[k, L:]))
     return out
