@@ -241,7 +241,9 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     w(f"  read      {read_summary(ds)}\n")
     w(f"  data      estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)\n")
     w(
-        f"  settings  neurons {cfg.neurons}, max lag y {cfg.max_lag_y} / u {cfg.max_lag_u}, generations {cfg.generations}, "
+        f"  settings  neurons {cfg.neurons}, max lag y {cfg.max_lag_y} / u {cfg.max_lag_u}"
+        + (f" (raised from the data up to {cfg.max_lag_cap})" if cfg.max_lag_cap else "")
+        + f", generations {cfg.generations}, "
         f"population {cfg.population}, restarts {cfg.restarts}, selection {cfg.selection}"
         + (
             f", lag search with {cfg.lag_search_neurons} neurons for {cfg.lag_search_generations} generations"
