@@ -138,6 +138,21 @@ def test_close_ends_the_process_and_removes_its_files():
     h.close()  # twice is fine
 
 
+def test_ctrl_c_in_the_terminal_leaves_the_helper_to_its_owner():
+    """SIGINT reaches every process of a terminal's group: the helper keeps working, says nothing, and ends on close."""
+    h = EvalHelper()
+    try:
+        os.kill(h.pid, signal.SIGINT)
+        time.sleep(0.5)
+        assert h._proc.poll() is None
+        ue, ye, _, _ = reactor_data(1, 200, 10)
+        co = Coevolution(ue, ye, CFG.replace(generations=5), 0, helper=h).solve()
+        assert np.isfinite(co.best_f)
+    finally:
+        h.close()
+    assert h._proc.poll() is not None
+
+
 def test_the_helper_goes_away_with_a_killed_owner():
     code = (
         "import os, sys\n"

@@ -13,6 +13,7 @@ from __future__ import annotations
 import mmap
 import os
 import select
+import signal
 import sys
 import time
 from typing import Any
@@ -165,4 +166,7 @@ def serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
 
 
 if __name__ == "__main__":
+    # Ctrl-C in a terminal reaches the whole process group; the owner decides when this process ends (it closes
+    # it, or this loop sees the owner gone), so the helper neither dies early nor prints a traceback.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     sys.exit(serve(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
