@@ -274,6 +274,13 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.lagspace)
         w(f"candidate lags 1..{lag['max_lag']} chosen from the data: input-output correlation peak at lag {lag['k_u']}, "
           f"output autocorrelation below 0.5 from lag {lag['k_y']} (floor {lag['floor']}, cap {lag['cap']})\n")
+    cx = Model.from_json(b["model"]).metrics.get("complexity")
+    if cx:  # the network size chosen among the restarts' candidates (streamid.engine.complexity)
+        w(f"complexity by {cx['rule']} on the estimation free run: {cx['neurons']} neurons (restart {cx['chosen_run']});"
+          " candidates (neurons, lags 1..L, weights p, FR R2 est, criterion): "
+          + "; ".join(f"{c['neurons']}, 1..{c['lag_space']}, {c['params']}, "
+                      + ("not admissible" if c["criterion"] is None else f"{c['r2_fr_est']:.5f}, {c['criterion']:.1f}")
+                      for c in cx["candidates"]) + "\n")
     for part, title in (("est", "estimation"), ("val", "validation")):
         c = b["correlation"][part]
         w(f"correlation tests on the {title} residual ({c['n']} samples, 95 % band ±{c['band']:.3g}):\n")

@@ -52,7 +52,16 @@ def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[
         np.stack([m.weights for m in models]),
         m0.normalisation.u(u),
         np.broadcast_to(m0.normalisation.y(y_init[:L]), (len(models), L)),
+        _linear_parts(models),
     )
+
+
+def _linear_parts(models: list[Model]) -> NDArray[np.float64] | None:
+    """The networks' linear parts stacked (zeros for a network without one); None when none has one."""
+    if all(m.linear is None for m in models):
+        return None
+    k = len(models[0].regressors) + 1
+    return np.stack([np.zeros(k) if m.linear is None else m.linear for m in models])
 
 
 @dataclass(frozen=True)
@@ -176,7 +185,9 @@ def blocked_cv_scores(
             if w is None or not np.all(np.isfinite(w)) or z - a <= m.max_lag + 1:
                 total[i] = -np.inf
                 continue
-            refits.append(replace(m, weights=w))
+            assert w is not None
+            M = m.neurons
+            refits.append(replace(m, weights=w[:M], linear=None if m.linear is None else w[M:]))
             keep.append(i)
         if not refits:
             continue
@@ -196,7 +207,10 @@ def _refit_rows(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) ->
     for j, reg in enumerate(model.regressors):
         src = yn if reg.signal == "y" else un[:, reg.index]
         r[:, j] = src[L - reg.lag : n - reg.lag]
-    return activations(r, model.centres, model.widths), yn[L:]
+    phi = activations(r, model.centres, model.widths)
+    if model.linear is not None:  # the linear part is refitted in the same least squares
+        phi = np.hstack([phi, r, np.ones((phi.shape[0], 1))])
+    return phi, yn[L:]
 
 
 def _fr_r2(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64]) -> list[float]:
@@ -210,7 +224,8 @@ def _fr_r2(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64]) 
         with np.errstate(over="ignore", invalid="ignore"):
             sim = norm.y_inverse(free_run(
                 regs, np.stack([models[i].centres for i in idx]), np.stack([models[i].widths for i in idx]),
-                np.stack([models[i].weights for i in idx]), norm.u(u), np.broadcast_to(norm.y(y[:L]), (len(idx), L))))
+                np.stack([models[i].weights for i in idx]), norm.u(u), np.broadcast_to(norm.y(y[:L]), (len(idx), L)),
+                _linear_parts([models[i] for i in idx])))
         for k, i in enumerate(idx):
             if np.all(np.isfinite(sim[k, L:])):
                 out[i] = r2(y[L:], sim[k, L:])

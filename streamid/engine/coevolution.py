@@ -49,7 +49,7 @@ from streamid.engine._blas import one_blas_thread
 from streamid.engine.settings import CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
-from streamid.engine.rbf import BatchEvaluator, activations, fit_weights
+from streamid.engine.rbf import BatchEvaluator, activations, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
 from streamid.engine.populations import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
@@ -411,9 +411,15 @@ class Coevolution:
             R, target = R[self._rows], target[self._rows]
         with one_blas_thread():
             phi = activations(R[:, cols], centres, widths)
-            w = fit_weights(phi, target, self.config.ridge, self.config.weight_decay)
-            mse = float(np.mean((phi @ w - target) ** 2)) * self.scale
-        if not np.all(np.isfinite(w)) or not np.isfinite(mse):
+            lin = None
+            if self.config.linear_terms:  # the RBF network with linear terms: one least squares for both
+                w, lin = fit_linear_rbf(phi, R[:, cols], target, self.config.ridge, self.config.weight_decay)
+                fit = phi @ w + R[:, cols] @ lin[:-1] + lin[-1]
+            else:
+                w = fit_weights(phi, target, self.config.ridge, self.config.weight_decay)
+                fit = phi @ w
+            mse = float(np.mean((fit - target) ** 2)) * self.scale
+        if not np.all(np.isfinite(w)) or not np.isfinite(mse) or (lin is not None and not np.all(np.isfinite(lin))):
             raise DataError("the least-squares weights are not finite (the data are numerically degenerate)")
         return Model(
             regressors=tuple(self.candidates[j] for j in cols),
@@ -426,6 +432,7 @@ class Coevolution:
             metrics={"fitness": mse, "fitness_search": float(self.best_f), "evaluations": self.evaluations},
             window=self.window,
             config=self.config.to_dict(),
+            linear=lin,
         )
 
     def candidate_pairs(self, limit: int | None = None) -> list[tuple[NDArray[np.bool_], NDArray[np.float64]]]:

@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
+from streamid.engine.complexity import choose as choose_complexity
 from streamid.engine.fanout import fan_out
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
@@ -104,6 +105,8 @@ class Result:
         Every run, in seed order.
     chosen : int
         Index of the chosen run in ``runs``.
+    extra : dict
+        ``run_models``: each run's chosen model, in run order (several runs only).
     """
 
     model: Model
@@ -363,7 +366,13 @@ def identify(
                               on_result=partial(_report_after, report, made))
 
     models = [Model.from_json(o["model"]) for o in outs]
-    chosen = int(np.argmax([o["score"] for o in outs]))
+    scores = [float(o["score"]) for o in outs]
+    complexity: dict[str, Any] | None = None
+    if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.complexity)
+        chosen, complexity = choose_complexity(cfg.complexity, models, scores, n,
+                                               [int(o.get("max_lag", cfg.max_lag)) for o in outs])
+    else:
+        chosen = int(np.argmax(scores))
     final = models[chosen]
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
@@ -380,6 +389,7 @@ def identify(
         holdout_samples=n_hold,
         evaluations=int(sum(o["evaluations"] for o in outs)),
         max_lag_choice=lag_evidence,
+        complexity=complexity,
     )
     runs = tuple(
         RunSummary(o["seed"], o["fitness"], o["evaluations"], o["seconds"], o["score"], m.lags)
@@ -393,6 +403,7 @@ def identify(
         seconds=time.perf_counter() - t_start,
         runs=runs,
         chosen=chosen,
+        extra={"run_models": tuple(models)},
     )
 
 

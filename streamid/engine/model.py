@@ -8,8 +8,14 @@ output) and ``regressors`` the ordered list of ``{"signal", "index", "lag"}``::
 
     r_j(t)  = norm(signal_j)(t - lag_j)                  j = 0 .. k-1   (y or input ``index``)
     phi_m   = exp(-sum_j (r_j(t) - centres[m][j])^2 / (2 widths[m]^2))
-    yn(t)   = sum_m weights[m] phi_m
+    yn(t)   = sum_m weights[m] phi_m  [+ sum_j linear[j] r_j(t) + linear[k]]
     y(t)    = (yn(t) + 1) (y_high - y_low) / 2 + y_low
+
+The bracketed direct linear part (an "RBF network with linear terms") exists only in
+documents of format ``streamid.model/2`` (field ``linear``: k coefficients, then the
+constant); a ``streamid.model/1`` document has none (it is the same as ``linear = 0``).
+A model without a linear part is always written as ``streamid.model/1``, so readers
+of the first format keep reading every model they can evaluate correctly.
 
 One-step-ahead prediction uses measured past outputs; free run (simulation)
 uses the model's own past predictions after ``max_lag`` measured initial outputs.
@@ -30,12 +36,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from streamid.engine.freerun import free_run
 from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Model", "MODEL_FORMAT", "free_run", "format_lags"]
+__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_LINEAR", "MODEL_FORMATS", "free_run", "format_lags"]
 
 MODEL_FORMAT = "streamid.model/1"
+#: The format of a model with a direct linear part (``linear``); /1 documents load as ``linear = None``.
+MODEL_FORMAT_LINEAR = "streamid.model/2"
+MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR)
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -48,104 +58,6 @@ def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.f
     if not np.all(np.isfinite(a)):
         raise ModelFormatError(f"model field {name!r} must contain only finite numbers (no NaN/inf); got {value!r}")
     return a
-
-
-def free_run(
-    regressors: tuple[Regressor, ...],
-    centres: NDArray[np.float64],
-    widths: NDArray[np.float64],
-    weights: NDArray[np.float64],
-    un: NDArray[np.float64],
-    yn_init: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Free-run simulation of several networks with the same regressors at once (normalised units).
-
-    Parameters
-    ----------
-    regressors : tuple of Regressor
-        Shared by all networks; ``L = max lag``.
-    centres : ndarray, shape (C, M, k)
-    widths, weights : ndarray, shape (C, M)
-    un : ndarray, shape (N, n_inputs) or (C, N, n_inputs)
-        Normalised inputs: the same for every network, or one sequence per network.
-    yn_init : ndarray, shape (C, L)
-        Normalised initial outputs (the first ``L`` samples).
-
-    Returns
-    -------
-    ndarray, shape (C, N)
-        The first ``L`` columns are ``yn_init``; then each network's recursive prediction.
-
-    Notes
-    -----
-    The recursion is inherently sequential, so its cost is the per-step
-    overhead of numpy calls: the input terms of every step are computed at
-    once beforehand, and each step then takes a fixed handful of calls on
-    preallocated buffers, whatever ``C`` (all networks advance together).
-    """
-    C, M, _ = centres.shape
-    if un.ndim == 2:
-        un = un[None]
-    n = un.shape[1]
-    L = max((r.lag for r in regressors), default=0)
-    a = 1.0 / (2.0 * widths**2)  # (C, M)
-    yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
-    lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
-    # Scaled squared distances contributed by the input regressors, every step at once, time-major.
-    du = np.zeros((n, C, M))
-    for j, reg in enumerate(regressors):
-        if reg.signal == "u":
-            col = np.zeros((n, un.shape[0]))
-            col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
-            du += (col[:, :, None] - centres[None, :, :, j]) ** 2
-    du *= a[None]
-    ndu = np.negative(du, out=du).reshape(n, C * M)
-    y = np.empty((n, C))
-    y[:L] = yn_init[:, :L].T
-    if lags.size == 0:  # no output terms: nothing recursive
-        np.exp(ndu[L:], out=ndu[L:])
-        y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
-        return np.ascontiguousarray(y.T)
-    # Step t gathers y(t - lag_k) of network c for every neuron m from the flat slice y[t - L : t]:
-    # position (L - lag_k) * C + c of that slice, repeated for the M neurons (order c, m, k).
-    rel = ((L - lags)[None, None, :] * C + np.arange(C)[:, None, None]).repeat(M, axis=1).reshape(-1)
-    cy = np.ascontiguousarray(centres[:, :, yj]).reshape(-1)
-    af = np.ascontiguousarray(a).reshape(-1)
-    ones = np.ones(lags.size)
-    yf = y.reshape(-1)
-    diff = np.empty(cy.size)
-    diff2 = diff.reshape(C * M, lags.size)
-    d = np.empty(C * M)
-    sub, mul, dot, exp = np.subtract, np.multiply, np.dot, np.exp
-    if C == 1:
-        w0 = np.ascontiguousarray(weights[0])
-        for t in range(L, n):
-            sub(yf[t - L : t][rel], cy, out=diff)
-            mul(diff, diff, out=diff)
-            dot(diff2, ones, out=d)
-            mul(d, af, out=d)
-            sub(ndu[t], d, out=d)  # -(du + a * sum_k (y(t - lag_k) - c_k)^2)
-            exp(d, out=d)
-            yf[t] = dot(d, w0)
-        return np.ascontiguousarray(y.T)
-    if C <= 64:  # block-diagonal weights: one matrix-vector product gives every network's output
-        wmat = np.zeros((C, C * M))
-        for c in range(C):
-            wmat[c, c * M : (c + 1) * M] = weights[c]
-    wts = np.ascontiguousarray(weights)
-    dm = d.reshape(C, M)
-    for t in range(L, n):
-        sub(yf[(t - L) * C : t * C][rel], cy, out=diff)
-        mul(diff, diff, out=diff)
-        dot(diff2, ones, out=d)
-        mul(d, af, out=d)
-        sub(ndu[t], d, out=d)
-        exp(d, out=d)
-        if C <= 64:
-            dot(wmat, d, out=y[t])
-        else:
-            np.einsum("cm,cm->c", dm, wts, out=y[t])
-    return np.ascontiguousarray(y.T)
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,6 +80,9 @@ class Model:
         The data the model was fitted on (sample count, indices/times when known).
     config : dict
         The :class:`~streamid.engine.settings.CoEAConfig` used (as a dict).
+    linear : ndarray, shape (k + 1,), optional
+        Direct linear part: a coefficient per regressor (normalised units), then the
+        constant. None: no linear part (the paper's network).
 
     Raises
     ------
@@ -185,6 +100,7 @@ class Model:
     metrics: dict[str, Any] = field(default_factory=dict)
     window: dict[str, Any] = field(default_factory=dict)
     config: dict[str, Any] = field(default_factory=dict)
+    linear: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         m = int(np.shape(self.widths)[0]) if np.ndim(self.widths) == 1 else -1
@@ -210,6 +126,9 @@ class Model:
         for key, val in self.metrics.items():
             if isinstance(val, float) and not math.isfinite(val):
                 raise ModelFormatError(f"model metric {key!r} must be finite; got {val!r}")
+        if self.linear is not None:
+            object.__setattr__(self, "linear", _finite_array("linear", self.linear, (k + 1,)))
+            self.linear.setflags(write=False)
         for c in self.centres, self.widths, self.weights:
             c.setflags(write=False)
 
@@ -251,7 +170,7 @@ class Model:
         lines = [
             f"RBF-NARX model {', '.join(self.input_names)} -> {self.output_name}",
             f"  regressors  {self.lags_text()}  ({len(self.regressors)} terms, max lag {self.max_lag})",
-            f"  network     {self.neurons} Gaussian neurons",
+            f"  network     {self.neurons} Gaussian neurons" + (" and a linear part" if self.linear is not None else ""),
         ]
         r2 = {k: self.metrics.get(f"r2_{k}") for k in ("osa_est", "fr_est", "osa_val", "fr_val")}
         if any(isinstance(v, (int, float)) for v in r2.values()):
@@ -318,7 +237,10 @@ class Model:
             src = yn if reg.signal == "y" else un[:, reg.index]
             r[:, j] = src[L - reg.lag : n - reg.lag]
         out = ya.copy()
-        out[L:] = self.normalisation.y_inverse(self._phi(r) @ self.weights)
+        yn_hat = self._phi(r) @ self.weights
+        if self.linear is not None:
+            yn_hat += r @ self.linear[:-1] + self.linear[-1]
+        out[L:] = self.normalisation.y_inverse(yn_hat)
         return out
 
     def simulate(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
@@ -385,6 +307,7 @@ class Model:
             np.broadcast_to(self.weights, (C, self.neurons)),
             un,
             np.stack([self.normalisation.y(yi) for _, yi in parts]),
+            None if self.linear is None else np.broadcast_to(self.linear, (C, self.linear.shape[0])),
         )
         out = []
         for c, (ua, yi) in enumerate(parts):
@@ -396,8 +319,8 @@ class Model:
     # ------------------------------------------------------------------ file format
     def to_dict(self) -> dict[str, Any]:
         """The JSON document as a dict (see :meth:`to_json`)."""
-        return {
-            "format": MODEL_FORMAT,
+        doc: dict[str, Any] = {
+            "format": MODEL_FORMAT if self.linear is None else MODEL_FORMAT_LINEAR,
             "kind": "gaussian-rbf-narx",
             "formula": (
                 "yn(t) = sum_m weights[m] * exp(-sum_j (r_j(t) - centres[m][j])^2 / (2 widths[m]^2)); "
@@ -419,6 +342,11 @@ class Model:
             "window": self.window,
             "config": self.config,
         }
+        if self.linear is not None:
+            doc["formula"] = str(doc["formula"]).replace(
+                "(2 widths[m]^2));", "(2 widths[m]^2)) + sum_j linear[j] r_j(t) + linear[k];")
+            doc["linear"] = self.linear.tolist()
+        return doc
 
     def to_json(self, indent: int | None = 1) -> str:
         """Serialise to the versioned JSON format ``streamid.model/1`` (never pickle)."""
@@ -430,8 +358,10 @@ class Model:
         if not isinstance(d, Mapping):
             raise ModelFormatError(f"a model document must be a JSON object; got {type(d).__name__}")
         fmt = d.get("format")
-        if fmt != MODEL_FORMAT:
-            raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT!r}; got {fmt!r}")
+        if fmt not in MODEL_FORMATS:
+            raise ModelFormatError(f"model 'format' must be one of {list(MODEL_FORMATS)}; got {fmt!r}")
+        if fmt == MODEL_FORMAT_LINEAR and "linear" not in d:
+            raise ModelFormatError(f"a {MODEL_FORMAT_LINEAR} model document needs the field 'linear' (k + 1 numbers)")
         try:
             regs = tuple(Regressor(str(r["signal"]), int(r["index"]), int(r["lag"])) for r in d["regressors"])
             widths = d["widths"]
@@ -447,6 +377,8 @@ class Model:
                 metrics=dict(d.get("metrics", {})),
                 window=dict(d.get("window", {})),
                 config=dict(d.get("config", {})),
+                linear=(_finite_array("linear", d["linear"], (len(regs) + 1,))
+                        if fmt == MODEL_FORMAT_LINEAR else None),
             )
         except ModelFormatError:
             raise
@@ -497,7 +429,7 @@ class Model:
             d = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ModelFormatError(f"model file {str(p)!r} must be JSON text; parsing failed: {exc}") from None
-        if isinstance(d, Mapping) and d.get("format") != MODEL_FORMAT and isinstance(d.get("model"), Mapping):
+        if isinstance(d, Mapping) and d.get("format") not in MODEL_FORMATS and isinstance(d.get("model"), Mapping):
             d = d["model"]
         try:
             return cls.from_dict(d)

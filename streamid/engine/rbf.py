@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BatchEvaluator", "MIN_NORM", "activations", "fit_weights", "rbf_output"]
+__all__ = ["BatchEvaluator", "MIN_NORM", "activations", "fit_linear_rbf", "fit_weights", "rbf_output"]
 
 _TINY = 1e-300
 
@@ -134,6 +134,21 @@ def fit_weights(
         rhs = y
     z: NDArray[np.float64] = np.linalg.lstsq(a, rhs, rcond=None)[0]
     return z * s
+
+
+def fit_linear_rbf(
+    phi: NDArray[np.float64], r: NDArray[np.float64], y: NDArray[np.float64], ridge: float, weight_decay: float = 0.0
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Weights of an RBF network with a direct linear part, in one least-squares solve.
+
+    ``y ~ phi w + r a + b`` (Chen & Billings' RBF network with linear terms): the
+    design ``[phi, r, 1]`` fitted by :func:`fit_weights` (the same Jacobi scaling and
+    ridge on every column). Returns ``(w, linear)`` with ``linear = [a; b]``.
+    """
+    design = np.hstack([phi, r, np.ones((phi.shape[0], 1))])
+    z = fit_weights(design, y, ridge, weight_decay)
+    M = phi.shape[1]
+    return z[:M], z[M:]
 
 
 _gufunc_solve: Callable[..., NDArray[np.float64]] | None

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.choice import blocked_cv_scores, free_run_scores, group_free_run
 from streamid.engine.model import Model
-from streamid.engine.rbf import activations, fit_weights
+from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import as_data
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError
@@ -29,7 +29,7 @@ __all__ = ["free_run_r2", "refit_weights", "select_model"]
 def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight_decay: float = 0.0) -> Model:
     """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
 
-    The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.rbf.fit_weights`.
+    A model with a linear part has it refitted in the same least squares. The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.rbf.fit_weights`.
     """
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
     un, yn = model.normalisation.u(ua), model.normalisation.y(ya)
@@ -40,13 +40,17 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
         r[:, j] = src[L - reg.lag : n - reg.lag]
     with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
-        w = fit_weights(phi, yn[L:], ridge, weight_decay)
-    if not np.all(np.isfinite(w)):
+        lin = None
+        if model.linear is None:
+            w = fit_weights(phi, yn[L:], ridge, weight_decay)
+            fit = phi @ w
+        else:
+            w, lin = fit_linear_rbf(phi, r, yn[L:], ridge, weight_decay)
+            fit = phi @ w + r @ lin[:-1] + lin[-1]
+    if not np.all(np.isfinite(w)) or (lin is not None and not np.all(np.isfinite(lin))):
         raise DataError("refitted weights are not finite (numerically degenerate data)")
-    mse = float(np.mean((phi @ w - yn[L:]) ** 2)) * model.normalisation.y_half_range**2
-    from dataclasses import replace
-
-    return replace(model, weights=w, metrics={**model.metrics, "fitness": mse})
+    mse = float(np.mean((fit - yn[L:]) ** 2)) * model.normalisation.y_half_range**2
+    return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": mse})
 
 
 def free_run_r2(
@@ -190,6 +194,7 @@ def _ensemble(
         centres=np.concatenate([cands[i].centres for i in same]),
         widths=np.concatenate([cands[i].widths for i in same]),
         weights=np.concatenate([cands[i].weights for i in same]) / len(same),
+        linear=None if base.linear is None else np.mean([cands[i].linear for i in same], axis=0),
     )
     fr = free_run_scores([ens], u, y, range_margin=margin)
     if not fr.admissible:

@@ -174,6 +174,18 @@ class CoEAConfig:
         0 or 1: none. K > 1 with ``selection="fr_est"``: in each run the mean of its K
         best admissible candidates (same lags: one RBF network of K x neurons, each
         weight divided by K) competes with them by the same free-run score.
+    linear_terms : bool
+        False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate model
+        gets a direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same
+        regressors (Chen & Billings' RBF network with linear terms), fitted with ``w`` in
+        one least squares when the candidate's weights are fitted; the search's fitness
+        stays the RBF-only one (centres and widths are searched as before).
+    complexity : str
+        With ``selection="fr_est"`` and several runs: how the final model's size is
+        chosen among the runs' candidates (:mod:`streamid.engine.complexity`):
+        ``"aic"`` the lowest ``n log(1 - R2_fr) + 2 p`` (``p`` = weights fitted, ``M``
+        + the linear part's ``k + 1``), ``"bic"`` the same with ``log n``, ``"score"``
+        the highest estimation free-run R^2. The evidence is in ``metrics.complexity``.
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.
     require_input : bool
@@ -219,6 +231,8 @@ class CoEAConfig:
     ensemble: int = 0
     hedge_neurons: int = 0
     screen_rows: bool = False
+    linear_terms: bool = False
+    complexity: str = "score"
 
     def __post_init__(self) -> None:
         _int("neurons", self.neurons, 1, 1000)
@@ -259,6 +273,10 @@ class CoEAConfig:
         _int("cv_folds", self.cv_folds, 2, 20)
         _int("ensemble", self.ensemble, 0, 20)
         _int("hedge_neurons", self.hedge_neurons, 0, 1000)
+        if self.complexity not in ("aic", "bic", "score"):
+            raise ConfigError(f"CoEAConfig.complexity must be one of ['aic', 'bic', 'score']; got {self.complexity!r}")
+        if not isinstance(self.linear_terms, bool):
+            raise ConfigError(f"CoEAConfig.linear_terms must be true or false; got {self.linear_terms!r}")
         if not isinstance(self.screen_rows, bool):
             raise ConfigError(f"CoEAConfig.screen_rows must be true or false; got {self.screen_rows!r}")
         _int("max_lag_cap", self.max_lag_cap, 0, 1000)
@@ -373,6 +391,7 @@ class CoEAConfig:
             "lag_alternation": True,
             "hedge_neurons": 10,
             "fallback_neurons": (15, 8),
+            "complexity": "aic",
         }
         return cls(**{**base, **changes})
 

@@ -1,0 +1,158 @@
+"""Free-run simulation kernel shared by :class:`~streamid.engine.model.Model` and the final choice.
+
+Several networks with the same regressors advance together, one numpy call per
+operation and step. A network may carry a direct linear part (``linear``: one
+coefficient per regressor, then a constant), the classical "RBF network with
+linear terms": ``yn(t) = sum_m w_m phi_m(r(t)) + sum_j a_j r_j(t) + b``.
+Without it (``linear=None``) the computation is exactly the RBF-only one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.engine.regressors import Regressor
+
+__all__ = ["free_run"]
+
+
+def free_run(
+    regressors: tuple[Regressor, ...],
+    centres: NDArray[np.float64],
+    widths: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    un: NDArray[np.float64],
+    yn_init: NDArray[np.float64],
+    linear: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """Free-run simulation of several networks with the same regressors at once (normalised units).
+
+    Parameters
+    ----------
+    regressors : tuple of Regressor
+        Shared by all networks; ``L = max lag``.
+    centres : ndarray, shape (C, M, k)
+    widths, weights : ndarray, shape (C, M)
+    un : ndarray, shape (N, n_inputs) or (C, N, n_inputs)
+        Normalised inputs: the same for every network, or one sequence per network.
+    yn_init : ndarray, shape (C, L)
+        Normalised initial outputs (the first ``L`` samples).
+    linear : ndarray, shape (C, k + 1), optional
+        Each network's direct linear part: a coefficient per regressor, then the constant.
+
+    Returns
+    -------
+    ndarray, shape (C, N)
+        The first ``L`` columns are ``yn_init``; then each network's recursive prediction.
+
+    Notes
+    -----
+    The recursion is inherently sequential, so its cost is the per-step
+    overhead of numpy calls: the input terms of every step are computed at
+    once beforehand, and each step then takes a fixed handful of calls on
+    preallocated buffers, whatever ``C`` (all networks advance together).
+    """
+    C, M, _ = centres.shape
+    if un.ndim == 2:
+        un = un[None]
+    n = un.shape[1]
+    L = max((r.lag for r in regressors), default=0)
+    a = 1.0 / (2.0 * widths**2)  # (C, M)
+    yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
+    lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
+    # Scaled squared distances contributed by the input regressors, every step at once, time-major.
+    du = np.zeros((n, C, M))
+    for j, reg in enumerate(regressors):
+        if reg.signal == "u":
+            col = np.zeros((n, un.shape[0]))
+            col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
+            du += (col[:, :, None] - centres[None, :, :, j]) ** 2
+    du *= a[None]
+    ndu = np.negative(du, out=du).reshape(n, C * M)
+    y = np.empty((n, C))
+    y[:L] = yn_init[:, :L].T
+    lin_u = None if linear is None else _linear_inputs(regressors, linear, un, n)
+    if lags.size == 0:  # no output terms: nothing recursive
+        np.exp(ndu[L:], out=ndu[L:])
+        y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
+        if lin_u is not None:
+            y[L:] += lin_u[L:]
+        return np.ascontiguousarray(y.T)
+    # Step t gathers y(t - lag_k) of network c for every neuron m from the flat slice y[t - L : t]:
+    # position (L - lag_k) * C + c of that slice, repeated for the M neurons (order c, m, k).
+    rel = ((L - lags)[None, None, :] * C + np.arange(C)[:, None, None]).repeat(M, axis=1).reshape(-1)
+    cy = np.ascontiguousarray(centres[:, :, yj]).reshape(-1)
+    af = np.ascontiguousarray(a).reshape(-1)
+    ones = np.ones(lags.size)
+    yf = y.reshape(-1)
+    diff = np.empty(cy.size)
+    diff2 = diff.reshape(C * M, lags.size)
+    d = np.empty(C * M)
+    sub, mul, dot, exp = np.subtract, np.multiply, np.dot, np.exp
+    if linear is not None and lin_u is not None:
+        # The linear part's output terms: row c of amat picks network c's y(t - lag_k) from the flat slice.
+        amat = np.zeros((C, L * C))
+        for k, j in enumerate(yj):
+            amat[np.arange(C), (L - int(lags[k])) * C + np.arange(C)] += linear[:, j]
+        wmat = np.zeros((C, C * M))
+        for c in range(C):
+            wmat[c, c * M : (c + 1) * M] = weights[c]
+        ly = np.empty(C)
+        for t in range(L, n):
+            win = yf[(t - L) * C : t * C]
+            sub(win[rel], cy, out=diff)
+            mul(diff, diff, out=diff)
+            dot(diff2, ones, out=d)
+            mul(d, af, out=d)
+            sub(ndu[t], d, out=d)
+            exp(d, out=d)
+            dot(wmat, d, out=y[t])
+            dot(amat, win, out=ly)
+            y[t] += ly
+            y[t] += lin_u[t]
+        return np.ascontiguousarray(y.T)
+    if C == 1:
+        w0 = np.ascontiguousarray(weights[0])
+        for t in range(L, n):
+            sub(yf[t - L : t][rel], cy, out=diff)
+            mul(diff, diff, out=diff)
+            dot(diff2, ones, out=d)
+            mul(d, af, out=d)
+            sub(ndu[t], d, out=d)  # -(du + a * sum_k (y(t - lag_k) - c_k)^2)
+            exp(d, out=d)
+            yf[t] = dot(d, w0)
+        return np.ascontiguousarray(y.T)
+    if C <= 64:  # block-diagonal weights: one matrix-vector product gives every network's output
+        wmat = np.zeros((C, C * M))
+        for c in range(C):
+            wmat[c, c * M : (c + 1) * M] = weights[c]
+    wts = np.ascontiguousarray(weights)
+    dm = d.reshape(C, M)
+    for t in range(L, n):
+        sub(yf[(t - L) * C : t * C][rel], cy, out=diff)
+        mul(diff, diff, out=diff)
+        dot(diff2, ones, out=d)
+        mul(d, af, out=d)
+        sub(ndu[t], d, out=d)
+        exp(d, out=d)
+        if C <= 64:
+            dot(wmat, d, out=y[t])
+        else:
+            np.einsum("cm,cm->c", dm, wts, out=y[t])
+    return np.ascontiguousarray(y.T)
+
+
+def _linear_inputs(
+    regressors: tuple[Regressor, ...], linear: NDArray[np.float64], un: NDArray[np.float64], n: int
+) -> NDArray[np.float64]:
+    """The linear part's input terms and constant of every step, time-major (n, C)."""
+    C = linear.shape[0]
+    out = np.empty((n, C))
+    out[:] = linear[:, -1]
+    for j, reg in enumerate(regressors):
+        if reg.signal == "u":
+            col = np.zeros((n, un.shape[0]))
+            col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
+            out += col * linear[None, :, j]
+    return out
