@@ -10,7 +10,10 @@ import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
+from streamid.engine import Model
+from streamid.engine.regressors import Normalisation, Regressor
 from streamid.online.drift import BlockLevels, Cusum, DriftMonitor, DriftSettings, block_levels, reference_monitor
+from streamid.online.head import RETIRED_KEPT, OutputHead
 from streamid.online.recalibrate import MAX_GAIN_CHANGE, recalibrate
 from streamid.sim.drift import drift_start_ns, simulate_drift
 
@@ -172,3 +175,48 @@ def test_a_gain_change_of_the_simulated_piezo_raises_a_drift_and_a_new_champion_
     watch = st["models"]["x"]["drift_watch"]  # the current champion's watch, as the status shows it
     assert watch["h"] == DriftSettings().h and watch["blocks"] > 0 and 0 <= watch["cusum_up"] < watch["h"]
     assert watch["spread"] >= DriftSettings().min_spread
+
+
+def test_a_replaced_champion_stays_watched_for_a_window_and_one_change_raises_one_event() -> None:
+    """Simulated MR damper, +20 % at 30 s (seed 2): champion v4 replaced v3 6 s before the change.  v4's own
+    watch did not signal the change (in a 45 s run of this seed, none at all); v3's, kept for one window after
+    its replacement, signals within 3 s.  Then every reference of the output is spent: one change, one event."""
+    t, u, y = simulate_drift("mr_damper", 36.0, 30.0, 0.2, 2)
+    change_ns = drift_start_ns("mr_damper", 30.0)
+    ident = OnlineIdentifier(StreamConfig(window_s=10.0, update_every_s=1.0), stream="d")
+    drifts, replaced_seen = [], 0
+    for k in range(0, t.size, 20):  # 0.1 s batches, identified as they come
+        ident.learn_many(t[k : k + 20], u[k : k + 20], y[k : k + 20], inputs=["v"], outputs=["f"])
+        drifts += [e for e in ident.drain_events() if e.kind == "drift"]
+        ident.update_all()
+        watched = ident.status()["models"].get("f", {}).get("drift_watch_replaced", [])
+        assert len(watched) <= RETIRED_KEPT and all(0 < w["blocks_left"] <= 20 for w in watched)  # 10 s of 0.5 s
+        replaced_seen = max(replaced_seen, len(watched))
+    assert replaced_seen >= 1
+    assert len(drifts) == 1 and drifts[0].t_ns is not None  # no false alarm before, one event for one change
+    assert 0 <= drifts[0].t_ns - change_ns <= 3_000_000_000
+    assert "(replaced, still watched)" in drifts[0].message
+    st = ident.status()["models"]["f"]
+    assert st["drifts"] == 1
+
+
+def _model() -> Model:
+    return Model((Regressor("y", 0, 1), Regressor("u", 0, 1)), np.zeros((2, 2)), np.ones(2), np.ones(2),
+                 Normalisation((0.0,), (1.0,), 0.0, 1.0))
+
+
+def test_a_spent_monitor_signals_no_more_and_is_not_kept_when_its_champion_is_replaced() -> None:
+    mon = _monitor()
+    for i in range(4):
+        mon.block(0.5, 1.0, 1.0, i)
+    mon.spend()
+    assert all(mon.block(0.5, 1.0, 1.0, 10 + i) is None for i in range(50))  # the shift goes on: no new signal
+    assert mon.summary()["spent"] is True and mon.summary()["blocks"] == 54
+    head = OutputHead("y")
+    head.new_champion(_model(), mon, window_samples=1000)
+    head.new_champion(_model(), _monitor(), window_samples=1000)
+    assert not head.retired  # spent: nothing left to watch for
+    for _ in range(RETIRED_KEPT + 2):
+        head.new_champion(_model(), _monitor(), window_samples=1000)
+    assert len(head.retired) == RETIRED_KEPT
+    assert all(w.blocks_left == -(-1000 // w.monitor.block_samples) for w in head.retired)

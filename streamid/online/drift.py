@@ -221,14 +221,24 @@ class DriftMonitor:
         self.epoch = -1
         self.blocks = 0
         self.skipped = 0
+        self.spent = False  # a change was signalled against this reference: no further signal
         self.last_level = 0.0  # the last judged block's level relative to the reference (log of a ratio)
+
+    def spend(self) -> None:
+        """After a change is signalled (by this or another monitor of the output): raise no further signal.
+
+        The reference predates the change, so every later block would only signal it again; a new
+        champion brings a new monitor.  Levels are still computed and shown.
+        """
+        self.spent = True
+        self._test.reset()
 
     def summary(self) -> dict[str, Any]:
         """What the status shows of this watch (levels are natural logs of amplitude ratios)."""
         last = self.last_level if math.isfinite(self.last_level) else None
         return {"block_samples": self.block_samples, "blocks": self.blocks, "skipped": self.skipped,
                 "last_level": last, "spread": self.current_spread(), "cusum_up": self._test.upper,
-                "cusum_down": self._test.lower, "h": self._test.h}
+                "cusum_down": self._test.lower, "h": self._test.h, "spent": self.spent}
 
     def current_spread(self) -> float:
         """The reference's spread, or the recent blocks' own (about their median) if it is wider."""
@@ -255,6 +265,8 @@ class DriftMonitor:
             z = self.last_level / self.current_spread()
         else:  # the free run diverged or collapsed on this block
             self.last_level, z = math.inf, self.settings.clip
+        if self.spent:
+            return None
         if self.blocks - self.skipped == 1:
             self._zero_ns = [t_end_ns, t_end_ns]  # (the first block's end: the best known before it)
         side = self._test.update(z)

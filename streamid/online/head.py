@@ -9,13 +9,27 @@ rules that change it live in :mod:`streamid.online.acceptance` (who wins) and
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
 from streamid.engine import CoEAState, Model
 from streamid.online.drift import DriftMonitor
 
-__all__ = ["OutputHead"]
+__all__ = ["OutputHead", "Watched"]
+
+#: replaced champions whose watch goes on at once (the newest kept)
+RETIRED_KEPT = 2
+
+
+@dataclass(eq=False)
+class Watched:
+    """A replaced champion still watched for drift: its version, model, monitor and the blocks left to it."""
+
+    version: int
+    model: Model
+    monitor: DriftMonitor
+    blocks_left: int
 
 
 @dataclass(eq=False)
@@ -40,14 +54,30 @@ class OutputHead:
     monitor: DriftMonitor | None = None
     drift_t_ns: int | None = None  # estimated start of the last detected change (windows are cut to begin there)
     escalate: bool = False  # the next identification runs with the drift budget
+    escalated_runs: int = 0  # escalated runs since the last drift
     drifts: int = 0
+    #: replaced champions watched on for one window (a change of model does not erase the evidence of a change)
+    retired: deque[Watched] = field(default_factory=lambda: deque(maxlen=RETIRED_KEPT))
+    watched_version: int = 0  # the version ``model`` had when it became champion (``version`` before its call)
 
-    def new_champion(self, model: Model, monitor: DriftMonitor | None) -> None:
-        """Serve ``model`` from now on, watched by ``monitor`` (None: not watched)."""
+    def new_champion(self, model: Model, monitor: DriftMonitor | None, *, window_samples: int = 0) -> None:
+        """Serve ``model`` from now on, watched by ``monitor`` (None: not watched).
+
+        The outgoing champion's monitor, if any and not spent, goes on watching for ``window_samples`` more
+        samples (one window: until the new champion's reference holds none of the data the old one was judged
+        on).  A new champion is chosen on held-out data that may already hold part of a change, and its
+        reference is its own window: without this, a change followed at once by a better challenger went
+        unsignalled (2 of 32 simulated dampers) or late (4 more).
+        """
+        old = self.monitor
+        if self.model is not None and old is not None and not old.spent and window_samples > 0:
+            blocks = -(-window_samples // old.block_samples)
+            self.retired.append(Watched(self.watched_version, self.model, old, blocks))
         self.model = model
         self.monitor = monitor
         self.wins = 0
         self.current = {}
+        self.watched_version = self.version
 
     def snapshot(self) -> dict[str, Any]:
         """The part of :class:`~streamid.online.snapshot.StreamState` that belongs to this output."""

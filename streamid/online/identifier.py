@@ -74,6 +74,9 @@ __all__ = ["OnlineIdentifier", "Update", "Persist", "EVENTS_KEPT"]
 #: (``Update.saved`` is False, the status says ``state_saved: false``): versions stay unique in memory.
 Persist = Callable[[StreamState], object]
 
+#: After a drift, identifications run with ``drift_generations`` until a challenger is accepted, at most this many.
+ESCALATED_RUNS = 3
+
 #: A windows' cut after a drift is used only if it keeps at least this fraction of the window.
 _MIN_CUT_FRACTION = 0.25
 
@@ -202,8 +205,9 @@ class OnlineIdentifier(StreamIntake):
             self._last["outcome"] = outcome.kind
             return self._refuse(job, outcome, outcome.kind, outcome.reason, outcome.code or outcome.kind, now_ns)
         assert outcome.model is not None and outcome.summary is not None
-        if job.generations is not None:
-            head.escalate = False
+        if job.generations is not None:  # escalated: until a champion is accepted, at most ESCALATED_RUNS runs
+            head.escalated_runs += 1
+            head.escalate = head.escalated_runs < ESCALATED_RUNS
         if outcome.champion_metrics is not None and head.model is not None:
             head.current = {**outcome.champion_metrics, "t_ns": outcome.t_val_ns, "window": w.number,
                             "version": head.version}
@@ -245,13 +249,14 @@ class OnlineIdentifier(StreamIntake):
         w = job.window
         if head.model is not None:
             head.replaced += 1
+        head.escalate = False
         self._version = version
         head.version, head.document, head.payload = version, doc, payload
         head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
         seen = w if job.cut_t_ns is None else cut_window(w, job.cut_t_ns)  # its reference: the data it won on
         head.new_champion(model, None if self._drift is None or head.output not in w.output_names else
                           reference_monitor(self._drift, model, seen.u, seen.y[:, w.output_names.index(head.output)],
-                                            w.period_ns))
+                                            w.period_ns), window_samples=w.u.shape[0])
         head.since_t_ns, head.since_unix_ns = w.t_end_ns, now_ns
         saved = True
         if persist is not None:
@@ -496,10 +501,11 @@ class OnlineIdentifier(StreamIntake):
     def _watch(self, now_ns: int) -> None:
         """Run each champion free over the blocks of samples just completed (:mod:`streamid.online.watch`)."""
         for d in watch_blocks(self._heads.values(), self._buffer):
-            mon = d.head.monitor
+            mon = d.monitor
             level = mon.last_level if mon is not None else float("nan")
             ratio = "diverged" if not np.isfinite(level) else f"{np.exp(level):.2f} x"
-            self._event("drift", f"{d.head.output}: the output's level moved away from champion v{d.head.version}'s "
+            whose = f"champion v{d.version}" if d.version == d.head.version else f"v{d.version} (replaced, still watched)"
+            self._event("drift", f"{d.head.output}: the output's level moved away from {whose}'s "
                         f"free run (last block: measured/model amplitude {ratio} its reference); change estimated "
                         f"at stream time {d.change_ns / 1e9:.2f} s: the next identification uses data from then on "
                         f"with {self.config.drift_generations} generations", d.t_end_ns, now_ns)

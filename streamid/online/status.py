@@ -55,6 +55,8 @@ def stream_status(
             "drift_t_ns": h.drift_t_ns,
             "escalated": h.escalate,
             "drift_watch": h.monitor.summary() if h.monitor is not None else None,
+            "drift_watch_replaced": [{"version": w.version, "blocks_left": w.blocks_left, **w.monitor.summary()}
+                                     for w in h.retired],
         }
         for h in heads
     }

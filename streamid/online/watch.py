@@ -31,26 +31,33 @@ class Drift:
     head: OutputHead
     change_ns: int
     t_end_ns: int
+    monitor: DriftMonitor
+    version: int  # of the model whose monitor signalled (the champion's, or a replaced champion's)
 
 
 def watch_blocks(heads: Iterable[OutputHead], buffer: WindowBuffer) -> list[Drift]:
     """Feed every watched champion the blocks completed since its last one; the drifts they signalled."""
+    heads = list(heads)
     epoch, complete = buffer.position
     names, cap = buffer.output_names, buffer.lengths[2]
-    due: list[tuple[OutputHead, DriftMonitor, Model, int, int]] = []  # (..., first sample, samples it needs)
-    for head in heads:
-        mon, m = head.monitor, head.model
+    due: list[tuple[OutputHead, DriftMonitor, Model, int, int, int]] = []  # (..., version, first sample, samples it needs)
+    watched: list[tuple[OutputHead, DriftMonitor | None, Model | None, int]] = [
+        (head, w.monitor, w.model, w.version) for head in heads for w in head.retired]
+    watched += [(head, head.monitor, head.model, head.version) for head in heads]
+    for head, mon, m, version in watched:
         if mon is None or m is None or head.output not in names:
             continue
         if mon.epoch != epoch or mon.next_index is None or complete - mon.next_index + m.max_lag > cap:
             mon.epoch, mon.next_index = epoch, complete  # (re)start at the newest sample
         elif complete - mon.next_index >= mon.block_samples:
-            due.append((head, mon, m, mon.next_index, complete - mon.next_index + m.max_lag))
+            due.append((head, mon, m, version, mon.next_index, complete - mon.next_index + m.max_lag))
     got = buffer.recent(max(n for *_, n in due)) if due else None  # one copy for every output
     if got is None:
         return []
     found: list[Drift] = []
-    for head, mon, m, first, need in due:
+    for head, mon, m, version, first, need in due:
+        if mon is not head.monitor and not any(w.monitor is mon for w in head.retired):
+            continue  # a replaced champion's watch ended by a signal earlier in this call
         u, y = got[0][-need:], got[1][-need:, names.index(head.output)]
         if u.shape[1] != m.n_inputs:
             continue
@@ -63,7 +70,16 @@ def watch_blocks(heads: Iterable[OutputHead], buffer: WindowBuffer) -> list[Drif
         for level, r, mr, t_end in zip(lv.level, lv.rms, lv.model_rms, ends, strict=True):
             change_ns = mon.block(float(level), float(r), float(mr), int(t_end))
             if change_ns is not None:
-                head.drift_t_ns, head.escalate = change_ns, True
+                head.drift_t_ns, head.escalate, head.escalated_runs = change_ns, True, 0
                 head.drifts += 1
-                found.append(Drift(head, change_ns, int(t_end)))
+                found.append(Drift(head, change_ns, int(t_end), mon, version))
+                head.retired.clear()  # one change, one event: every reference of this output predates it
+                if head.monitor is not None:
+                    head.monitor.spend()
+                break
+        for w in list(head.retired):
+            if w.monitor is mon:
+                w.blocks_left -= n_blocks
+                if w.blocks_left <= 0:
+                    head.retired.remove(w)
     return found
