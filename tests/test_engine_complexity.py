@@ -75,3 +75,68 @@ def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
     plain = identify(u, y, replace(cfg, complexity="score"), 0)
     sc = [r.score for r in plain.runs]
     assert plain.chosen == int(np.argmax(sc))
+
+
+def test_candidates_of_different_sizes_on_the_same_lags_are_scored_together() -> None:
+    from streamid.engine.choice import free_run_scores
+    from streamid.engine.selection import free_run_r2
+
+    big, small = _net(30), _net(10)
+    big = replace(big, weights=big.weights * 0.01)
+    small = replace(small, weights=small.weights * 0.01)
+    rng = np.random.default_rng(0)
+    u, y = rng.uniform(0, 1, (80, 1)), rng.uniform(0, 1, 80)
+    fr = free_run_scores([big, small], u, y)  # raised "all input arrays must have the same shape" before
+    one = [free_run_scores([m], u, y).scores[0] for m in (big, small)]
+    assert fr.scores == pytest.approx(one)
+    assert free_run_r2([big, small], u, y) == pytest.approx([free_run_r2([m], u, y)[0] for m in (big, small)])
+
+
+def test_forward_selection_order_takes_the_explaining_columns_first() -> None:
+    from streamid.engine.complexity import ols_order
+
+    rng = np.random.default_rng(1)
+    phi = rng.normal(size=(200, 6))
+    target = 2.0 * phi[:, 3] + 0.3 * phi[:, 0] + 0.01 * rng.normal(size=200)
+    order = ols_order(phi, target)
+    assert order[:2] == [3, 0] and sorted(order) == list(range(6))
+    dup = np.column_stack([phi[:, :2], phi[:, :1]])  # a column identical to another explains nothing new
+    assert ols_order(dup, phi[:, 0])[0] in (0, 2) and sorted(ols_order(dup, phi[:, 0])) == [0, 1, 2]
+
+
+def test_pruned_and_padded_networks() -> None:
+    from streamid.engine.complexity import padded, pruned
+
+    m = _net(12)
+    m = replace(m, weights=m.weights * 0.05, metrics={"fitness": 1.0})
+    rng = np.random.default_rng(2)
+    u, y = rng.uniform(0, 1, (300, 1)), rng.uniform(0, 1, 300)
+    small = pruned(m, u, y, (4, 8, 12, 20), 1e-10)
+    assert [s.neurons for s in small] == [4, 8]  # sizes below M only
+    for s in small:  # the neurons kept are some of the original ones; the fitness is the refitted network's
+        assert all(any(np.array_equal(c, d) for d in m.centres) for c in s.centres)
+        assert s.metrics["fitness"] != 1.0 and np.isfinite(s.metrics["fitness"])
+    assert small[0].metrics["fitness"] >= small[1].metrics["fitness"]  # nested: more neurons fit no worse
+    p = padded(small[0], 12)
+    assert p.neurons == 12 and padded(m, 5) is m
+    np.testing.assert_allclose(p.simulate(u, y), small[0].simulate(u, y), rtol=1e-12, atol=1e-12)
+
+
+def test_prune_lets_a_smaller_network_compete_and_says_so() -> None:
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-1, 1, 700)
+    y = np.zeros(700)
+    for t in range(2, 700):
+        y[t] = 0.6 * y[t - 1] + np.tanh(u[t - 1]) - 0.2 * u[t - 2] * y[t - 2]
+    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, prune_runs=4)
+    res = identify(u, y, cfg, 0)
+    assert res.model.metrics["complexity"]["neurons"] == res.model.neurons
+    ev = res.model.metrics["neuron_choice"]  # the chosen run's network against its pruned versions
+    assert [c["neurons"] for c in ev["candidates"]] == [30, 10, 20] and ev["neurons"] == res.model.neurons
+    assert ev["candidates"][0]["r2_fr_est"] == res.runs[res.chosen].score  # the run's own network, before pruning
+    assert res.model.metrics["complexity"]["candidates"][res.chosen]["neurons"] == res.model.neurons
+    ok = [c["criterion"] for c in ev["candidates"] if c["criterion"] is not None]
+    chosen = next(c for c in ev["candidates"] if c["neurons"] == res.model.neurons)
+    assert chosen["criterion"] == min(ok)
+    plain = identify(u, y, replace(cfg, prune_runs=0), 0)
+    assert "neuron_choice" not in plain.model.metrics and plain.model.neurons == 30

@@ -281,6 +281,12 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
           + "; ".join(f"{c['neurons']}, 1..{c['lag_space']}, {c['params']}, "
                       + ("not admissible" if c["criterion"] is None else f"{c['r2_fr_est']:.5f}, {c['criterion']:.1f}")
                       for c in cx["candidates"]) + "\n")
+    nc = Model.from_json(b["model"]).metrics.get("neuron_choice")
+    if nc:  # the chosen run's network against its pruned versions (CoEAConfig.prune)
+        w(f"neurons of the chosen run by {nc['rule']}: {nc['neurons']} of "
+          + ", ".join(f"{c['neurons']} (" + ("not admissible" if c["criterion"] is None
+                                             else f"FR R2 est {c['r2_fr_est']:.5f}, {c['criterion']:.1f}") + ")"
+                      for c in nc["candidates"]) + "\n")
     for part, title in (("est", "estimation"), ("val", "validation")):
         c = b["correlation"][part]
         w(f"correlation tests on the {title} residual ({c['n']} samples, 95 % band ±{c['band']:.3g}):\n")

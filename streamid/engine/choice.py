@@ -119,8 +119,8 @@ def free_run_scores(
     exc = [np.inf] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation), []).append(i)
-    for (regs, norm), idx in groups.items():
+        groups.setdefault((m.regressors, m.normalisation, m.neurons), []).append(i)
+    for (regs, norm, _), idx in groups.items():
         L = max((r.lag for r in regs), default=0)
         first = L if score_from is None else max(int(score_from), L)
         if first >= len(y) - 1:
@@ -218,8 +218,8 @@ def _fr_r2(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64]) 
     out = [-np.inf] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation), []).append(i)
-    for (regs, norm), idx in groups.items():
+        groups.setdefault((m.regressors, m.normalisation, m.neurons), []).append(i)
+    for (regs, norm, _), idx in groups.items():
         L = max((r.lag for r in regs), default=0)
         with np.errstate(over="ignore", invalid="ignore"):
             sim = norm.y_inverse(free_run(

@@ -56,7 +56,7 @@ from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.regressors import Normalisation, as_data
-from streamid.engine.selection import free_run_r2, refit_weights, select_model
+from streamid.engine.selection import free_run_r2, pruned_choice, refit_weights, select_model
 from streamid.engine.settings import DEFAULT, CoEAConfig
 from streamid.errors import ConfigError, DataError
 
@@ -368,9 +368,16 @@ def identify(
     models = [Model.from_json(o["model"]) for o in outs]
     scores = [float(o["score"]) for o in outs]
     complexity: dict[str, Any] | None = None
+    spaces = [int(o.get("max_lag", cfg.max_lag)) for o in outs]
     if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.complexity)
-        chosen, complexity = choose_complexity(cfg.complexity, models, scores, n,
-                                               [int(o.get("max_lag", cfg.max_lag)) for o in outs])
+        chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
+        if cfg.prune_runs:  # the best runs' pruned networks compete too (CoEAConfig.prune_runs)
+            ranked = sorted((c for c in complexity["candidates"] if c["criterion"] is not None),
+                            key=lambda c: (c["criterion"], c["run"]))[: cfg.prune_runs]
+            for c in ranked:
+                i = int(c["run"])
+                models[i], scores[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, cfg.range_margin)
+            chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
     else:
         chosen = int(np.argmax(scores))
     final = models[chosen]

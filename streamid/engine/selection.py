@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.choice import blocked_cv_scores, free_run_scores, group_free_run
+from streamid.engine.complexity import criterion, padded, parameter_count, pruned
 from streamid.engine.model import Model
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import as_data
@@ -22,8 +23,9 @@ from streamid.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from streamid.engine.coevolution import Coevolution
+    from streamid.engine.settings import CoEAConfig
 
-__all__ = ["free_run_r2", "refit_weights", "select_model"]
+__all__ = ["free_run_r2", "pruned_choice", "refit_weights", "select_model"]
 
 
 def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight_decay: float = 0.0) -> Model:
@@ -71,8 +73,8 @@ def free_run_r2(
     out = [0.0] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation), []).append(i)
-    for (regs, norm), idx in groups.items():
+        groups.setdefault((m.regressors, m.normalisation, m.neurons), []).append(i)
+    for (regs, norm, _), idx in groups.items():
         L = max((r.lag for r in regs), default=0)
         first = L if score_from is None else score_from
         if first < L:
@@ -154,6 +156,27 @@ def select_model(
         if ens is not None and ens_score >= score:
             return ens, float(ens_score)
     return chosen, float(score)
+
+
+def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.float64], y: NDArray[np.float64],
+                   margin: float) -> tuple[Model, float]:
+    """A chosen model or one of its pruned networks (``M // 3``, ``2 M // 3`` neurons kept in
+    forward-selection order, :func:`~streamid.engine.complexity.pruned`), by the complexity rule on the
+    estimation free run (range guard included). Evidence in ``metrics.neuron_choice``."""
+    M = model.neurons
+    with one_blas_thread():
+        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), cfg.ridge, cfg.weight_decay)
+        if not smaller:
+            return model, score
+        fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run
+    rows = [(model, score, 0.0), *zip(smaller, fr.scores, fr.excursions)]
+    crit = [criterion(cfg.complexity, s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
+            for m, s, e in rows]
+    k = int(np.argmin(crit))  # ties: the unpruned network (first)
+    ev = {"rule": cfg.complexity, "neurons": rows[k][0].neurons,
+          "candidates": [{"neurons": m.neurons, "r2_fr_est": s if e == 0.0 else None,
+                          "criterion": c if np.isfinite(c) else None} for (m, s, e), c in zip(rows, crit)]}
+    return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1])
 
 
 def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float) -> tuple[Model, float] | None:
