@@ -140,3 +140,19 @@ def test_prune_lets_a_smaller_network_compete_and_says_so() -> None:
     assert chosen["criterion"] == min(ok)
     plain = identify(u, y, replace(cfg, prune_runs=0), 0)
     assert "neuron_choice" not in plain.model.metrics and plain.model.neurons == 30
+
+
+def test_fallback_runs_are_made_while_the_best_fit_is_poor() -> None:
+    rng = np.random.default_rng(5)
+    u = rng.uniform(-1, 1, 500)
+    y = np.zeros(500)
+    for t in range(1, 500):  # mostly noise: no model free-runs well
+        y[t] = 0.3 * np.tanh(u[t - 1]) + rng.normal()
+    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, max_lag_cap=0, restarts=2, prune_runs=0)
+    poor = identify(u, y, cfg.replace(fallback_below=0.9), 0)
+    assert max(r.score for r in poor.runs[:2]) <= 0.9
+    assert poor.model.metrics["fallback_runs"] == [15, 8] and len(poor.runs) == 4
+    assert poor.model.metrics["run_neurons"][2:] == [15, 8]
+    assert identify(u, y, cfg.replace(fallback_below=-1e9), 0).model.metrics["fallback_runs"] == []
+    with pytest.raises(ConfigError, match="fallback_below"):
+        CoEAConfig(fallback_below=2.0)

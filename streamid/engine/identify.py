@@ -356,7 +356,7 @@ def identify(
     # networks, one run each in the order of fallback_neurons, until one has an admissible candidate.
     fallback_made: list[int] = []
     for m in cfg.fallback_neurons:
-        if max(o["score"] for o in outs) > -1e9:
+        if max(o["score"] for o in outs) > max(-1e9, cfg.fallback_below):
             break
         made = list(outs)
         job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor}
