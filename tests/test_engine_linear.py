@@ -89,6 +89,8 @@ def test_file_format_versions() -> None:
     plain = _model(linear=False)
     assert json.loads(plain.to_json())["format"] == MODEL_FORMAT  # no linear part: still the first format
     assert "linear" not in json.loads(plain.to_json()) and Model.from_json(plain.to_json()).linear is None
+    odd = {**json.loads(plain.to_json()), "linear": [1.0, 2.0, 3.0, 4.0, 5.0]}  # a /1 document has no linear part
+    assert Model.from_dict(odd).linear is None
     doc = json.loads(m.to_json())
     del doc["linear"]
     with pytest.raises(ModelFormatError, match="needs the field 'linear'"):
