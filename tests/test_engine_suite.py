@@ -40,6 +40,12 @@ def test_periodic_validation_scores_the_second_pass() -> None:
     sim = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[: model.max_lag])[len(t.y_val) :]
     assert b == pytest.approx(1 - np.sum((t.y_val - sim) ** 2) / np.sum((t.y_val - t.y_val.mean()) ** 2))
     assert a != b
+    # a linear part that makes the free run diverge scores -inf (was: r2 raised on the infinite values)
+    from dataclasses import replace
+
+    k = len(model.regressors)
+    wild = replace(model, linear=np.r_[[5.0 if r.signal == "y" else 0.0 for r in model.regressors], 0.0])
+    assert k >= 1 and free_run_val(wild, t) == float("-inf") and free_run_val(wild, periodic) == float("-inf")
 
 
 def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:

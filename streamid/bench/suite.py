@@ -151,13 +151,18 @@ def targets(names: tuple[str, ...] | None = None) -> list[Target]:
 
 
 def free_run_val(model: Model, t: Target) -> float:
-    """Free-run R^2 of ``model`` on the validation part (periodic: the second pass scored)."""
+    """Free-run R^2 of ``model`` on the validation part (periodic: the second pass scored);
+    -inf when the free run diverges (only a model with a linear part can: its output is unbounded)."""
     L = model.max_lag
-    if t.periodic_val:
-        sim = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])
-        return r2(t.y_val, sim[len(t.y_val) :])
-    sim = model.simulate(t.u_val, t.y_val[:L])
-    return r2(t.y_val[L:], sim[L:])
+    with np.errstate(over="ignore", invalid="ignore"):
+        if t.periodic_val:
+            sim = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])[len(t.y_val) :]
+            ref = t.y_val
+        else:
+            sim, ref = model.simulate(t.u_val, t.y_val[:L])[L:], t.y_val[L:]
+    if not np.all(np.isfinite(sim)):
+        return float("-inf")
+    return r2(ref, sim)
 
 
 def identify_target(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
