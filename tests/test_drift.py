@@ -220,3 +220,15 @@ def test_a_spent_monitor_signals_no_more_and_is_not_kept_when_its_champion_is_re
         head.new_champion(_model(), _monitor(), window_samples=1000)
     assert len(head.retired) == RETIRED_KEPT
     assert all(w.blocks_left == -(-1000 // w.monitor.block_samples) for w in head.retired)
+
+
+def test_a_replaced_champions_watch_needs_more_evidence_so_the_outputs_alarm_rate_stays_bounded() -> None:
+    head = OutputHead("y")
+    head.new_champion(_model(), _monitor(), window_samples=1000)
+    head.new_champion(_model(), _monitor(), window_samples=1000)
+    (w,) = head.retired
+    s = DriftSettings()
+    assert w.monitor.summary()["h"] == pytest.approx(s.h + np.log(1 + RETIRED_KEPT) / (2 * s.k))
+    assert head.monitor is not None and head.monitor.summary()["h"] == s.h
+    hits = [w.monitor.block(np.log(1.5), 1.0, 1.0, i) for i in range(4)]  # clipped at 3: +2 a block
+    assert hits[:3] == [None] * 3 and hits[3] is not None  # 6.0 signals the champion's test, 6.55 needs a 4th block

@@ -79,8 +79,10 @@ approximation; ~58 h of 0.5 s blocks for the two sides): real residuals are neit
 normal, and this margin is what kept every stationary record of docs/benchmarks.md free of alarms.
 A shift of two spreads is signalled after about 6.7 blocks, of three after about 3.5.  ``k`` 0.5
 (1,290 blocks at ``h`` 6: an alarm every ~11 minutes) gave one false alarm in 600 s on two of three
-stationary simulated dampers.  When the champion changes, the monitor restarts with the new
-champion's reference.
+stationary simulated dampers.  When the champion changes, a new monitor starts with the new
+champion's reference, and the replaced champion's goes on for one window
+(:class:`~streamid.online.head.OutputHead`): a signal from either is a drift.  After a signal every
+monitor of the output is *spent* (:meth:`DriftMonitor.spend`): one change raises one event.
 """
 
 from __future__ import annotations
@@ -223,6 +225,16 @@ class DriftMonitor:
         self.skipped = 0
         self.spent = False  # a change was signalled against this reference: no further signal
         self.last_level = 0.0  # the last judged block's level relative to the reference (log of a ratio)
+
+    def retire(self, watches: int) -> None:
+        """The champion was replaced; this monitor goes on next to the new one's and ``watches - 1`` others.
+
+        Its threshold rises by ``log(watches) / (2 k)``: by Siegmund's approximation the in-control
+        run length of a CUSUM grows as ``exp(2 k h)``, so each replaced champion's watch raises
+        alarms ``watches`` times less often than the champion's, and the output's together at most
+        twice as often as one watch.  (With the defaults: h 6 -> 6.55, one block more at most.)
+        """
+        self._test.h = self.settings.h + math.log(max(1, watches)) / (2 * self.settings.k)
 
     def spend(self) -> None:
         """After a change is signalled (by this or another monitor of the output): raise no further signal.

@@ -72,6 +72,7 @@ class OutputHead:
         old = self.monitor
         if self.model is not None and old is not None and not old.spent and window_samples > 0:
             blocks = -(-window_samples // old.block_samples)
+            old.retire(1 + RETIRED_KEPT)
             self.retired.append(Watched(self.watched_version, self.model, old, blocks))
         self.model = model
         self.monitor = monitor
