@@ -232,3 +232,18 @@ def test_a_replaced_champions_watch_needs_more_evidence_so_the_outputs_alarm_rat
     assert head.monitor is not None and head.monitor.summary()["h"] == s.h
     hits = [w.monitor.block(np.log(1.5), 1.0, 1.0, i) for i in range(4)]  # clipped at 3: +2 a block
     assert hits[:3] == [None] * 3 and hits[3] is not None  # 6.0 signals the champion's test, 6.55 needs a 4th block
+
+
+def test_a_new_champion_starts_with_the_spread_its_predecessor_saw_on_the_stream() -> None:
+    old = _monitor()
+    rng = np.random.default_rng(3)
+    for i, v in enumerate(rng.normal(0.0, 0.2, 30)):  # the stream's blocks vary 4 x more than the reference did
+        old.block(float(v), 1.0, 1.0, i)
+    wide = old.current_spread()
+    assert wide > 2 * 0.05  # twice the reference's
+    head = OutputHead("y")
+    head.new_champion(_model(), old, window_samples=1000)
+    new = _monitor()
+    assert new.current_spread() == pytest.approx(0.05, rel=0.3)  # a quiet reference window alone
+    head.new_champion(_model(), new, window_samples=1000)
+    assert new.current_spread() == pytest.approx(wide, rel=0.05)  # ... widened by what the stream showed

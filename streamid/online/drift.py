@@ -226,6 +226,18 @@ class DriftMonitor:
         self.spent = False  # a change was signalled against this reference: no further signal
         self.last_level = 0.0  # the last judged block's level relative to the reference (log of a ratio)
 
+    def inherit(self, previous: DriftMonitor) -> None:
+        """Start the recent blocks with ``previous``'s (the replaced champion's, on the same output).
+
+        The spread used is never below that of the recent blocks about their median; a new champion
+        has none of its own yet, and its reference window can be quieter than the stream (the F-16's
+        multisine repeats every 20.48 s, and a 10 s window can hold its calmer half: reference spread
+        0.055 where the previous champions' blocks spread 0.15-0.21; a false alarm 2.5 s later).  How
+        much a block's level varies is mostly the data's doing, so the previous champion's recent
+        residuals stand in until this one's own replace them.
+        """
+        self._recent.extend(previous._recent)
+
     def retire(self, watches: int) -> None:
         """The champion was replaced; this monitor goes on next to the new one's and ``watches - 1`` others.
 

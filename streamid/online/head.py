@@ -70,6 +70,8 @@ class OutputHead:
         unsignalled (2 of 32 simulated dampers) or late (4 more).
         """
         old = self.monitor
+        if old is not None and monitor is not None:
+            monitor.inherit(old)
         if self.model is not None and old is not None and not old.spent and window_samples > 0:
             blocks = -(-window_samples // old.block_samples)
             old.retire(1 + RETIRED_KEPT)
