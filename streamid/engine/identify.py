@@ -31,7 +31,14 @@ from the estimation data (:mod:`streamid.engine.lagspace`; evidence in the model
 with ``hedge_neurons`` neurons when > 0). A two-stage run's
 second stage always trains on a lag set with an input term. After the runs, if no
 run has an admissible candidate, one more run is made with each of
-``fallback_neurons`` in turn until one has (``metrics.fallback_runs``).
+``fallback_neurons`` in turn until one has (``metrics.fallback_runs``; with
+``fallback_below``, also while the best run's score is at most that).
+
+With ``selection="fr_est"`` the run kept is chosen by ``complexity``
+(:mod:`streamid.engine.complexity`: by default the lowest ``n log(1 - R2_fr) + 2 p``
+over the runs' admissible candidates, ``p`` the weights fitted; evidence in
+``metrics.complexity``), after the ``prune_runs`` best runs have offered their
+networks pruned to ``M // 3`` and ``2 M // 3`` neurons (``metrics.neuron_choice``).
 
 The normalisation is always the min/max of all the estimation data. Validation
 data are never looked at.
