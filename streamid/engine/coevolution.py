@@ -49,7 +49,7 @@ from streamid.engine._blas import one_blas_thread
 from streamid.engine.settings import CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
-from streamid.engine.rbf import BatchEvaluator, activations, fit_linear_rbf, fit_weights
+from streamid.engine.rbf import BatchEvaluator, activations, activations_batch, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
 from streamid.engine.populations import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
@@ -404,27 +404,49 @@ class Coevolution:
         (``search_rows``: on the rows the search used only; a cheaper fit for screening candidates)."""
         M, D = self.config.neurons, self.D
         cols = np.flatnonzero(mask)
-        centres = x[: M * D].reshape(M, D)[:, cols]
-        widths = x[M * D :]
-        R, target = self.R, self.target
-        if search_rows and self._rows is not None:
-            R, target = R[self._rows], target[self._rows]
+        R, target = self._fit_rows(search_rows)
         with one_blas_thread():
-            phi = activations(R[:, cols], centres, widths)
-            lin = None
-            if self.config.linear_terms:  # the RBF network with linear terms: one least squares for both
-                w, lin = fit_linear_rbf(phi, R[:, cols], target, self.config.ridge, self.config.weight_decay)
-                fit = phi @ w + R[:, cols] @ lin[:-1] + lin[-1]
-            else:
-                w = fit_weights(phi, target, self.config.ridge, self.config.weight_decay)
-                fit = phi @ w
-            mse = float(np.mean((fit - target) ** 2)) * self.scale
+            phi = activations(R[:, cols], x[: M * D].reshape(M, D)[:, cols], x[M * D :])
+            return self._fitted(cols, x, phi, R[:, cols], target)
+
+    def models_for(self, mask: NDArray[np.bool_], xs: list[NDArray[np.float64]], *,
+                   search_rows: bool = False) -> list[Model]:
+        """:meth:`model_for` of several parameter vectors with one mask, their activations computed
+        together as the search computes them (:func:`~streamid.engine.rbf.activations_batch`)."""
+        if not xs:
+            return []
+        M, D = self.config.neurons, self.D
+        cols = np.flatnonzero(mask)
+        R, target = self._fit_rows(search_rows)
+        X = np.stack(xs)
+        with one_blas_thread():
+            rs = np.ascontiguousarray(R[:, cols])
+            phis = activations_batch(rs, X[:, : M * D].reshape(-1, M, D)[:, :, cols], X[:, M * D :])
+            return [self._fitted(cols, x, phi.T, rs, target) for x, phi in zip(xs, phis)]
+
+    def _fit_rows(self, search_rows: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        if search_rows and self._rows is not None:
+            return self.R[self._rows], self.target[self._rows]
+        return self.R, self.target
+
+    def _fitted(self, cols: NDArray[np.intp], x: NDArray[np.float64], phi: NDArray[np.float64],
+                r: NDArray[np.float64], target: NDArray[np.float64]) -> Model:
+        """The Model of parameters ``x`` on lags ``cols`` with activations ``phi`` (n, M) on regressors ``r``."""
+        M, D = self.config.neurons, self.D
+        lin = None
+        if self.config.linear_terms:  # the RBF network with linear terms: one least squares for both
+            w, lin = fit_linear_rbf(phi, r, target, self.config.ridge, self.config.weight_decay)
+            fit = phi @ w + r @ lin[:-1] + lin[-1]
+        else:
+            w = fit_weights(phi, target, self.config.ridge, self.config.weight_decay)
+            fit = phi @ w
+        mse = float(np.mean((fit - target) ** 2)) * self.scale
         if not np.all(np.isfinite(w)) or not np.isfinite(mse) or (lin is not None and not np.all(np.isfinite(lin))):
             raise DataError("the least-squares weights are not finite (the data are numerically degenerate)")
         return Model(
             regressors=tuple(self.candidates[j] for j in cols),
-            centres=centres,
-            widths=widths.copy(),
+            centres=x[: M * D].reshape(M, D)[:, cols],
+            widths=x[M * D :].copy(),
             weights=w,
             normalisation=self.norm,
             input_names=self.input_names,
@@ -435,26 +457,39 @@ class Coevolution:
             linear=lin,
         )
 
+    def _members(self, limit: int | None) -> list[int]:
+        """Every member of ``X``, or the ``limit`` of lowest fitness (in population order)."""
+        if limit is not None and limit < self.X.shape[0]:
+            return sorted(np.argsort(self.fx, kind="stable")[: max(0, int(limit))].tolist())
+        return list(range(self.X.shape[0]))
+
     def candidate_pairs(self, limit: int | None = None) -> list[tuple[NDArray[np.bool_], NDArray[np.float64]]]:
         """(mask, parameters) of the best pair and of the members :meth:`population_models` would give."""
         b = int(np.argmin(self.fh))
-        members: list[int] = list(range(self.X.shape[0]))
-        if limit is not None and limit < self.X.shape[0]:
-            members = sorted(np.argsort(self.fx, kind="stable")[: max(0, int(limit))].tolist())
-        return [(self.best_h, self.best_x), *((self.H[b], self.X[i]) for i in members)]
+        return [(self.best_h, self.best_x), *((self.H[b], self.X[i]) for i in self._members(limit))]
 
     def population_models(self, limit: int | None = None, *, search_rows: bool = False) -> list[Model]:
-        """Models of every parameter vector paired with the best harmony, weights refitted.
+        """Models of every parameter vector paired with the best harmony, weights refitted
+        (:meth:`models_for`: activations computed together).
 
         Candidates for a choice by another criterion than the fitness (e.g. free-run R^2):
         in the second half of a run every member of ``X`` evolved with the best harmony.
         ``limit``: only that many members, those of lowest fitness (in population order).
         """
         b = int(np.argmin(self.fh))
-        members: list[int] = list(range(self.X.shape[0]))
-        if limit is not None and limit < self.X.shape[0]:
-            members = sorted(np.argsort(self.fx, kind="stable")[: max(0, int(limit))].tolist())
-        return [self.model_for(self.H[b], self.X[i], search_rows=search_rows) for i in members]
+        return self.models_for(self.H[b], [self.X[i] for i in self._members(limit)], search_rows=search_rows)
+
+    def candidate_models(self, limit: int | None = None) -> list[Model]:
+        """The best pair's model, then :meth:`population_models` without a member that is the best pair
+        itself (same harmony and parameters: DE keeps the best trial, so a second stage's best pair is a
+        member); fitted together when they share the harmony (the usual case)."""
+        if not np.isfinite(self.best_f):
+            raise DataError("no pair has been evaluated")
+        b = int(np.argmin(self.fh))
+        if not np.array_equal(self.H[b], self.best_h):
+            return [self.best_model(), *self.population_models(limit)]
+        xs = [self.X[i] for i in self._members(limit) if not np.array_equal(self.X[i], self.best_x)]
+        return self.models_for(self.best_h, [self.best_x, *xs])
 
     def best_model(self) -> Model:
         """Model of the best pair ever evaluated, weights refitted (see :func:`~streamid.engine.rbf.fit_weights`)."""

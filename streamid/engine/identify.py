@@ -170,7 +170,11 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         lag_cfg = cfg.replace(
             neurons=cfg.lag_search_neurons, generations=cfg.lag_search_generations, harmony_stop=1.0
         )
-        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **common).solve(_stage(tick, 0, 0))
+        lag_common = dict(common)
+        rows = common.get("rows")
+        if rows is not None and 0 < cfg.lag_search_rows < len(rows):  # fewer rows for the smaller network
+            lag_common["rows"] = rows[np.round(np.linspace(0, len(rows) - 1, cfg.lag_search_rows)).astype(np.intp)]
+        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **lag_common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.lagspace)...
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,
@@ -184,8 +188,9 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     model, score = select_model(run, u, y, cfg.selection, n_search=n_search)
     return {
         "seed": job["seed"],
-        "model": model.to_json(indent=None),
-        "state": run.state().to_json(),
+        # A run made in this process hands back its objects; a worker's go back as JSON.
+        "model": model if job.get("in_process") else model.to_json(indent=None),
+        "state": run.state() if job.get("in_process") else run.state().to_json(),
         "history": list(run.history),
         "evaluations": evaluations,
         "seconds": time.perf_counter() - t0,
@@ -200,6 +205,38 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
 def _report_after(report: Callable[[list[dict[str, Any]]], None], made: list[dict[str, Any]],
                   rs: list[dict[str, Any]]) -> None:
     report(made + rs)
+
+
+def _repeats_agree(outs: list[dict[str, Any]], job: dict[str, Any], cfg: CoEAConfig) -> bool:
+    """Whether ``job`` is a repeat not worth making: the runs already made with its configuration (neurons,
+    lag space) include two whose selection scores are the best two, both above ``fallback_below`` (good,
+    admissible fits), and within ``agree_tol`` of each other."""
+    same = sorted(float(o["score"]) for o in outs
+                  if (o["neurons"], o["max_lag"]) == (job["neurons"], job["max_lag"]))
+    return len(same) >= 2 and same[-2] > max(-1e9, cfg.fallback_below) and same[-1] - same[-2] <= cfg.agree_tol
+
+
+def _runs_until_agreed(jobs: list[dict[str, Any]], cfg: CoEAConfig, executor: Executor | None,
+                       helper: EvalHelper | None, report: Callable[[list[dict[str, Any]]], None],
+                       ) -> tuple[list[dict[str, Any]], list[int]]:
+    """The restarts in order, ``cfg.workers`` at a time, each skipped when :func:`_repeats_agree`;
+    returns the runs made and the indices of the jobs skipped."""
+    outs: list[dict[str, Any]] = []
+    skipped: list[int] = []
+    i = 0
+    while i < len(jobs):
+        chunk: list[int] = []
+        while i < len(jobs) and len(chunk) < max(1, cfg.workers):
+            if _repeats_agree(outs, jobs[i], cfg):
+                skipped.append(i)
+            else:
+                chunk.append(i)
+            i += 1
+        if chunk:
+            made = list(outs)
+            outs = made + fan_out(_one_run, [jobs[k] for k in chunk], cfg.workers, executor=executor,
+                                  helper=helper, on_result=partial(_report_after, report, made))
+    return outs, skipped
 
 
 def identify(
@@ -324,7 +361,7 @@ def identify(
     jobs = [
         {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
          "neurons": (cfg.hedge_neurons or sizes[i % len(sizes)]) if (hedge and i % 4 == 1) else sizes[i % len(sizes)],
-         "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag}
+         "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1}
         for i, s in enumerate(seeds)
     ]
     per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
@@ -348,16 +385,11 @@ def identify(
                 )
             )
 
-    # Fewer restarts when they agree: with agree_tol > 0 the first two runs are made, and the others only
-    # if their scores differ by more than agree_tol (or one has no admissible candidate).
-    first = jobs[:2] if cfg.agree_tol > 0 else jobs
-    outs = fan_out(_one_run, first, cfg.workers, executor=executor, helper=helper, on_result=report)
-    if len(first) < len(jobs):
-        sc = [o["score"] for o in outs]
-        if not (min(sc) > -1e9 and max(sc) - min(sc) <= cfg.agree_tol):
-            made = list(outs)
-            outs = made + fan_out(_one_run, jobs[len(first) :], cfg.workers, executor=executor, helper=helper,
-                                  on_result=lambda rs: report(made + rs))
+    if cfg.agree_tol > 0:  # fewer restarts when they agree (_repeats_agree)
+        outs, skipped = _runs_until_agreed(jobs, cfg, executor, helper, report)
+    else:
+        outs, skipped = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report), []
+    jobs = [j for i, j in enumerate(jobs) if i not in skipped]
 
     # No run admissible (every candidate's free run leaves the data's range or ignores the input): smaller
     # networks, one run each in the order of fallback_neurons, until one has an admissible candidate.
@@ -366,13 +398,16 @@ def identify(
         if max(o["score"] for o in outs) > max(-1e9, cfg.fallback_below):
             break
         made = list(outs)
-        job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor}
+        job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor,
+               "in_process": True}
         jobs.append(job)
         fallback_made.append(m)
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
                               on_result=partial(_report_after, report, made))
 
-    models = [Model.from_json(o["model"]) for o in outs]
+    if skipped and callback is not None:  # the progress reaches its end though some restarts were not made
+        callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs)))
+    models = [o["model"] if isinstance(o["model"], Model) else Model.from_json(o["model"]) for o in outs]
     scores = [float(o["score"]) for o in outs]
     complexity: dict[str, Any] | None = None
     spaces = [int(o.get("max_lag", cfg.max_lag)) for o in outs]
@@ -393,6 +428,7 @@ def identify(
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
+        restarts_skipped=skipped,
         run_neurons=[int(o.get("neurons", cfg.neurons)) for o in outs],
         fallback_runs=fallback_made,
         run_max_lags=[int(o.get("max_lag", cfg.max_lag)) for o in outs],
@@ -411,7 +447,7 @@ def identify(
     )
     return Result(
         model=final,
-        state=CoEAState.from_json(outs[chosen]["state"]),
+        state=st if isinstance(st := outs[chosen]["state"], CoEAState) else CoEAState.from_json(st),
         fitness_history=np.asarray(outs[chosen]["history"]),
         evaluations=int(sum(o["evaluations"] for o in outs)),
         seconds=time.perf_counter() - t_start,

@@ -117,8 +117,8 @@ def select_model(
     ``config.range_margin``. A run with no candidate in range scores below
     -1e9 (any run with one wins over it); its model says ``admissible: 0``.
     """
-    best = run.best_model()
     if selection == "fitness":
+        best = run.best_model()
         return best, -float(best.metrics["fitness"])
     if selection not in ("fr_est", "holdout_fr", "cv_fr"):
         raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr', 'cv_fr'; got {selection!r}")
@@ -128,7 +128,7 @@ def select_model(
         screened = _screened(run, u[:n], y[:n], margin)
         if screened is not None:
             return screened
-    cands = [best, *run.population_models(run.config.fr_candidates or None)]
+    cands = run.candidate_models(run.config.fr_candidates or None)  # the best pair first
     with one_blas_thread():
         if selection in ("fr_est", "cv_fr"):
             fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin)

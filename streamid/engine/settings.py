@@ -126,6 +126,12 @@ class CoEAConfig:
         > 0: each run draws this many rows at random (its own generator) and
         searches on them alone; every candidate model is then fitted and scored
         on all the rows. Large records cost the search no more than this many rows.
+    lag_search_rows : int
+        0: the lag search (first stage of a two-stage run) sees the search's rows. K > 0,
+        with ``search_rows`` in effect (a large record): it sees K of them, evenly spaced
+        among the sorted sample (no random draw: the second stage's stream is unchanged).
+        The lag search's network is smaller (``lag_search_neurons``), so fewer rows give
+        it as many rows per neuron as the second stage has.
     fr_candidates : int
         With a free-run selection: the candidates of a run are its best pair and
         this many members of its final population, those of lowest fitness
@@ -136,10 +142,13 @@ class CoEAConfig:
         selection rule chooses among all of them (the chosen M and every run's
         score are in the model's metrics). Empty: every run has ``neurons``.
     agree_tol : float
-        0: every one of ``restarts`` runs is made. > 0: the first two runs are made,
-        and the others only if the two runs' selection scores differ by more
-        than this (or one of them has no admissible candidate): fewer restarts
-        when they agree.
+        0: every one of ``restarts`` runs is made. > 0: fewer restarts when they agree.
+        A restart is a repeat (another seed) of its configuration (neurons, lag space);
+        it is not made when the runs already made with that configuration include two
+        whose selection scores are their best two, both above ``fallback_below`` (good,
+        admissible fits) and within ``agree_tol`` of each other. Runs of another
+        configuration (the hedge's short lag space, other sizes) are always made.
+        Evidence: ``metrics.restarts_skipped`` (the restarts not made).
     range_margin : float
         With ``selection="fr_est"`` or ``"holdout_fr"``: a candidate whose free run
         over the whole estimation record leaves the measured output's range widened
@@ -229,6 +238,7 @@ class CoEAConfig:
     selection: str = "fitness"
     holdout_fraction: float = 0.25
     search_rows: int = 0
+    lag_search_rows: int = 0
     range_margin: float = 0.25
     fr_candidates: int = 0
     agree_tol: float = 0.0
@@ -273,6 +283,10 @@ class CoEAConfig:
             raise ConfigError(
                 f"CoEAConfig.search_rows must be 0 (all rows) or >= 2 * neurons = {2 * self.neurons}; got {self.search_rows}"
             )
+        _int("lag_search_rows", self.lag_search_rows, 0)
+        if 0 < self.lag_search_rows < 2 * self.lag_search_neurons:
+            raise ConfigError(f"CoEAConfig.lag_search_rows must be 0 (the search's rows) or >= 2 * lag_search_neurons = "
+                              f"{2 * self.lag_search_neurons}; got {self.lag_search_rows}")
         _float("range_margin", self.range_margin, 0.0, 100.0)
         _int("fr_candidates", self.fr_candidates, 0, 10000)
         _float("agree_tol", self.agree_tol, 0.0, 1e6)

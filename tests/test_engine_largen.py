@@ -1,0 +1,110 @@
+"""Large records fast (issue 13, item 4): candidates fitted together, the best pair counted once, the lag search on
+fewer rows, fewer restarts of one configuration when they agree (an option)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamid.engine import PAPER, identify
+from streamid.engine.coevolution import Coevolution
+from streamid.engine.identify import _repeats_agree
+from streamid.engine.model import Model
+from streamid.errors import ConfigError
+from streamid.sim import simulate_reactor
+
+
+@pytest.fixture(scope="module")
+def reactor() -> tuple[np.ndarray, np.ndarray]:
+    _, u, y = simulate_reactor(900, 4)
+    return np.asarray(u, dtype=np.float64)[:, None], np.asarray(y, dtype=np.float64)
+
+
+@pytest.fixture(scope="module")
+def second_stage(reactor: tuple[np.ndarray, np.ndarray]) -> Coevolution:
+    u, y = reactor
+    cfg = PAPER.replace(neurons=12, generations=15)
+    mask = np.zeros(cfg.n_candidates(1), dtype=bool)
+    mask[[0, 10, 11]] = True  # y(t-1), u(t-1), u(t-2)
+    return Coevolution(u, y, cfg, 3, fixed_mask=mask).solve()
+
+
+def test_models_fitted_together_are_the_models_fitted_one_by_one(second_stage: Coevolution) -> None:
+    run = second_stage
+    b = int(np.argmin(run.fh))
+    xs = [run.X[i] for i in range(5)]
+    together = run.models_for(run.H[b], xs)
+    for x, m in zip(xs, together):
+        one = run.model_for(run.H[b], x)
+        assert m.regressors == one.regressors
+        np.testing.assert_array_equal(m.centres, one.centres)
+        np.testing.assert_array_equal(m.widths, one.widths)
+        np.testing.assert_allclose(m.weights, one.weights, rtol=1e-7, atol=1e-9 * np.abs(one.weights).max())
+        assert m.metrics["fitness"] == pytest.approx(one.metrics["fitness"], rel=1e-9)
+    assert run.models_for(run.H[b], []) == []
+
+
+def test_the_best_pair_is_a_candidate_once(second_stage: Coevolution) -> None:
+    run = second_stage
+    members = [i for i in range(run.X.shape[0]) if np.array_equal(run.X[i], run.best_x)]
+    assert len(members) == 1  # DE keeps the best trial: the best pair is a member of the final population
+    cands = run.candidate_models()
+    assert len(cands) == run.X.shape[0]  # the best pair, then the other members (not P + 1)
+    np.testing.assert_array_equal(cands[0].centres, run.model_for(run.best_h, run.best_x).centres)
+    assert len({m.centres.tobytes() + m.widths.tobytes() for m in cands}) == len(cands)
+    assert len(run.candidate_models(5)) == 5  # the 5 fittest include the best member: 1 + 4
+
+
+def test_the_lag_search_on_fewer_rows_is_seeded_and_acts_only_on_a_row_sample(reactor: tuple[np.ndarray, np.ndarray]) -> None:
+    u, y = reactor
+    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, lag_search_generations=10, restarts=2,
+                        selection="fr_est", search_rows=400)
+    a = identify(u, y, cfg.replace(lag_search_rows=100), 2)
+    assert a.model.to_json() == identify(u, y, cfg.replace(lag_search_rows=100), 2).model.to_json()
+    # 0 and "at least as many as the search's rows" both mean the search's rows.
+    assert _same(identify(u, y, cfg, 2).model, identify(u, y, cfg.replace(lag_search_rows=400), 2).model)
+    # A small record (no row sample): the option does nothing.
+    small = cfg.replace(search_rows=0)
+    assert _same(identify(u, y, small, 2).model, identify(u, y, small.replace(lag_search_rows=100), 2).model)
+    # With fewer rows the lag search's fitness differs (its evaluations see other data).
+    fewer = Coevolution(u, y, cfg.replace(neurons=4, generations=3), 1, rows=np.arange(0, 400, 4))
+    assert fewer.search_rows == 100 and fewer.best_f != Coevolution(u, y, cfg.replace(neurons=4, generations=3), 1,
+                                                                      rows=np.arange(400)).best_f
+    with pytest.raises(ConfigError, match=r"lag_search_rows must be 0 .* >= 2 \* lag_search_neurons = 8; got 7"):
+        cfg.replace(lag_search_rows=7)
+
+
+def _same(a: Model, b: Model) -> bool:
+    """The same network (the settings recorded in the models may differ)."""
+    return (a.regressors == b.regressors and np.array_equal(a.centres, b.centres)
+            and np.array_equal(a.widths, b.widths) and np.array_equal(a.weights, b.weights))
+
+
+def _out(score: float, neurons: int = 30, max_lag: int = 10) -> dict[str, object]:
+    return {"score": score, "neurons": neurons, "max_lag": max_lag}
+
+
+def test_repeats_agree_only_among_runs_of_the_same_configuration() -> None:
+    cfg = PAPER.replace(agree_tol=0.01, fallback_below=0.5)
+    job = {"neurons": 30, "max_lag": 10}
+    assert not _repeats_agree([_out(0.95)], job, cfg)  # one repeat: nothing to compare
+    assert _repeats_agree([_out(0.95), _out(0.955)], job, cfg)
+    assert not _repeats_agree([_out(0.95), _out(0.97)], job, cfg)  # they differ by more than agree_tol
+    assert _repeats_agree([_out(0.90), _out(0.95), _out(0.955)], job, cfg)  # the best two agree
+    assert not _repeats_agree([_out(0.95), _out(0.955, neurons=10)], job, cfg)  # another size
+    assert not _repeats_agree([_out(0.95), _out(0.955, max_lag=30)], job, cfg)  # another lag space
+    assert not _repeats_agree([_out(0.40), _out(0.401)], job, cfg)  # a poor fit (fallback territory) never stops
+    assert not _repeats_agree([_out(-1e9), _out(-1e9)], job, cfg.replace(fallback_below=-1e9))  # nothing admissible
+
+
+def test_agreeing_restarts_stop_early(reactor: tuple[np.ndarray, np.ndarray]) -> None:
+    u, y = reactor
+    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, lag_search_generations=10, restarts=4,
+                        selection="fr_est")
+    every = identify(u, y, cfg, 6)
+    some = identify(u, y, cfg.replace(agree_tol=1.0), 6)  # any two good runs agree
+    assert every.model.metrics["restarts_skipped"] == [] and len(every.runs) == 4
+    assert some.model.metrics["restarts_skipped"] == [2, 3] and len(some.runs) == 2
+    assert [r.score for r in some.runs] == [r.score for r in every.runs[:2]]  # the same first two runs
+    none = identify(u, y, cfg.replace(agree_tol=1e-15), 6)  # scores never agree that closely
+    assert none.model.to_json() == every.model.to_json().replace('"agree_tol": 0.0', '"agree_tol": 1e-15')
