@@ -63,11 +63,14 @@ def free_run(
     lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
     # Scaled squared distances contributed by the input regressors, every step at once, time-major.
     du = np.zeros((n, C, M))
+    tmp: NDArray[np.float64] | None = None  # one (n, C, M) temporary for all input terms (fresh ones page-fault)
     for j, reg in enumerate(regressors):
         if reg.signal == "u":
             col = np.zeros((n, un.shape[0]))
             col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
-            du += (col[:, :, None] - centres[None, :, :, j]) ** 2
+            tmp = np.subtract(col[:, :, None], centres[None, :, :, j], out=tmp)
+            np.multiply(tmp, tmp, out=tmp)
+            du += tmp
     du *= a[None]
     ndu = np.negative(du, out=du).reshape(n, C * M)
     y = np.empty((n, C))
