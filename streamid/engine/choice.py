@@ -199,18 +199,13 @@ def blocked_cv_scores(
 
 def _refit_rows(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """Activations and normalised targets of ``model`` on ``(u, y)`` (rows ``t >= max_lag``)."""
-    L, n = model.max_lag, len(y)
-    if n - L < 2:
+    if len(y) - model.max_lag < 2:
         return None
-    un, yn = model.normalisation.u(u), model.normalisation.y(y)
-    r = np.empty((n - L, len(model.regressors)))
-    for j, reg in enumerate(model.regressors):
-        src = yn if reg.signal == "y" else un[:, reg.index]
-        r[:, j] = src[L - reg.lag : n - reg.lag]
+    r, target = model.regressor_rows(u, y)
     phi = activations(r, model.centres, model.widths)
     if model.linear is not None:  # the linear part is refitted in the same least squares
         phi = np.hstack([phi, r, np.ones((phi.shape[0], 1))])
-    return phi, yn[L:]
+    return phi, target
 
 
 def _fr_r2(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64]) -> list[float]:

@@ -144,24 +144,19 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
     One network per size in ``sizes`` below ``model.neurons`` (same regressors, centres
     and widths of the neurons kept; a linear part, if any, refitted with the weights).
     """
-    L, n = model.max_lag, len(y)
-    un, yn = model.normalisation.u(u), model.normalisation.y(y)
-    r = np.empty((n - L, len(model.regressors)))
-    for j, reg in enumerate(model.regressors):
-        src = yn if reg.signal == "y" else un[:, reg.index]
-        r[:, j] = src[L - reg.lag : n - reg.lag]
+    r, target = model.regressor_rows(u, y)
     phi = activations(r, model.centres, model.widths)
-    order = ols_order(phi, yn[L:])
+    order = ols_order(phi, target)
     out: list[Model] = []
     for m in sorted({s for s in sizes if 1 <= s < model.neurons}):
         keep = np.sort(np.asarray(order[:m], dtype=np.intp))
         lin = None
         if model.linear is None:
-            w = fit_weights(phi[:, keep], yn[L:], ridge, weight_decay)
+            w = fit_weights(phi[:, keep], target, ridge, weight_decay)
         else:
-            w, lin = fit_linear_rbf(phi[:, keep], r, yn[L:], ridge, weight_decay)
+            w, lin = fit_linear_rbf(phi[:, keep], r, target, ridge, weight_decay)
         fit = phi[:, keep] @ w + (0.0 if lin is None else r @ lin[:-1] + lin[-1])
-        mse = float(np.mean((fit - yn[L:]) ** 2)) * model.normalisation.y_half_range**2
+        mse = float(np.mean((fit - target) ** 2)) * model.normalisation.y_half_range**2
         if np.all(np.isfinite(w)) and (lin is None or np.all(np.isfinite(lin))) and math.isfinite(mse):
             out.append(replace(model, centres=model.centres[keep], widths=model.widths[keep], weights=w, linear=lin,
                                metrics={**model.metrics, "fitness": mse}))

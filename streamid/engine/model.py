@@ -216,6 +216,19 @@ class Model:
             d2 += (r[:, j : j + 1] - self.centres[None, :, j]) ** 2
         return np.exp(-d2 / (2.0 * self.widths**2))
 
+    def regressor_rows(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The normalised regressors of rows ``t >= max_lag`` (one column per regressor) and the normalised targets.
+
+        ``u`` of shape (N, n_inputs) and ``y`` of shape (N,), as :meth:`_check` returns them.
+        """
+        n, L = y.shape[0], self.max_lag
+        un, yn = self.normalisation.u(u), self.normalisation.y(y)
+        r = np.empty((max(0, n - L), len(self.regressors)))
+        for j, reg in enumerate(self.regressors):
+            src = yn if reg.signal == "y" else un[:, reg.index]
+            r[:, j] = src[L - reg.lag : n - reg.lag]
+        return r, yn[L:]
+
     def predict_osa(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
         """One-step-ahead prediction from measured inputs and outputs.
 
@@ -230,17 +243,12 @@ class Model:
             ``yhat[t]`` for ``t >= max_lag``; the first ``max_lag`` values are ``y``'s.
         """
         ua, ya = self._check(u, y)
-        n, L = ya.shape[0], self.max_lag
-        un, yn = self.normalisation.u(ua), self.normalisation.y(ya)
-        r = np.empty((n - L, len(self.regressors)))
-        for j, reg in enumerate(self.regressors):
-            src = yn if reg.signal == "y" else un[:, reg.index]
-            r[:, j] = src[L - reg.lag : n - reg.lag]
+        r, _ = self.regressor_rows(ua, ya)
         out = ya.copy()
         yn_hat = self._phi(r) @ self.weights
         if self.linear is not None:
             yn_hat += r @ self.linear[:-1] + self.linear[-1]
-        out[L:] = self.normalisation.y_inverse(yn_hat)
+        out[self.max_lag :] = self.normalisation.y_inverse(yn_hat)
         return out
 
     def simulate(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
