@@ -2,11 +2,14 @@
 
 :func:`watch_blocks` is the body of :meth:`OnlineIdentifier._watch
 <streamid.online.OnlineIdentifier>`, called after every batch: for each output
-whose champion has a :class:`~streamid.online.drift.DriftMonitor`, the complete
-blocks of samples since its last block are run through the champion
-(:func:`~streamid.online.drift.block_levels`) and fed to the monitor.  It marks
-the heads whose monitor signalled (``drift_t_ns``, ``escalate``, ``drifts``) and
-returns them; the identifier turns them into ``drift`` events.  No clock, no I/O.
+whose champion has a :class:`~streamid.online.drift.DriftMonitor` (and for each
+replaced champion still watched, :attr:`OutputHead.retired
+<streamid.online.head.OutputHead>`), the complete blocks of samples since its
+last block are run through that model (:func:`~streamid.online.drift.block_levels`)
+and fed to its monitor.  On a signal it marks the head (``drift_t_ns``,
+``escalate``, ``drifts``), ends the replaced champions' watch and spends the
+champion's monitor (one change, one event), and returns the drift; the
+identifier turns it into a ``drift`` event.  No clock, no I/O.
 """
 
 from __future__ import annotations
