@@ -3,7 +3,7 @@
 Asks every stream's status queryable (``streamid/<stream>/status``: only the daemon
 serving a stream answers for it) and prints one line per stream: the daemon that
 serves it (its id and the start of its life), the model version, the champion's
-age and current free-run R², the stream's state, and the members sharing the
+age and current free-run R², the drift events so far, the stream's state, and the members sharing the
 streams as that daemon sees them.  Network text is shown escaped.  Exit code 1 when
 no stream answered within ``--timeout``.
 """
@@ -56,11 +56,11 @@ def status_line(doc: dict[str, Any]) -> str:
     state = "DEGRADED: " + str(doc.get("degraded_reason", "")) if doc.get("degraded") else "ok"
     text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
             f"v{_num(doc.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
-            f"{_num(current.get('r2_fr_val'), '.4f'):>8}  {len(members) or 1:>7}  {state}")
+            f"{_num(current.get('r2_fr_val'), '.4f'):>9} {_num(doc.get('drifts'), 'd'):>6} {len(members) or 1:>7}  {state}")
     return printable(text, 400)
 
 
-HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} "
+HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'drifts':>6} "
           f"{'daemons':>7}  state")
 
 
