@@ -54,12 +54,18 @@ def test_config_rule_is_checked() -> None:
     assert DEFAULT.complexity == "aic" and CoEAConfig().complexity == "score"
 
 
-def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
+def _narx_record() -> tuple[np.ndarray, np.ndarray]:
+    """700 samples of a small nonlinear NARX system driven by uniform noise (seeded)."""
     rng = np.random.default_rng(3)
     u = rng.uniform(-1, 1, 700)
     y = np.zeros(700)
     for t in range(2, 700):
         y[t] = 0.6 * y[t - 1] + np.tanh(u[t - 1]) - 0.2 * u[t - 2] * y[t - 2]
+    return u, y
+
+
+def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
+    u, y = _narx_record()
     cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, neuron_alternatives=(8,))
     res = identify(u, y, cfg, 0)
     ev = res.model.metrics["complexity"]
@@ -123,11 +129,7 @@ def test_pruned_and_padded_networks() -> None:
 
 
 def test_prune_lets_a_smaller_network_compete_and_says_so() -> None:
-    rng = np.random.default_rng(3)
-    u = rng.uniform(-1, 1, 700)
-    y = np.zeros(700)
-    for t in range(2, 700):
-        y[t] = 0.6 * y[t - 1] + np.tanh(u[t - 1]) - 0.2 * u[t - 2] * y[t - 2]
+    u, y = _narx_record()
     cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, prune_runs=4)
     res = identify(u, y, cfg, 0)
     assert res.model.metrics["complexity"]["neurons"] == res.model.neurons
