@@ -58,10 +58,10 @@ class OutputHead:
     drifts: int = 0
     #: replaced champions watched on for one window (a change of model does not erase the evidence of a change)
     retired: deque[Watched] = field(default_factory=lambda: deque(maxlen=RETIRED_KEPT))
-    watched_version: int = 0  # the version ``model`` had when it became champion (``version`` before its call)
 
     def new_champion(self, model: Model, monitor: DriftMonitor | None, *, window_samples: int = 0) -> None:
-        """Serve ``model`` from now on, watched by ``monitor`` (None: not watched).
+        """Serve ``model`` from now on, watched by ``monitor`` (None: not watched); call it before ``version``
+        takes the new champion's number (the replaced champion's watch keeps the old one).
 
         The outgoing champion's monitor, if any and not spent, goes on watching for ``window_samples`` more
         samples (one window: until the new champion's reference holds none of the data the old one was judged
@@ -75,12 +75,11 @@ class OutputHead:
         if self.model is not None and old is not None and not old.spent and window_samples > 0:
             blocks = -(-window_samples // old.block_samples)
             old.retire(1 + RETIRED_KEPT)
-            self.retired.append(Watched(self.watched_version, self.model, old, blocks))
+            self.retired.append(Watched(self.version, self.model, old, blocks))
         self.model = model
         self.monitor = monitor
         self.wins = 0
         self.current = {}
-        self.watched_version = self.version
 
     def snapshot(self) -> dict[str, Any]:
         """The part of :class:`~streamid.online.snapshot.StreamState` that belongs to this output."""

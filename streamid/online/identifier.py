@@ -251,12 +251,12 @@ class OnlineIdentifier(StreamIntake):
             head.replaced += 1
         head.escalate = False
         self._version = version
-        head.version, head.document, head.payload = version, doc, payload
-        head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
         seen = w if job.cut_t_ns is None else cut_window(w, job.cut_t_ns)  # its reference: the data it won on
         head.new_champion(model, None if self._drift is None or head.output not in w.output_names else
                           reference_monitor(self._drift, model, seen.u, seen.y[:, w.output_names.index(head.output)],
-                                            w.period_ns), window_samples=w.u.shape[0])
+                                            w.period_ns), window_samples=w.u.shape[0])  # (before the new version)
+        head.version, head.document, head.payload = version, doc, payload
+        head.coea_state, head.signature, head.failures_in_row = outcome.state, dict(outcome.signature), 0
         head.since_t_ns, head.since_unix_ns = w.t_end_ns, now_ns
         saved = True
         if persist is not None:
