@@ -160,7 +160,7 @@ def test_warm_start_must_fit_the_configuration() -> None:
 @pytest.mark.parametrize("seed", [0, 1])
 def test_reactor_with_the_papers_settings(seed: int) -> None:
     """Paper eq. (17), 480 + 480 samples, G=400, M=10, L=10: the lags of the literature and FR R^2 >= 0.9999."""
-    from streamid.bench.engine_cases import REACTOR_CONFIG, reactor_data, reactor_lags_ok
+    from benchmarks.engine_cases import REACTOR_CONFIG, reactor_data, reactor_lags_ok
 
     ue, ye, uv, yv = reactor_data(seed)
     res = identify(ue, ye, REACTOR_CONFIG, seed)
@@ -172,7 +172,7 @@ def test_reactor_with_the_papers_settings(seed: int) -> None:
 
 def test_mr_damper_with_streamids_defaults() -> None:
     """The real MR damper (bundled log), 2000 estimation / 1499 validation samples, default identify()."""
-    from streamid.bench.engine_cases import mr_damper_data
+    from benchmarks.engine_cases import mr_damper_data
 
     ue, ye, uv, yv = mr_damper_data()
     res = identify(ue, ye, None, 0)

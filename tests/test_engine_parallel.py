@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import CoEAConfig, Coevolution, EvalHelper, identify
-from streamid.bench.engine_cases import reactor_data
+from benchmarks.engine_cases import reactor_data
 from streamid.engine.rbf import BatchEvaluator
 from streamid.errors import StreamidError
 

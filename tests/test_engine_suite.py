@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from streamid.bench import command
-from streamid.bench.suite import QUICK_SYSTEMS, SYSTEMS, free_run_val, targets
+from benchmarks import command
+from benchmarks.suite import QUICK_SYSTEMS, SYSTEMS, free_run_val, targets
 
 
 def test_every_system_of_the_suite_loads_with_its_split() -> None:

@@ -1,6 +1,6 @@
 """The architecture rules, checked on the source: every import of every module is read with ``ast``.
 
-Scanned: every ``.py`` file under ``streamid/``, ``recorders/`` and ``replay/``.  An import is any
+Scanned: every ``.py`` file under ``streamid/``, ``recorders/``, ``replay/`` and ``benchmarks/``.  An import is any
 ``import x`` / ``from x import y`` anywhere in the file (module level, inside functions, under
 ``if TYPE_CHECKING:``), relative imports resolved against the importing module, plus
 ``importlib.import_module("literal")``.  ``from pkg import name`` counts as importing ``pkg.name``
@@ -23,12 +23,13 @@ wire-stands-alone       streamid/wire/ imports only the stdlib, numpy, streamid.
                         streamid.wire.*
 online-core             streamid/online/ imports of streamid are only streamid.online.*,
                         streamid.engine.*, streamid.wire.* and streamid.errors (never transport,
-                        daemon, viz, logs, commands, bench, sim)
-product-not-tooling     no module of streamid/ outside streamid/bench/ imports recorders, replay or
-                        streamid.bench (they are reached through entry points)
+                        daemon, viz, logs, commands, sim)
+product-not-tooling     no module of streamid/ imports recorders, replay or benchmarks (they are
+                        reached through entry points)
+benchmarks-apart        no product package (streamid/, recorders/, replay/) imports benchmarks/:
+                        the benchmarks are tooling beside the product, never inside it
 recorders-not-replay    recorders/ never imports replay
-replay-not-recorders    replay/ never imports recorders, except the benchmark harnesses
-                        replay/bench*.py, which drive the device simulators of recorders/devices.py
+replay-not-recorders    replay/ never imports recorders
 module-size             no scanned file is longer than 550 lines (the aim is under 500)
 ======================  ==========================================================================
 
@@ -50,7 +51,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCANNED_PACKAGES = ("streamid", "recorders", "replay")
+SCANNED_PACKAGES = ("streamid", "recorders", "replay", "benchmarks")
 MAX_LINES = 550
 
 #: The three third-party libraries that each have a single adapter module.
@@ -185,9 +186,14 @@ def _online(imp: Import) -> str | None:
 
 
 def _product_not_tooling(imp: Import) -> str | None:
-    if within(imp.importer, "streamid") and not within(imp.importer, "streamid.bench"):
-        if within(imp.target, "recorders", "replay", "streamid.bench"):
-            return "streamid outside streamid/bench never imports recorders, replay or streamid.bench (use an entry point)"
+    if within(imp.importer, "streamid") and within(imp.target, "recorders", "replay", "benchmarks"):
+        return "streamid never imports recorders, replay or benchmarks (use an entry point)"
+    return None
+
+
+def _benchmarks_apart(imp: Import) -> str | None:
+    if within(imp.importer, "streamid", "recorders", "replay") and within(imp.target, "benchmarks"):
+        return "no product package imports benchmarks (benchmarks drive the product, never the reverse)"
     return None
 
 
@@ -198,9 +204,8 @@ def _recorders_not_replay(imp: Import) -> str | None:
 
 
 def _replay_not_recorders(imp: Import) -> str | None:
-    bench_harness = imp.importer.startswith("replay.bench")
-    if within(imp.importer, "replay") and within(imp.target, "recorders") and not bench_harness:
-        return "replay never imports recorders (only the replay/bench*.py harnesses may)"
+    if within(imp.importer, "replay") and within(imp.target, "recorders"):
+        return "replay never imports recorders"
     return None
 
 
@@ -215,6 +220,7 @@ RULES: dict[str, Callable[[Import], str | None]] = {
     "wire-stands-alone": _allow_only("streamid.wire", ("numpy",), ("streamid.errors", "streamid.wire")),
     "online-core": _online,
     "product-not-tooling": _product_not_tooling,
+    "benchmarks-apart": _benchmarks_apart,
     "recorders-not-replay": _recorders_not_replay,
     "replay-not-recorders": _replay_not_recorders,
 }
@@ -307,9 +313,11 @@ def test_rules_flag_what_they_must() -> None:
     assert broken("streamid.wire.documents", "streamid.engine.model") == {"wire-stands-alone"}
     assert broken("streamid.sim.piezo", "streamid.engine.model") == set()
     assert broken("streamid.commands.main", "replay.cli") == {"product-not-tooling"}
-    assert broken("streamid.bench.command", "streamid.bench.kit") == set()
+    assert broken("streamid.commands.main", "benchmarks.kit") == {"product-not-tooling", "benchmarks-apart"}
+    assert broken("replay.player", "benchmarks.kit") == {"benchmarks-apart"}
+    assert broken("benchmarks.command", "benchmarks.kit") == set()
     assert broken("replay.player", "recorders.devices") == {"replay-not-recorders"}
-    assert broken("replay.bench_mr", "recorders.devices") == set()
+    assert broken("benchmarks.mr", "recorders.devices") == set()
     assert broken("recorders.cli", "replay.player") == {"recorders-not-replay"}
     assert broken("recorders.recorder", "mcap.writer") == {"mcap-adapter"}
     assert broken("streamid.transport.zenoh_bus", "zenoh") == set()

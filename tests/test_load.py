@@ -1,6 +1,6 @@
 """LOAD TEST (marked ``load``; ~2.5 min): eight 2 kHz streams plus the 20 kHz piezo log into one daemon for 2 minutes.
 
-Runs :func:`streamid.bench.load.load_run`: the real ``streamid daemon`` CLI in
+Runs :func:`benchmarks.load.load_run`: the real ``streamid daemon`` CLI in
 its own process (listening on a free ``tcp/127.0.0.1`` port, 0.5 s windows
 updated every second, two workers), a publisher process putting eight streams
 at 2 kHz in real time and ``streamid replay piezo_sim_20khz`` putting the 20 kHz
@@ -21,7 +21,7 @@ from typing import Any
 
 import pytest
 
-from streamid.bench.load import load_run, summary
+from benchmarks.load import load_run, summary
 
 pytestmark = pytest.mark.load
 

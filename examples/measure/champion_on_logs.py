@@ -6,7 +6,7 @@ Feeds the log N times, with time running on, to an ``OnlineIdentifier`` with def
 StreamConfig keywords given), identifies every window, and prints: windows decided, decisions by code,
 drift events, and per output the free-run R2 of every published model on its held-out data and on
 the whole log.  The same run is the first row of ``streamid bench --only online``
-(:func:`streamid.bench.online_cases.every_window`).
+(:func:`benchmarks.online_cases.every_window`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 
-from streamid.bench.online_cases import every_window
+from benchmarks.online_cases import every_window
 
 
 def main(name: str, loops: int, overrides: dict) -> None:

@@ -5,14 +5,14 @@ Usage: ``python examples/measure/drift_sim.py DEVICE SECONDS DRIFT_AT_S CHANGE S
 
 Samples go in 0.1 s batches and every due window is identified at once (an infinitely fast worker), so
 the delays printed are in stream time.  The same runs are the drift rows of ``streamid bench --only online``
-(:func:`streamid.bench.online_cases.drift_run`).
+(:func:`benchmarks.online_cases.drift_run`).
 """
 
 from __future__ import annotations
 
 import sys
 
-from streamid.bench.online_cases import drift_run
+from benchmarks.online_cases import drift_run
 
 
 def main(device: str, seconds: float, drift_at_s: float, change: float, seed: int, window_s: float) -> None:

@@ -3,7 +3,7 @@
 Subcommands are small modules exposing ``register(subparsers)``; each adds its
 parser and sets ``func`` (``func(args) -> int``).  Commands that belong to the
 packages around streamid (``recorders`` provides ``record`` and ``simulate``,
-``replay`` provides ``replay``, and :mod:`streamid.bench` provides ``bench``) register themselves through the
+``replay`` provides ``replay``, and :mod:`benchmarks` provides ``bench``) register themselves through the
 ``streamid.commands`` entry-point group, so that no product module imports them:
 data flows one way, and those packages depend on streamid, not the reverse.
 """

@@ -3,7 +3,7 @@
 Each ``*_case(seed)`` runs one identification on the project's own data (the
 reactor simulator; the MR damper and piezo logs bundled in ``streamid/data``)
 and returns a dict of figures; :func:`bench` turns repeated cases into the
-table rows of :mod:`streamid.bench.kit`.
+table rows of :mod:`benchmarks.kit`.
 
 Figures and targets (issue 2)
 ------------------------------
@@ -146,7 +146,7 @@ def scaling_case(
 
 
 def _rows(section: str, case: str, results: list[dict[str, Any]], metrics: Iterable[tuple[str, str, str]]) -> Iterator[Any]:
-    from streamid.bench.kit import Measurement
+    from benchmarks.kit import Measurement
 
     for key, unit, note in metrics:
         yield Measurement(section, case, key, unit, tuple(float(r[key]) for r in results), note)
@@ -168,7 +168,7 @@ def bench(options: Any) -> Iterator[Any]:
 
 
 def _bench(options: Any, helper: EvalHelper | None) -> Iterator[Any]:
-    from streamid.bench.kit import Measurement
+    from benchmarks.kit import Measurement
 
     n = 2 if options.quick else max(1, options.repeat)
     seeds = [options.seed + i for i in range(n)]

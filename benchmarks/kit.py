@@ -2,7 +2,7 @@
 
 Benchmark providers are plain callables ``provider(options) -> Iterable[Measurement]``.
 streamid's own providers live next to the code they measure
-(``streamid.bench.engine_cases``, ``streamid.bench.daemon_cases``); the packages around
+(``benchmarks.engine_cases``, ``benchmarks.daemon_cases``); the packages around
 streamid (``replay``, ``recorders``) register theirs in the ``streamid.benchmarks``
 entry-point group, so streamid never imports them.
 

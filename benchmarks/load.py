@@ -169,7 +169,7 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
                 # every decision (a new champion, or a challenger rejected): the stream is being served
                 sub = ModelSubscriber(bus, "*", lambda up: models.setdefault(up.stream, []).append(
                     time.monotonic() - t0), fetch_latest=False, include_rejected=True)
-                code = (f"from streamid.bench.load import multi_publish_main; "
+                code = (f"from benchmarks.load import multi_publish_main; "
                         f"multi_publish_main({ep!r}, {streams}, {rate_hz}, {seconds}, 100, {seed})")
                 multi = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
                 procs.append(multi)
@@ -240,7 +240,7 @@ def summary(r: dict[str, Any], warmup_s: float) -> dict[str, Any]:
     }
 
 
-if __name__ == "__main__":  # pragma: no cover - ``python -m streamid.bench.load [SECONDS] [--default-malloc]``
+if __name__ == "__main__":  # pragma: no cover - ``python -m benchmarks.load [SECONDS] [--default-malloc]``
     secs = float(sys.argv[1]) if len(sys.argv) > 1 else 120.0
     res = load_run(secs, retain_memory="--default-malloc" not in sys.argv)
     print(json.dumps({**summary(res, min(30.0, secs / 4)), "smaps": res["smaps"]}, indent=1))

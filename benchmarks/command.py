@@ -17,16 +17,16 @@ import time
 from collections.abc import Callable, Iterable
 from importlib.metadata import entry_points
 
-from streamid.bench.kit import BenchOptions, Measurement, format_table, machine_description
+from benchmarks.kit import BenchOptions, Measurement, format_table, machine_description
 from streamid.errors import ConfigError
 
 #: streamid's own providers, ``module:function`` with ``function(options) -> Iterable[Measurement]``.
 BUILTIN_PROVIDERS: dict[str, str] = {
-    "engine": "streamid.bench.engine_cases:bench",
-    "peers": "streamid.bench.peers:bench",
-    "daemon": "streamid.bench.daemon_cases:bench",
-    "online": "streamid.bench.online_cases:bench",
-    "suite": "streamid.bench.suite:bench",
+    "engine": "benchmarks.engine_cases:bench",
+    "peers": "benchmarks.peers:bench",
+    "daemon": "benchmarks.daemon_cases:bench",
+    "online": "benchmarks.online_cases:bench",
+    "suite": "benchmarks.suite:bench",
 }
 
 ENTRY_POINT_GROUP = "streamid.benchmarks"

@@ -177,7 +177,7 @@ def identify_target(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
 
 def frols_best(t: Target, quick: bool = False) -> dict[str, Any]:
     """SysIdentPy FROLS (polynomial NARX, AIC among 20 terms, data scaled as streamid's) over a lag/degree grid."""
-    from streamid.bench.peers import fit_frols
+    from benchmarks.peers import fit_frols
 
     grid = [(2, 2)] if quick else [(lag, deg) for lag in (2, 5) for deg in (2, 3)]
     best: dict[str, Any] = {"fr_val": -np.inf, "seconds": 0.0, "setting": ""}
@@ -228,7 +228,7 @@ def bench(options: Any) -> Iterator[Any]:
     """``streamid bench --suite`` provider: per system, paper settings vs defaults (vs FROLS with --peers)."""
     import sys
 
-    from streamid.bench.kit import Measurement
+    from benchmarks.kit import Measurement
 
     quick = bool(options.quick)
     names = QUICK_SYSTEMS if quick else None

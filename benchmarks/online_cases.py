@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from streamid.bench.kit import Measurement
+from benchmarks.kit import Measurement
 
 SECTION = "online"
 

@@ -103,7 +103,7 @@ def fit_metamss(
 
 #: (data set, loader, peers to run as (label, fit function, keyword arguments)).
 def _cases(options: Any) -> list[tuple[str, Callable[[], tuple[np.ndarray, ...]], list[tuple[Callable[..., PeerFit], dict[str, Any]]]]]:
-    from streamid.bench.engine_cases import mr_damper_data, piezo_data, reactor_data
+    from benchmarks.engine_cases import mr_damper_data, piezo_data, reactor_data
 
     frols_lags = (5,) if options.quick else (5, 7)
     mr: list[tuple[Callable[..., PeerFit], dict[str, Any]]] = [
@@ -128,7 +128,7 @@ def bench(options: Any) -> Iterator[Any]:
     FROLS is deterministic, so its figures are the median of up to three timed
     repetitions of the same fit; MetaMSS is seeded with ``options.seed``.
     """
-    from streamid.bench.kit import Measurement
+    from benchmarks.kit import Measurement
 
     try:
         import sysidentpy  # noqa: F401

@@ -101,8 +101,8 @@ def bench_realtime(duration_s: float = 10.0, seed: int = 0) -> dict[str, Any]:
 
 
 def bench(options: Any) -> Iterator[Any]:
-    """``streamid bench`` provider: yields ``streamid.bench.kit.Measurement`` rows."""
-    from streamid.bench.kit import Measurement
+    """``streamid bench`` provider: yields ``benchmarks.kit.Measurement`` rows."""
+    from benchmarks.kit import Measurement
 
     quick = bool(getattr(options, "quick", False))
     repeat = max(1, int(getattr(options, "repeat", 1)))

@@ -1,4 +1,4 @@
-"""Daemon figures for ``streamid bench`` (and ``python -m streamid.bench.daemon_cases`` for long soaks).
+"""Daemon figures for ``streamid bench`` (and ``python -m benchmarks.daemon_cases`` for long soaks).
 
 * **ingestion**: samples/s the daemon receives, decodes and windows (no
   identification) from a publisher in another process putting pre-encoded
@@ -9,13 +9,13 @@
   resident memory over the run.
 * **cold vs warm**: time and validation R^2 of a cold run (G=400) and of warm
   updates (G=30) on consecutive windows of a stationary system (the piezo).
-* **MR damper at max speed** (:mod:`replay.bench_mr`): the real MR
+* **MR damper at max speed** (:mod:`benchmarks.mr`): the real MR
   damper log put back to back, every window identified (bounded queue of
   pending windows); the published models' free-run validation R^2 against
   offline cold ``identify`` runs (several seeds) with the same settings on the
   same windows, and whether they match (defined there).
 * **load** (issue 6): eight 2 kHz streams plus the 20 kHz piezo log into one
-  ``streamid daemon`` process for 2 minutes (:mod:`streamid.bench.load`):
+  ``streamid daemon`` process for 2 minutes (:mod:`benchmarks.load`):
   samples lost, resident memory after warm-up, updates per stream.
 """
 
@@ -32,11 +32,11 @@ from typing import Any
 
 import numpy as np
 
-from streamid.bench.kit import BenchOptions, Measurement
+from benchmarks.kit import BenchOptions, Measurement
 from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig
 from streamid.online import StreamConfig
-from streamid.bench.load import load_run, summary
+from benchmarks.load import load_run, summary
 from streamid.daemon.service import Daemon
 from streamid.online import OnlineIdentifier, UpdateJob
 from streamid.transport import ZenohSettings
@@ -61,7 +61,7 @@ def _rss_mb() -> float:
 
 def _publisher(ep: str, device: str, batch: int, seconds: float, seed: int) -> subprocess.Popen[str]:
     """Start a publisher process putting pre-encoded batches back to back; it prints one JSON line."""
-    code = f"from streamid.bench.daemon_cases import _publish_main; _publish_main({ep!r}, {device!r}, {batch}, {seconds}, {seed})"
+    code = f"from benchmarks.daemon_cases import _publish_main; _publish_main({ep!r}, {device!r}, {batch}, {seconds}, {seed})"
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
 
 
@@ -272,7 +272,7 @@ def bench(options: BenchOptions) -> Iterable[Measurement]:
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m streamid.bench.daemon_cases soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``load SECONDS``."""
+    """``python -m benchmarks.daemon_cases soak SECONDS [RRD]`` | ``ingest BATCH`` | ``coldwarm`` | ``load SECONDS``."""
     what = argv[0] if argv else "soak"
     if what == "soak":
         r = realtime_run(float(argv[1]) if len(argv) > 1 else 300.0, rrd=argv[2] if len(argv) > 2 else None)

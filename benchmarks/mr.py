@@ -163,7 +163,7 @@ def mr_damper_max_speed(seed: int = 0, seeds: int = 6, selection: str = "fitness
 
 def bench(options: Any) -> Iterator[Any]:
     """``streamid bench`` provider ``mr``: the MR damper log replayed at max speed into a daemon."""
-    from streamid.bench.kit import Measurement
+    from benchmarks.kit import Measurement
 
     SECTION = "daemon"
     if not getattr(options, "quick", False):
@@ -176,5 +176,5 @@ def bench(options: Any) -> Iterator[Any]:
                               f"identify cold G=400, median of {mr['seeds']} seeds per window")
             yield Measurement(SECTION, case, "online - offline median", "", tuple(mr["diff"]),
                               f"mean rank {mr['mean_rank']:.2f} (0.5: same); "
-                              f"{'matches' if mr['matches'] else 'does NOT match'} (replay.bench_mr)")
+                              f"{'matches' if mr['matches'] else 'does NOT match'} (benchmarks.mr)")
 
