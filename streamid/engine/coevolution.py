@@ -104,6 +104,11 @@ class Coevolution:
         The search's fitness uses only these rows of the regressor matrix (row
         ``k`` is time ``max_lag + k``): a large record searched on a sample of
         its rows. Models (:meth:`model_for`) are still fitted on every row.
+    linear_search : bool, optional
+        Whether the search's fitness fits a direct linear part with the weights
+        (:meth:`~streamid.engine.rbf.BatchEvaluator.evaluate`); default ``config.linear_terms and
+        config.linear_search``.
+        A helper process is not used when it does (it evaluates the RBF-only fitness).
 
     Raises
     ------
@@ -128,6 +133,7 @@ class Coevolution:
         normalisation: Normalisation | None = None,
         helper: EvalHelper | None = None,
         rows: NDArray[np.intp] | None = None,
+        linear_search: bool | None = None,
     ) -> None:
         cfg = CoEAConfig() if config is None else config
         if not isinstance(cfg, CoEAConfig):
@@ -167,7 +173,10 @@ class Coevolution:
         r_s, t_s = (self.R, self.target) if rows is None else (self.R[rows], self.target[rows])
         self._rows = rows
         self.search_rows = int(t_s.shape[0])
-        self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay)
+        # The search's fitness includes the linear part with linear_terms (unless the caller says otherwise:
+        # the lag search of a two-stage run stays RBF-only, streamid.engine.identify).
+        self.linear_search = cfg.linear_terms and cfg.linear_search if linear_search is None else bool(linear_search)
+        self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay, linear=self.linear_search)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
@@ -186,7 +195,7 @@ class Coevolution:
         self._improviser = harmony.Improviser(P, self.D, P, block=block)
         self._uni = np.empty(block * (self._n_de + self._n_hs))
         self._batch: BatchEvaluator | HelperBinding = self.evaluator  # or half of each batch in a helper
-        if helper is not None:
+        if helper is not None and not self.linear_search:  # the helper evaluates the RBF-only fitness
             self._batch = helper.bind(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay, self.evaluator,
                                       uniforms=self._uni.shape[0])
         self._k = self._planned = 0  # generation k of a planned block of `_planned`
@@ -410,9 +419,11 @@ class Coevolution:
             return self._fitted(cols, x, phi, R[:, cols], target)
 
     def models_for(self, mask: NDArray[np.bool_], xs: list[NDArray[np.float64]], *,
-                   search_rows: bool = False) -> list[Model]:
+                   search_rows: bool = False, both: bool = False) -> list[Model]:
         """:meth:`model_for` of several parameter vectors with one mask, their activations computed
-        together as the search computes them (:func:`~streamid.engine.rbf.activations_batch`)."""
+        together as the search computes them (:func:`~streamid.engine.rbf.activations_batch`).
+        ``both`` (with ``linear_terms``): each vector's model with its linear part, then (after all
+        of those, in the same order) the same centres and widths without one, weights refitted."""
         if not xs:
             return []
         M, D = self.config.neurons, self.D
@@ -422,7 +433,10 @@ class Coevolution:
         with one_blas_thread():
             rs = np.ascontiguousarray(R[:, cols])
             phis = activations_batch(rs, X[:, : M * D].reshape(-1, M, D)[:, :, cols], X[:, M * D :])
-            return [self._fitted(cols, x, phi.T, rs, target) for x, phi in zip(xs, phis)]
+            out = [self._fitted(cols, x, phi.T, rs, target) for x, phi in zip(xs, phis)]
+            if both and self.config.linear_terms:
+                out += [self._fitted(cols, x, phi.T, rs, target, linear=False) for x, phi in zip(xs, phis)]
+            return out
 
     def _fit_rows(self, search_rows: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if search_rows and self._rows is not None:
@@ -430,11 +444,12 @@ class Coevolution:
         return self.R, self.target
 
     def _fitted(self, cols: NDArray[np.intp], x: NDArray[np.float64], phi: NDArray[np.float64],
-                r: NDArray[np.float64], target: NDArray[np.float64]) -> Model:
-        """The Model of parameters ``x`` on lags ``cols`` with activations ``phi`` (n, M) on regressors ``r``."""
+                r: NDArray[np.float64], target: NDArray[np.float64], linear: bool | None = None) -> Model:
+        """The Model of parameters ``x`` on lags ``cols`` with activations ``phi`` (n, M) on regressors ``r``
+        (with a linear part when ``linear``, default ``config.linear_terms``)."""
         M, D = self.config.neurons, self.D
         lin = None
-        if self.config.linear_terms:  # the RBF network with linear terms: one least squares for both
+        if self.config.linear_terms if linear is None else linear:  # the RBF network with linear terms: one least squares for both
             w, lin = fit_linear_rbf(phi, r, target, self.config.ridge, self.config.weight_decay)
             fit = phi @ w + r @ lin[:-1] + lin[-1]
         else:
@@ -468,7 +483,8 @@ class Coevolution:
         b = int(np.argmin(self.fh))
         return [(self.best_h, self.best_x), *((self.H[b], self.X[i]) for i in self._members(limit))]
 
-    def population_models(self, limit: int | None = None, *, search_rows: bool = False) -> list[Model]:
+    def population_models(self, limit: int | None = None, *, search_rows: bool = False,
+                          both: bool = False) -> list[Model]:
         """Models of every parameter vector paired with the best harmony, weights refitted
         (:meth:`models_for`: activations computed together).
 
@@ -477,19 +493,25 @@ class Coevolution:
         ``limit``: only that many members, those of lowest fitness (in population order).
         """
         b = int(np.argmin(self.fh))
-        return self.models_for(self.H[b], [self.X[i] for i in self._members(limit)], search_rows=search_rows)
+        return self.models_for(self.H[b], [self.X[i] for i in self._members(limit)], search_rows=search_rows,
+                               both=both)
 
-    def candidate_models(self, limit: int | None = None) -> list[Model]:
+    def candidate_models(self, limit: int | None = None, *, both: bool = False) -> list[Model]:
         """The best pair's model, then :meth:`population_models` without a member that is the best pair
         itself (same harmony and parameters: DE keeps the best trial, so a second stage's best pair is a
-        member); fitted together when they share the harmony (the usual case)."""
+        member); fitted together when they share the harmony (the usual case). ``both`` (with
+        ``linear_terms``): then the same candidates without the linear part (:meth:`models_for`)."""
         if not np.isfinite(self.best_f):
             raise DataError("no pair has been evaluated")
         b = int(np.argmin(self.fh))
         if not np.array_equal(self.H[b], self.best_h):
-            return [self.best_model(), *self.population_models(limit)]
+            if not (both and self.config.linear_terms):
+                return [self.best_model(), *self.population_models(limit)]
+            first = self.models_for(self.best_h, [self.best_x], both=True)
+            rest = self.population_models(limit, both=True)
+            return [first[0], *rest[: len(rest) // 2], first[1], *rest[len(rest) // 2 :]]
         xs = [self.X[i] for i in self._members(limit) if not np.array_equal(self.X[i], self.best_x)]
-        return self.models_for(self.best_h, [self.best_x, *xs])
+        return self.models_for(self.best_h, [self.best_x, *xs], both=both)
 
     def best_model(self) -> Model:
         """Model of the best pair ever evaluated, weights refitted (see :func:`~streamid.engine.rbf.fit_weights`)."""

@@ -174,7 +174,8 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         rows = common.get("rows")
         if rows is not None and 0 < cfg.lag_search_rows < len(rows):  # fewer rows for the smaller network
             lag_common["rows"] = rows[np.round(np.linspace(0, len(rows) - 1, cfg.lag_search_rows)).astype(np.intp)]
-        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, **lag_common).solve(_stage(tick, 0, 0))
+        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, linear_search=False,  # RBF-only: cheap
+                              **lag_common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.lagspace)...
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
-from streamid.engine.choice import blocked_cv_scores, free_run_scores, group_free_run
+from streamid.engine.choice import FreeRunScores, blocked_cv_scores, free_run_scores, group_free_run
 from streamid.engine.complexity import criterion, padded, parameter_count, pruned
 from streamid.engine.model import Model
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
@@ -110,6 +110,10 @@ def select_model(
     * ``"cv_fr"``: the range guard of ``"fr_est"``, then the highest blocked
       cross-validated free-run R^2 (:func:`~streamid.engine.choice.blocked_cv_scores`).
 
+    With ``config.linear_terms`` and ``"fr_est"``, every candidate is offered with its linear part and
+    without it (the same centres and widths, weights refitted); the run's model is the admissible one of
+    the lowest ``config.complexity`` criterion (:func:`_by_criterion`).
+
     With ``config.ensemble = K > 1`` and ``"fr_est"``, the mean of the run's K best
     admissible candidates (one network of K x M neurons) competes too, by the same score.
 
@@ -128,7 +132,8 @@ def select_model(
         screened = _screened(run, u[:n], y[:n], margin)
         if screened is not None:
             return screened
-    cands = run.candidate_models(run.config.fr_candidates or None)  # the best pair first
+    both = run.config.linear_terms and selection == "fr_est"  # both kinds compete (_by_criterion)
+    cands = run.candidate_models(run.config.fr_candidates or None, both=both)  # the best pair first
     with one_blas_thread():
         if selection in ("fr_est", "cv_fr"):
             fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin)
@@ -147,7 +152,7 @@ def select_model(
         ev = {**fr.evidence(k), "cv_score": float(cv[k]) if np.isfinite(cv[k]) else None, "cv_folds": run.config.cv_folds}
         score = float(cv[k]) if np.isfinite(cv[k]) else -1e8  # admissible, but no finite CV score: below any finite
         return cands[k].with_metrics(free_run_choice=ev), score
-    k = fr.best()
+    k = _by_criterion(run.config.complexity, cands, fr, n) if both and fr.admissible else fr.best()
     score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
     chosen = cands[k].with_metrics(free_run_choice=fr.evidence(k))
     size = run.config.ensemble
@@ -156,6 +161,15 @@ def select_model(
         if ens is not None and ens_score >= score:
             return ens, float(ens_score)
     return chosen, float(score)
+
+
+def _by_criterion(rule: str, cands: list[Model], fr: FreeRunScores, n: int) -> int:
+    """The admissible candidate of the lowest ``complexity`` criterion (ties: the first). With both kinds of
+    candidate (with and without a linear part, the same centres and widths) this is the best of each kind by
+    free-run R^2, then the kind by the criterion: ``p`` counts the linear part's ``k + 1`` weights."""
+    crit = [criterion(rule, s, n - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
+            for m, s, e in zip(cands, fr.scores, fr.excursions)]
+    return int(np.argmin(crit))
 
 
 def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.float64], y: NDArray[np.float64],

@@ -190,8 +190,15 @@ class CoEAConfig:
         False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate model
         gets a direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same
         regressors (Chen & Billings' RBF network with linear terms), fitted with ``w`` in
-        one least squares when the candidate's weights are fitted; the search's fitness
-        stays the RBF-only one (centres and widths are searched as before).
+        one least squares when the candidate's weights are fitted. With ``selection="fr_est"``
+        each candidate is also offered without the linear part (the same centres and widths)
+        and a run keeps the admissible candidate of the lowest ``complexity`` criterion
+        (``p`` counts the linear part's ``k + 1`` weights).
+    linear_search : bool
+        With ``linear_terms``: True, the search's fitness (second stage of a two-stage run;
+        the lag search stays RBF-only) fits the linear part with the weights, so that DE
+        places the neurons on what the linear part cannot explain; False, the search is the
+        RBF-only one and the linear part only enters when candidates are fitted.
     complexity : str
         With ``selection="fr_est"`` and several runs: how the final model's size is
         chosen among the runs' candidates (:mod:`streamid.engine.complexity`):
@@ -252,6 +259,7 @@ class CoEAConfig:
     hedge_neurons: int = 0
     screen_rows: bool = False
     linear_terms: bool = False
+    linear_search: bool = True
     complexity: str = "score"
     prune_runs: int = 0
     fallback_below: float = -1e9
@@ -305,6 +313,8 @@ class CoEAConfig:
         _float("fallback_below", self.fallback_below, -1e9, 1.0)
         if not isinstance(self.linear_terms, bool):
             raise ConfigError(f"CoEAConfig.linear_terms must be true or false; got {self.linear_terms!r}")
+        if not isinstance(self.linear_search, bool):
+            raise ConfigError(f"CoEAConfig.linear_search must be true or false; got {self.linear_search!r}")
         if not isinstance(self.screen_rows, bool):
             raise ConfigError(f"CoEAConfig.screen_rows must be true or false; got {self.screen_rows!r}")
         _int("max_lag_cap", self.max_lag_cap, 0, 1000)
