@@ -147,6 +147,8 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         cfg = cfg.replace(neurons=int(job["neurons"]))
     if job.get("max_lag", cfg.max_lag) != cfg.max_lag:  # this restart's lag space (max_lag_cap)
         cfg = cfg.replace(max_lag_y=int(job["max_lag"]), max_lag_u=int(job["max_lag"]), max_lag_cap=0)
+    if job.get("linear", cfg.linear_terms) != cfg.linear_terms:  # this restart's kind (linear_alternation)
+        cfg = cfg.replace(linear_terms=bool(job["linear"]))
     norm = Normalisation.from_dict(job["normalisation"])
     warm = CoEAState.from_json(job["warm_start"]) if job.get("warm_start") else None
     u, y, n_search = job["u"], job["y"], job["n_search"]
@@ -362,7 +364,8 @@ def identify(
     jobs = [
         {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
          "neurons": (cfg.hedge_neurons or sizes[i % len(sizes)]) if (hedge and i % 4 == 1) else sizes[i % len(sizes)],
-         "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1}
+         "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1,
+         "linear": cfg.linear_terms and (not cfg.linear_alternation or i % 4 >= 2)}
         for i, s in enumerate(seeds)
     ]
     per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
@@ -400,7 +403,7 @@ def identify(
             break
         made = list(outs)
         job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor,
-               "in_process": True}
+               "in_process": True, "linear": cfg.linear_terms and not cfg.linear_alternation}
         jobs.append(job)
         fallback_made.append(m)
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,

@@ -199,6 +199,11 @@ class CoEAConfig:
         the lag search stays RBF-only) fits the linear part with the weights, so that DE
         places the neurons on what the linear part cannot explain; False, the search is the
         RBF-only one and the linear part only enters when candidates are fitted.
+    linear_alternation : bool
+        With ``linear_terms``: False, every run has the linear part; True, runs of each kind:
+        restarts 2 and 3 of every 4 have it (with ``linear_search`` as set), restarts 0 and 1
+        and the fallback runs are the RBF-only runs of ``linear_terms=False``, and the final
+        choice (``complexity``) decides between the kinds.
     complexity : str
         With ``selection="fr_est"`` and several runs: how the final model's size is
         chosen among the runs' candidates (:mod:`streamid.engine.complexity`):
@@ -260,6 +265,7 @@ class CoEAConfig:
     screen_rows: bool = False
     linear_terms: bool = False
     linear_search: bool = True
+    linear_alternation: bool = False
     complexity: str = "score"
     prune_runs: int = 0
     fallback_below: float = -1e9
@@ -313,6 +319,8 @@ class CoEAConfig:
         _float("fallback_below", self.fallback_below, -1e9, 1.0)
         if not isinstance(self.linear_terms, bool):
             raise ConfigError(f"CoEAConfig.linear_terms must be true or false; got {self.linear_terms!r}")
+        if not isinstance(self.linear_alternation, bool):
+            raise ConfigError(f"CoEAConfig.linear_alternation must be true or false; got {self.linear_alternation!r}")
         if not isinstance(self.linear_search, bool):
             raise ConfigError(f"CoEAConfig.linear_search must be true or false; got {self.linear_search!r}")
         if not isinstance(self.screen_rows, bool):
