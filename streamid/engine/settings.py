@@ -430,7 +430,10 @@ class CoEAConfig:
         F-16 accel2 median 0.216 -> 0.246, accel3 worst seed -0.210 -> 0.049, the rest
         unchanged within 0.005; every run pruned gave the same, at about 0.3 s more on
         10,000 samples). ``linear_terms`` (a direct linear part) measured mixed and is
-        an option (robot arm 0.997 -> 0.31, MR damper worst seed 0.968). When the best
+        an option (robot arm 0.997 -> 0.31, MR damper worst seed 0.968); round 5, with the linear
+        part in the search's fitness and both kinds competing by AIC (``linear_search``,
+        ``linear_alternation``): F-16 accel3 0.431 -> 0.227, or the MR damper's worst seed 0.968,
+        or the heat exchanger's worst seed 0.316; no system gained against FROLS; still an option. When the best
         run's estimation free-run R^2 is at most 0.5 (a poor fit: every size tried so far is
         wrong for the record) the fallback runs with 15 and 8 neurons are made too
         (``fallback_below``; F-16 accel3 0.372 / 0.049 -> 0.431 / 0.277, accel2 median 0.246 ->
