@@ -89,7 +89,7 @@ from numpy.typing import NDArray
 from streamid.errors import ConfigError
 from streamid.sim._common import Trace, as_generator, check_nonneg_int, check_positive_int, sample_times_ns
 from streamid.sim.boucwen import bouc_wen_operator
-from streamid.sim.mrdamper import MRDamperParams, _substeps, velocity_spectrum
+from streamid.sim.mrdamper import MRDamperParams, _substeps, damper_force, rk4_segment, velocity_spectrum
 from streamid.sim.piezo import PiezoParams, _mode_filter, piezo_excitation
 
 __all__ = [
@@ -130,84 +130,14 @@ def _mr_scaled(p: MRDamperParams, factor: float) -> MRDamperParams:
     )
 
 
-def _mr_segment(
-    p: MRDamperParams, xl: list[float], vl: list[float], sub: int, n_samples: int, yv: float, z: float
-) -> tuple[list[float], list[float], float, float]:
-    """RK4 over ``n_samples`` samples from state ``(yv, z)``: the arithmetic of
-    :func:`streamid.sim.mrdamper.mr_damper_force`, operation for operation (so that
-    the undrifted part is bit-identical). ``xl``/``vl``: ``2 sub n_samples + 1`` fine points.
-    """
-    volt = p.voltage_v
-    alpha = p.alpha_a + p.alpha_b * volt
-    c0 = p.c0a + p.c0b * volt
-    c1 = p.c1a + p.c1b * volt
-    inv = 1.0 / (c0 + c1)
-    k0, gam, bet, a_bw, nexp = p.k0, p.gamma, p.beta, p.a, p.n
-    h = p.period_s / sub
-    h2, h6 = 0.5 * h, h / 6.0
-    m = 2 * sub
-    ys = [0.0] * n_samples
-    zs = [0.0] * n_samples
-    ak, c0k, k0k = alpha * inv, c0 * inv, k0 * inv
-
-    def rhs(y_: float, z_: float, x: float, xd: float) -> tuple[float, float]:
-        yd = (alpha * z_ + c0 * xd + k0 * (x - y_)) * inv
-        r = xd - yd
-        az = abs(z_) ** (nexp - 1.0)
-        return yd, -gam * abs(r) * z_ * az - bet * r * abs(z_) * az + a_bw * r
-
-    for k in range(n_samples):
-        ys[k] = yv
-        zs[k] = z
-        base = k * m
-        if nexp != 2.0:
-            for s in range(sub):
-                j = base + 2 * s
-                x1, v1, x2, v2, x3, v3 = xl[j], vl[j], xl[j + 1], vl[j + 1], xl[j + 2], vl[j + 2]
-                a1, b1 = rhs(yv, z, x1, v1)
-                a2, b2 = rhs(yv + h2 * a1, z + h2 * b1, x2, v2)
-                a3, b3 = rhs(yv + h2 * a2, z + h2 * b2, x2, v2)
-                a4, b4 = rhs(yv + h * a3, z + h * b3, x3, v3)
-                yv += h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-                z += h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-            continue
-        for j in range(base, base + m, 2):
-            x1, v1, x2, v2, x3, v3 = xl[j], vl[j], xl[j + 1], vl[j + 1], xl[j + 2], vl[j + 2]
-            a1 = ak * z + c0k * v1 + k0k * (x1 - yv)
-            r = v1 - a1
-            b1 = (-gam * abs(r) * abs(z) - bet * r * z) * z + a_bw * r
-            yt, zt = yv + h2 * a1, z + h2 * b1
-            a2 = ak * zt + c0k * v2 + k0k * (x2 - yt)
-            r = v2 - a2
-            b2 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
-            yt, zt = yv + h2 * a2, z + h2 * b2
-            a3 = ak * zt + c0k * v2 + k0k * (x2 - yt)
-            r = v2 - a3
-            b3 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
-            yt, zt = yv + h * a3, z + h * b3
-            a4 = ak * zt + c0k * v3 + k0k * (x3 - yt)
-            r = v3 - a4
-            b4 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
-            yv += h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-            z += h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+def _integrated(p: MRDamperParams, xl: list[float], vl: list[float], sub: int, n_samples: int, yv: float,
+                z: float) -> tuple[list[float], list[float], float, float]:
+    ys, zs, yv, z = rk4_segment(p, xl, vl, sub, n_samples, yv, z)
     if not (math.isfinite(yv) and math.isfinite(z)):
         raise ConfigError(
             f"the MR damper integration diverged with {sub} substeps per sample; accepted: a smaller change"
         )
     return ys, zs, yv, z
-
-
-def _mr_force(
-    p: MRDamperParams, ys: list[float], zs: list[float], velocity: NDArray[np.float64], x_s: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    volt = p.voltage_v
-    alpha = p.alpha_a + p.alpha_b * volt
-    c0 = p.c0a + p.c0b * volt
-    c1 = p.c1a + p.c1b * volt
-    inv = 1.0 / (c0 + c1)
-    yd = (alpha * np.array(zs) + c0 * velocity + p.k0 * (x_s - np.array(ys))) * inv
-    out: NDArray[np.float64] = c1 * yd + p.k1 * (x_s - p.x0)
-    return out
 
 
 def mr_damper_drift(
@@ -266,12 +196,12 @@ def mr_damper_drift(
         return xf[idx].tolist(), vf[idx].tolist()
 
     xl, vl = fine(sub0, 0, split)
-    ys, zs, yv, z = _mr_segment(params, xl, vl, sub0, split, xl[0], 0.0)
-    force = _mr_force(params, ys[settle:], zs[settle:], velocity[:k_drift], x_s[:k_drift])
+    ys, zs, yv, z = _integrated(params, xl, vl, sub0, split, xl[0], 0.0)
+    force = damper_force(params, ys[settle:], zs[settle:], velocity[:k_drift], x_s[:k_drift])
     if k_drift < n:
         xl, vl = fine(sub1, split, settle + n)
-        ys2, zs2, _, _ = _mr_segment(after, xl, vl, sub1, n - k_drift, yv, z)
-        force = np.concatenate([force, _mr_force(after, ys2, zs2, velocity[k_drift:], x_s[k_drift:])])
+        ys2, zs2, _, _ = _integrated(after, xl, vl, sub1, n - k_drift, yv, z)
+        force = np.concatenate([force, damper_force(after, ys2, zs2, velocity[k_drift:], x_s[k_drift:])])
     if params.noise_n > 0:
         force = force + gen.normal(0.0, params.noise_n, size=n)
     return Trace(sample_times_ns(n, params.period_ns), velocity, force)

@@ -61,7 +61,7 @@ from streamid.sim._common import (
     sample_times_ns,
 )
 
-__all__ = ["MRDamperParams", "mr_damper_force", "simulate_mr_damper", "velocity_spectrum"]
+__all__ = ["MRDamperParams", "damper_force", "mr_damper_force", "rk4_segment", "simulate_mr_damper", "velocity_spectrum"]
 
 
 @dataclass(frozen=True)
@@ -197,6 +197,86 @@ def _substeps(params: MRDamperParams, v_max: float) -> int:
     return max(4, math.ceil(lam * p.period_s / 2.0))
 
 
+def rk4_segment(
+    p: MRDamperParams, xl: list[float], vl: list[float], sub: int, n_samples: int, yv: float, z: float
+) -> tuple[list[float], list[float], float, float]:
+    """The Bouc-Wen state ``(y, z)`` of the damper integrated by RK4 over ``n_samples`` samples from ``(yv, z)``.
+
+    ``xl``/``vl``: displacement and velocity at the ``2 sub n_samples + 1`` fine points (RK4 stage times at
+    ``h/2``).  Returns the state at each sample's start and the state after the last; the caller checks that
+    the final state is finite (a diverged integration).  The one integrator of the damper: used by
+    :func:`mr_damper_force` and by :func:`streamid.sim.drift.mr_damper_drift` for each parameter segment.
+    """
+    volt = p.voltage_v
+    alpha = p.alpha_a + p.alpha_b * volt
+    c0 = p.c0a + p.c0b * volt
+    c1 = p.c1a + p.c1b * volt
+    inv = 1.0 / (c0 + c1)
+    k0, gam, bet, a_bw, nexp = p.k0, p.gamma, p.beta, p.a, p.n
+    h = p.period_s / sub
+    h2, h6 = 0.5 * h, h / 6.0
+    m = 2 * sub
+    ys = [0.0] * n_samples
+    zs = [0.0] * n_samples
+    ak, c0k, k0k = alpha * inv, c0 * inv, k0 * inv
+
+    def rhs(y_: float, z_: float, x: float, xd: float) -> tuple[float, float]:
+        yd = (alpha * z_ + c0 * xd + k0 * (x - y_)) * inv
+        r = xd - yd
+        az = abs(z_) ** (nexp - 1.0)
+        return yd, -gam * abs(r) * z_ * az - bet * r * abs(z_) * az + a_bw * r
+
+    for k in range(n_samples):
+        ys[k] = yv
+        zs[k] = z
+        base = k * m
+        if nexp != 2.0:
+            for s in range(sub):
+                j = base + 2 * s
+                x1, v1, x2, v2, x3, v3 = xl[j], vl[j], xl[j + 1], vl[j + 1], xl[j + 2], vl[j + 2]
+                a1, b1 = rhs(yv, z, x1, v1)
+                a2, b2 = rhs(yv + h2 * a1, z + h2 * b1, x2, v2)
+                a3, b3 = rhs(yv + h2 * a2, z + h2 * b2, x2, v2)
+                a4, b4 = rhs(yv + h * a3, z + h * b3, x3, v3)
+                yv += h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+                z += h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+            continue
+        for j in range(base, base + m, 2):
+            x1, v1, x2, v2, x3, v3 = xl[j], vl[j], xl[j + 1], vl[j + 1], xl[j + 2], vl[j + 2]
+            a1 = ak * z + c0k * v1 + k0k * (x1 - yv)
+            r = v1 - a1
+            b1 = (-gam * abs(r) * abs(z) - bet * r * z) * z + a_bw * r
+            yt, zt = yv + h2 * a1, z + h2 * b1
+            a2 = ak * zt + c0k * v2 + k0k * (x2 - yt)
+            r = v2 - a2
+            b2 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
+            yt, zt = yv + h2 * a2, z + h2 * b2
+            a3 = ak * zt + c0k * v2 + k0k * (x2 - yt)
+            r = v2 - a3
+            b3 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
+            yt, zt = yv + h * a3, z + h * b3
+            a4 = ak * zt + c0k * v3 + k0k * (x3 - yt)
+            r = v3 - a4
+            b4 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
+            yv += h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            z += h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+    return ys, zs, yv, z
+
+
+def damper_force(
+    p: MRDamperParams, ys: list[float], zs: list[float], velocity: NDArray[np.float64], x_s: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The force (N) from the integrated state ``ys``, ``zs`` and the motion ``velocity`` (cm/s), ``x_s`` (cm)."""
+    volt = p.voltage_v
+    alpha = p.alpha_a + p.alpha_b * volt
+    c0 = p.c0a + p.c0b * volt
+    c1 = p.c1a + p.c1b * volt
+    inv = 1.0 / (c0 + c1)
+    yd = (alpha * np.array(zs) + c0 * velocity + p.k0 * (x_s - np.array(ys))) * inv
+    out: NDArray[np.float64] = c1 * yd + p.k1 * (x_s - p.x0)
+    return out
+
+
 def mr_damper_force(
     v_spec: NDArray[np.complex128],
     x_spec: NDArray[np.complex128],
@@ -242,73 +322,12 @@ def mr_damper_force(
     idx = (np.arange(total * m + 1) - settle_samples * m) % (n * m)
     xl = xf[idx].tolist()
     vl = vf[idx].tolist()
-    volt = p.voltage_v
-    alpha = p.alpha_a + p.alpha_b * volt
-    c0 = p.c0a + p.c0b * volt
-    c1 = p.c1a + p.c1b * volt
-    inv = 1.0 / (c0 + c1)
-    k0, gam, bet, a_bw, nexp = p.k0, p.gamma, p.beta, p.a, p.n
-    h = p.period_s / sub
-    h2, h6 = 0.5 * h, h / 6.0
-    square = nexp == 2.0
-
-    def rhs(yv: float, z: float, x: float, xd: float) -> tuple[float, float]:
-        yd = (alpha * z + c0 * xd + k0 * (x - yv)) * inv
-        r = xd - yd
-        if square:
-            zd = (-gam * abs(r) * abs(z) - bet * r * z) * z + a_bw * r
-        else:
-            az = abs(z) ** (nexp - 1.0)
-            zd = -gam * abs(r) * z * az - bet * r * abs(z) * az + a_bw * r
-        return yd, zd
-
-    yv, z = xl[0], 0.0
-    ys = [0.0] * total
-    zs = [0.0] * total
-    ak, c0k, k0k = alpha * inv, c0 * inv, k0 * inv
-    for k in range(total):
-        ys[k] = yv
-        zs[k] = z
-        base = k * m
-        if not square:
-            for s in range(sub):
-                j = base + 2 * s
-                x1, v1, x2, v2, x3, v3 = xl[j], vl[j], xl[j + 1], vl[j + 1], xl[j + 2], vl[j + 2]
-                a1, b1 = rhs(yv, z, x1, v1)
-                a2, b2 = rhs(yv + h2 * a1, z + h2 * b1, x2, v2)
-                a3, b3 = rhs(yv + h2 * a2, z + h2 * b2, x2, v2)
-                a4, b4 = rhs(yv + h * a3, z + h * b3, x3, v3)
-                yv += h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-                z += h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
-            continue
-        for j in range(base, base + m, 2):  # n = 2, the published model: RK4 inlined for speed
-            x1, v1, x2, v2, x3, v3 = xl[j], vl[j], xl[j + 1], vl[j + 1], xl[j + 2], vl[j + 2]
-            a1 = ak * z + c0k * v1 + k0k * (x1 - yv)
-            r = v1 - a1
-            b1 = (-gam * abs(r) * abs(z) - bet * r * z) * z + a_bw * r
-            yt, zt = yv + h2 * a1, z + h2 * b1
-            a2 = ak * zt + c0k * v2 + k0k * (x2 - yt)
-            r = v2 - a2
-            b2 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
-            yt, zt = yv + h2 * a2, z + h2 * b2
-            a3 = ak * zt + c0k * v2 + k0k * (x2 - yt)
-            r = v2 - a3
-            b3 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
-            yt, zt = yv + h * a3, z + h * b3
-            a4 = ak * zt + c0k * v3 + k0k * (x3 - yt)
-            r = v3 - a4
-            b4 = (-gam * abs(r) * abs(zt) - bet * r * zt) * zt + a_bw * r
-            yv += h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-            z += h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+    ys, zs, yv, z = rk4_segment(p, xl, vl, sub, total, xl[0], 0.0)
     if not (math.isfinite(yv) and math.isfinite(z)):
         raise ConfigError(
             f"the MR damper integration diverged with {sub} substeps per sample; accepted: more substeps"
         )
-    ys_a, zs_a = np.array(ys[settle_samples:]), np.array(zs[settle_samples:])
-    x_s = np.fft.irfft(x_spec, n)
-    yd = (alpha * zs_a + c0 * velocity + k0 * (x_s - ys_a)) * inv
-    force = c1 * yd + p.k1 * (x_s - p.x0)
-    return velocity, force
+    return velocity, damper_force(p, ys[settle_samples:], zs[settle_samples:], velocity, np.fft.irfft(x_spec, n))
 
 
 def simulate_mr_damper(
