@@ -5,7 +5,7 @@ with multicast scouting off (the ZenohSettings default), so tests never touch
 anything but loopback and never find each other by accident.
 
 Helpers importable from tests (``from conftest import free_tcp_port``):
-``free_tcp_port()``, ``endpoint()``, ``STREAMID`` (argv prefix running the CLI
+``free_tcp_port()``, ``endpoint()``, ``rerun_grpc_server(port)``, ``STREAMID`` (argv prefix running the CLI
 with the venv's interpreter), ``rerun_check(path)`` (``rerun mcap check``).
 
 System packages (not pip-installable) that some tests need are detected here, in
@@ -17,6 +17,7 @@ install when the thing is absent. ``SYSTEM_NEEDS`` lists them.
 from __future__ import annotations
 
 import functools
+import time
 import shutil
 import socket
 import subprocess
@@ -128,6 +129,24 @@ def free_tcp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def rerun_grpc_server(port: int, wait_s: float = 20.0) -> subprocess.Popen[bytes]:
+    """A real ``rerun --serve-grpc`` on 127.0.0.1:``port``, returned once the port accepts (or ``wait_s`` passed).
+
+    The caller ends it (``terminate``/``kill``).  The binary is the one shipped with rerun-sdk.
+    """
+    binary = str(Path(__import__("rerun_cli").__file__).parent / "rerun")
+    server = subprocess.Popen([binary, "--serve-grpc", "--port", str(port), "--bind", "127.0.0.1"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and server.poll() is None:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            break
+        except OSError:
+            time.sleep(0.1)
+    return server
 
 
 def endpoint(port: int | None = None) -> str:

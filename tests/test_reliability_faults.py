@@ -27,7 +27,6 @@ import json
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -37,7 +36,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import STREAMID, endpoint, free_tcp_port
+from conftest import STREAMID, endpoint, free_tcp_port, rerun_grpc_server
 
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
@@ -57,7 +56,6 @@ T_BASE = 10**12
 BASE = StreamConfig(window_s=1.0, update_every_s=0.5, cold_generations=30, warm_generations=10, neurons=5,
                     max_lag_y=3, max_lag_u=3, min_r2_fr=-1e9,
                     challenger_margin=-1.0)  # every valid challenger published: the tests follow versions
-RERUN_BIN = str(Path(__import__("rerun_cli").__file__).parent / "rerun")
 
 
 @functools.lru_cache(maxsize=1)
@@ -283,16 +281,8 @@ def test_viewer_absent_warns_once_and_publishing_goes_on(caplog: pytest.LogCaptu
 
 def test_viewer_that_goes_away_warns_once_and_publishing_goes_on(caplog: pytest.LogCaptureFixture) -> None:
     port = free_tcp_port()
-    server = subprocess.Popen([RERUN_BIN, "--serve-grpc", "--port", str(port), "--bind", "127.0.0.1"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    server = rerun_grpc_server(port)
     try:
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-                break
-            except OSError:
-                time.sleep(0.1)
         caplog.set_level(logging.INFO)
         ep = endpoint()
         viz = Viz(VizSettings(connect=f"rerun+http://127.0.0.1:{port}/proxy", probe_every_s=0.05))

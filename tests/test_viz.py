@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import socket
 import subprocess
 import sys
 import time
@@ -11,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import free_tcp_port
+from conftest import free_tcp_port, rerun_grpc_server
 
 from streamid.errors import ConfigError
 from streamid.engine.validation import CorrelationTest
@@ -20,7 +19,6 @@ from streamid.viz.figures import CANVAS, Axis, Series, figure, fitness_figure, l
 
 RERUN = str(Path(sys.executable).parent / "rerun")
 #: the viewer/server binary itself (the ``rerun`` script forks it: terminate the binary, not the wrapper)
-RERUN_BIN = str(Path(__import__("rerun_cli").__file__).parent / "rerun")
 P = 5_000_000
 
 
@@ -245,16 +243,8 @@ def test_absent_viewer_is_reported_once_and_costs_nothing(caplog: pytest.LogCapt
 
 def test_viewer_that_goes_away_is_dropped_with_one_warning(caplog: pytest.LogCaptureFixture) -> None:
     port = free_tcp_port()
-    server = subprocess.Popen([RERUN_BIN, "--serve-grpc", "--port", str(port), "--bind", "127.0.0.1"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    server = rerun_grpc_server(port)
     try:
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-                break
-            except OSError:
-                time.sleep(0.1)
         caplog.set_level(logging.INFO, logger="streamid.viz.rerun_view")
         viz = Viz(VizSettings(connect=f"rerun+http://127.0.0.1:{port}/proxy", probe_every_s=0.05))
         assert viz._live is not None  # noqa: SLF001 - connected to the real server
