@@ -48,7 +48,7 @@ from streamid.engine.model import Model
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.validation import r2
 
-__all__ = ["Target", "SYSTEMS", "targets", "free_run_val", "run_suite", "bench"]
+__all__ = ["Target", "SYSTEMS", "targets", "free_run_val", "run_suite", "run_table", "bench"]
 
 SUITE_PAPER = PAPER.replace(neurons=10, generations=400)
 
@@ -173,6 +173,23 @@ def identify_target(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
     fr = free_run_val(res.model, t)
     return {"fr_val": fr, "seconds": seconds, "lags": res.model.lags_text(), "neurons": res.model.neurons,
             "metrics": {k: v for k, v in res.model.metrics.items() if k != "fitness"}}
+
+
+def run_table(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
+    """One identification of ``t`` and every run's candidate after pruning, each validated: what the final
+    choice had to choose among (size, lags, estimation free-run R^2, criterion) and what each would have
+    scored on the validation part (``chosen``: the run taken). Only with a rule that keeps one model per run
+    (``selection="fr_est"``, several restarts)."""
+    res = identify(t.u_est, t.y_est, cfg, seed)
+    comp = res.model.metrics.get("complexity")
+    models = res.extra.get("run_models")
+    if comp is None or models is None:
+        raise ValueError(f"run_table needs selection='fr_est' and restarts > 1; got selection={cfg.selection!r}, "
+                         f"restarts={cfg.restarts}")
+    runs = [{"run": c["run"], "neurons": m.neurons, "lags": m.lags_text(), "r2_fr_est": c["r2_fr_est"],
+             "criterion": c["criterion"], "fr_val": free_run_val(m, t), "chosen": c["run"] == res.chosen}
+            for c, m in zip(comp["candidates"], models)]
+    return {"target": t.name, "seed": seed, "fr_val": free_run_val(res.model, t), "chosen": res.chosen, "runs": runs}
 
 
 def frols_best(t: Target, quick: bool = False) -> dict[str, Any]:

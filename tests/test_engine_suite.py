@@ -67,3 +67,22 @@ def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixt
         assert all(np.isfinite(r["median"]) for r in mine)
     reactor = [r for r in rows if r["case"].startswith("reactor") and r["metric"] == "FR R2 val, default"]
     assert reactor[0]["median"] > 0.99  # even the smoke run identifies the reactor
+
+
+def test_run_table_validates_every_run_and_marks_the_one_taken() -> None:
+    from streamid.engine import DEFAULT, PAPER
+
+    from benchmarks.suite import run_table
+
+    t = targets(("reactor",))[0]
+    cfg = DEFAULT.replace(generations=5, lag_search_generations=5)
+    table = run_table(t, cfg, 0)
+    runs = table["runs"]
+    assert len(runs) >= cfg.restarts and [r["run"] for r in runs] == list(range(len(runs)))
+    assert [r["run"] for r in runs if r["chosen"]] == [table["chosen"]]
+    assert runs[table["chosen"]]["fr_val"] == table["fr_val"]  # the model taken is the run's candidate
+    assert all(np.isfinite(r["fr_val"]) and r["neurons"] >= 1 and r["lags"] for r in runs)
+    ok = [r for r in runs if r["criterion"] is not None]
+    assert ok and runs[table["chosen"]]["criterion"] == min(r["criterion"] for r in ok)
+    with pytest.raises(ValueError, match="selection='fr_est' and restarts > 1"):
+        run_table(t, PAPER.replace(generations=5), 0)
