@@ -26,23 +26,28 @@ smallest excursion beyond the widened range (the report says ``admissible: 0``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.model import Model, free_run
 from streamid.engine.rbf import activations, fit_weights
 from streamid.engine.validation import r2
-from streamid.errors import DataError
+from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["FreeRunScores", "blocked_cv_scores", "free_run_scores", "group_free_run"]
+__all__ = ["FreeRunScores", "blocked_cv_scores", "free_run_scores", "group_free_run", "path_score"]
 
 
 def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[np.float64]) -> NDArray[np.float64]:
     """Free runs (normalised units, one row per model) of models sharing their regressors and normalisation,
-    simulated together from the same measured initial outputs ``y_init`` (``max_lag`` of them)."""
+    simulated together from the same measured initial outputs ``y_init`` (``max_lag`` of them).
+    Ensembles are refused (their members have their own regressors: use ``model.simulate``)."""
+    if any(isinstance(m, EnsembleModel) for m in models):
+        raise ModelFormatError("group_free_run simulates single networks sharing their regressors; got an ensemble "
+                               "(simulate it with model.simulate, which runs each member)")
     m0 = models[0]
     L = max((r.lag for r in m0.regressors), default=0)
     return free_run(
@@ -71,6 +76,8 @@ class FreeRunScores:
     scores: tuple[float, ...]
     excursions: tuple[float, ...]  # largest distance beyond the widened range, in spans (0 = admissible)
     range_margin: float = 0.25
+    #: Each candidate's free run over the record in output units (first ``max_lag`` measured; None: not finite).
+    paths: tuple[NDArray[np.float64] | None, ...] = field(default=(), compare=False, repr=False)
 
     @property
     def admissible(self) -> int:
@@ -117,28 +124,41 @@ def free_run_scores(
         raise DataError(f"the output is constant over the estimation record (all values {lo!r}); nothing to score")
     scores = [-np.inf] * len(models)
     exc = [np.inf] * len(models)
+    paths: list[NDArray[np.float64] | None] = [None] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation, m.neurons), []).append(i)
-    for (regs, norm, _), idx in groups.items():
-        L = max((r.lag for r in regs), default=0)
+        key = ("ensemble", i) if isinstance(m, EnsembleModel) else (m.regressors, m.normalisation, m.neurons)
+        groups.setdefault(key, []).append(i)
+    for key, idx in groups.items():
+        m0 = models[idx[0]]
+        L = m0.max_lag
         first = L if score_from is None else max(int(score_from), L)
         if first >= len(y) - 1:
             raise DataError(f"free-run scoring from sample {first} leaves fewer than 2 of {len(y)} samples")
         with np.errstate(over="ignore", invalid="ignore"):
-            sim = group_free_run([models[i] for i in idx], u, y[:L])
-            ys = norm.y_inverse(sim)
-        drives = any(r.signal == "u" for r in regs)
+            if isinstance(m0, EnsembleModel):  # each member on its own past outputs, averaged
+                ys = m0.simulate(u, y[:L])[None]
+            else:
+                ys = m0.normalisation.y_inverse(group_free_run([models[i] for i in idx], u, y[:L]))
+        drives = all(any(r.signal == "u" for r in mm.regressors) for mm in members_of(m0))
         for k, i in enumerate(idx):
-            path = ys[k, L:]
-            if not drives or not np.all(np.isfinite(path)):
+            if not np.all(np.isfinite(ys[k, L:])):
                 continue
-            beyond = max(float(path.max()) - hi, lo - float(path.min()), 0.0) / span
-            e = max(beyond - range_margin, 0.0)
-            exc[i] = e
-            if e == 0.0:
-                scores[i] = r2(y[first:], ys[k, first:])
-    return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin))
+            paths[i] = ys[k]
+            if drives:
+                scores[i], exc[i] = path_score(ys[k], y, L, first, lo, hi, range_margin)
+    return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin), tuple(paths))
+
+
+def path_score(path: NDArray[np.float64], y: NDArray[np.float64], L: int, first: int, lo: float, hi: float,
+               range_margin: float) -> tuple[float, float]:
+    """The range guard and score of one finite free run ``path`` (output units) of ``y``: (R^2 over
+    ``first:``, or -inf when not admissible; excursion beyond the widened range ``[lo, hi]`` in spans)."""
+    span = hi - lo
+    run = path[L:]
+    beyond = max(float(run.max()) - hi, lo - float(run.min()), 0.0) / span
+    e = max(beyond - range_margin, 0.0)
+    return (r2(y[first:], path[first:]) if e == 0.0 else -np.inf), e
 
 
 def blocked_cv_scores(

@@ -53,8 +53,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine.ensemble import members_of
 from streamid.engine.model import Model
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
+from streamid.errors import ModelFormatError
 
 __all__ = ["COMPLEXITY_RULES", "choose", "criterion", "ols_order", "parameter_count", "pruned", "padded"]
 
@@ -65,8 +67,9 @@ _ADMISSIBLE = -1e9  # a run's score at or below this has no admissible candidate
 
 
 def parameter_count(model: Model) -> int:
-    """Parameters fitted by least squares on the estimation record: ``M`` weights (+ ``k + 1`` linear)."""
-    return model.neurons + (0 if model.linear is None else len(model.regressors) + 1)
+    """Parameters fitted by least squares on the estimation record: ``M`` weights (+ ``k + 1`` linear);
+    of an ensemble, its members' summed."""
+    return sum(m.neurons + (0 if m.linear is None else len(m.regressors) + 1) for m in members_of(model))
 
 
 def criterion(rule: str, r2_fr: float, n_scored: int, params: int) -> float:
@@ -144,6 +147,7 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
     One network per size in ``sizes`` below ``model.neurons`` (same regressors, centres
     and widths of the neurons kept; a linear part, if any, refitted with the weights).
     """
+    _single("pruned", model)
     r, target = model.regressor_rows(u, y)
     phi = activations(r, model.centres, model.widths)
     order = ols_order(phi, target)
@@ -166,6 +170,7 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
 def padded(model: Model, neurons: int) -> Model:
     """The same network with zero-weight neurons added up to ``neurons`` (the same predictions, to rounding):
     networks of different sizes on the same lags then share one batched free run."""
+    _single("padded", model)
     extra = neurons - model.neurons
     if extra <= 0:
         return model
@@ -173,3 +178,10 @@ def padded(model: Model, neurons: int) -> Model:
     return replace(model, centres=np.vstack([model.centres, np.zeros((extra, k))]),
                    widths=np.concatenate([model.widths, np.ones(extra)]),
                    weights=np.concatenate([model.weights, np.zeros(extra)]))
+
+
+def _single(what: str, model: Model) -> None:
+    """Refuse an ensemble where one network's neurons are worked on."""
+    if len(members_of(model)) > 1:
+        raise ModelFormatError(f"{what}() works on one network; got an ensemble of {len(members_of(model))} "
+                               "(apply it to model.members[i])")

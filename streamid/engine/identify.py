@@ -58,12 +58,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.complexity import choose as choose_complexity
+from streamid.engine.ensemble_choice import choose_ensemble
 from streamid.engine.fanout import fan_out
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.regressors import Normalisation, as_data
-from streamid.engine.selection import free_run_r2, pruned_choice, refit_weights, select_model
+from streamid.engine.selection import free_run_r2, pruned_choice, refit_weights, select_model, select_model_path
 from streamid.engine.settings import DEFAULT, CoEAConfig
 from streamid.errors import ConfigError, DataError
 
@@ -188,7 +189,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     else:
         run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
     evaluations += run.evaluations
-    model, score = select_model(run, u, y, cfg.selection, n_search=n_search)
+    model, score, path = select_model_path(run, u, y, cfg.selection, n_search=n_search)
     return {
         "seed": job["seed"],
         # A run made in this process hands back its objects; a worker's go back as JSON.
@@ -199,6 +200,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "seconds": time.perf_counter() - t0,
         "fitness": float(run.best_f),
         "score": score,
+        "path": path,  # the model's estimation free run (output units) when the choice made one
         "lag_rule": lag_rule,
         "neurons": cfg.neurons,
         "max_lag": cfg.max_lag,
@@ -413,6 +415,7 @@ def identify(
         callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs)))
     models = [o["model"] if isinstance(o["model"], Model) else Model.from_json(o["model"]) for o in outs]
     scores = [float(o["score"]) for o in outs]
+    paths = [o.get("path") for o in outs]
     complexity: dict[str, Any] | None = None
     spaces = [int(o.get("max_lag", cfg.max_lag)) for o in outs]
     if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.complexity)
@@ -422,11 +425,17 @@ def identify(
                             key=lambda c: (c["criterion"], c["run"]))[: cfg.prune_runs]
             for c in ranked:
                 i = int(c["run"])
-                models[i], scores[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, cfg.range_margin)
+                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, cfg.range_margin,
+                                                               paths[i])
             chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
     else:
         chosen = int(np.argmax(scores))
-    final = models[chosen]
+    final, score = models[chosen], float(outs[chosen]["score"])
+    if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.ensemble_choice)
+        ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya,
+                                                                cfg.range_margin)
+        if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
+            final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     final = final.with_metrics(
@@ -439,7 +448,7 @@ def identify(
         run_scores=[float(o["score"]) for o in outs],
         run_lag_rules=[str(o.get("lag_rule", "search")) for o in outs],
         selection=cfg.selection,
-        selection_score=outs[chosen]["score"],
+        selection_score=score,
         holdout_samples=n_hold,
         evaluations=int(sum(o["evaluations"] for o in outs)),
         max_lag_choice=lag_evidence,

@@ -40,12 +40,14 @@ from streamid.engine.freerun import free_run
 from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_LINEAR", "MODEL_FORMATS", "free_run", "format_lags"]
+__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_LINEAR", "MODEL_FORMATS", "free_run", "format_lags"]
 
 MODEL_FORMAT = "streamid.model/1"
 #: The format of a model with a direct linear part (``linear``); /1 documents load as ``linear = None``.
 MODEL_FORMAT_LINEAR = "streamid.model/2"
-MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR)
+#: The format of the mean of several networks (:mod:`streamid.engine.ensemble`); loads as an ``EnsembleModel``.
+MODEL_FORMAT_ENSEMBLE = "streamid.model/3"
+MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE)
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -368,6 +370,10 @@ class Model:
         fmt = d.get("format")
         if fmt not in MODEL_FORMATS:
             raise ModelFormatError(f"model 'format' must be one of {list(MODEL_FORMATS)}; got {fmt!r}")
+        if fmt == MODEL_FORMAT_ENSEMBLE:  # the mean of several networks (a Model too)
+            from streamid.engine.ensemble import EnsembleModel
+
+            return EnsembleModel.from_dict(d)
         if fmt == MODEL_FORMAT_LINEAR and "linear" not in d:
             raise ModelFormatError(f"a {MODEL_FORMAT_LINEAR} model document needs the field 'linear' (k + 1 numbers)")
         try:

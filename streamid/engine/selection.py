@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.choice import FreeRunScores, blocked_cv_scores, free_run_scores, group_free_run
 from streamid.engine.complexity import criterion, padded, parameter_count, pruned
+from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.model import Model
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import as_data
@@ -25,14 +26,20 @@ if TYPE_CHECKING:
     from streamid.engine.coevolution import Coevolution
     from streamid.engine.settings import CoEAConfig
 
-__all__ = ["free_run_r2", "pruned_choice", "refit_weights", "select_model"]
+__all__ = ["free_run_r2", "pruned_choice", "refit_weights", "select_model", "select_model_path"]
 
 
 def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight_decay: float = 0.0) -> Model:
     """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
 
     A model with a linear part has it refitted in the same least squares. The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.rbf.fit_weights`.
+    An ensemble has every member refitted (each on its own regressors); its ``fitness`` is then the mean's.
     """
+    if isinstance(model, EnsembleModel):
+        ens = model.map_members(lambda m: refit_weights(m, u, y, ridge, weight_decay))
+        ua, ya = as_data(u, y, min_samples=ens.max_lag + 2)
+        L = ens.max_lag
+        return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
     un, yn = model.normalisation.u(ua), model.normalisation.y(ya)
     L, n = model.max_lag, ya.shape[0]
@@ -73,6 +80,13 @@ def free_run_r2(
     out = [0.0] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
+        if isinstance(m, EnsembleModel):  # each member on its own past outputs, averaged (model.simulate)
+            first = m.max_lag if score_from is None else score_from
+            if first < m.max_lag:
+                raise DataError(f"free-run scoring from sample {first} needs max_lag = {m.max_lag} earlier samples")
+            sim = m.simulate(u[first - m.max_lag :], y[first - m.max_lag : first])
+            out[i] = r2(y[first:], sim[m.max_lag :])
+            continue
         groups.setdefault((m.regressors, m.normalisation, m.neurons), []).append(i)
     for (regs, norm, _), idx in groups.items():
         L = max((r.lag for r in regs), default=0)
@@ -96,6 +110,25 @@ def select_model(
     range_margin: float | None = None,
 ) -> tuple[Model, float]:
     """The model of a finished run by the selection rule, and its score (higher is better).
+
+    See :func:`select_model_path` (the same choice, with the chosen model's estimation free run).
+    """
+    model, score, _ = select_model_path(run, u, y, selection, n_search=n_search, range_margin=range_margin)
+    return model, score
+
+
+def select_model_path(
+    run: Coevolution,
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    selection: str,
+    *,
+    n_search: int | None = None,
+    range_margin: float | None = None,
+) -> tuple[Model, float, NDArray[np.float64] | None]:
+    """The model of a finished run by the selection rule, its score (higher is better) and, with
+    ``"fr_est"`` or ``"cv_fr"``, its free run over the estimation record in output units when the choice made
+    one (None otherwise: the final choice's ensembles then simulate it again).
 
     The one final-model choice of streamid: :func:`identify` and the online
     updates (:mod:`streamid.online.update`) both call it.
@@ -123,7 +156,7 @@ def select_model(
     """
     if selection == "fitness":
         best = run.best_model()
-        return best, -float(best.metrics["fitness"])
+        return best, -float(best.metrics["fitness"]), None
     if selection not in ("fr_est", "holdout_fr", "cv_fr"):
         raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr', 'cv_fr'; got {selection!r}")
     n = len(y) if n_search is None else int(n_search)
@@ -151,7 +184,7 @@ def select_model(
         k = int(np.argmax(cv))
         ev = {**fr.evidence(k), "cv_score": float(cv[k]) if np.isfinite(cv[k]) else None, "cv_folds": run.config.cv_folds}
         score = float(cv[k]) if np.isfinite(cv[k]) else -1e8  # admissible, but no finite CV score: below any finite
-        return cands[k].with_metrics(free_run_choice=ev), score
+        return cands[k].with_metrics(free_run_choice=ev), score, fr.paths[k]
     k = _by_criterion(run.config.complexity, cands, fr, n) if both and fr.admissible else fr.best()
     score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
     chosen = cands[k].with_metrics(free_run_choice=fr.evidence(k))
@@ -159,8 +192,8 @@ def select_model(
     if size > 1 and fr.admissible >= 2 and selection == "fr_est":
         ens, ens_score = _ensemble(cands, fr.scores, k, size, u[:n], y[:n], margin)
         if ens is not None and ens_score >= score:
-            return ens, float(ens_score)
-    return chosen, float(score)
+            return ens, float(ens_score), None
+    return chosen, float(score), fr.paths[k] if selection == "fr_est" and fr.admissible else None
 
 
 def _by_criterion(rule: str, cands: list[Model], fr: FreeRunScores, n: int) -> int:
@@ -173,15 +206,17 @@ def _by_criterion(rule: str, cands: list[Model], fr: FreeRunScores, n: int) -> i
 
 
 def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.float64], y: NDArray[np.float64],
-                   margin: float) -> tuple[Model, float]:
+                   margin: float, path: NDArray[np.float64] | None = None,
+                   ) -> tuple[Model, float, NDArray[np.float64] | None]:
     """A chosen model or one of its pruned networks (``M // 3``, ``2 M // 3`` neurons kept in
     forward-selection order, :func:`~streamid.engine.complexity.pruned`), by the complexity rule on the
-    estimation free run (range guard included). Evidence in ``metrics.neuron_choice``."""
+    estimation free run (range guard included), with the chosen one's estimation free run (``path``: the
+    model's). Evidence in ``metrics.neuron_choice``."""
     M = model.neurons
     with one_blas_thread():
         smaller = pruned(model, u, y, (M // 3, 2 * M // 3), cfg.ridge, cfg.weight_decay)
         if not smaller:
-            return model, score
+            return model, score, path
         fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run
     rows = [(model, score, 0.0), *zip(smaller, fr.scores, fr.excursions)]
     crit = [criterion(cfg.complexity, s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
@@ -190,10 +225,11 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     ev = {"rule": cfg.complexity, "neurons": rows[k][0].neurons,
           "candidates": [{"neurons": m.neurons, "r2_fr_est": s if e == 0.0 else None,
                           "criterion": c if np.isfinite(c) else None} for (m, s, e), c in zip(rows, crit)]}
-    return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1])
+    return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1]), path if k == 0 else fr.paths[k - 1]
 
 
-def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float) -> tuple[Model, float] | None:
+def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float,
+              ) -> tuple[Model, float, NDArray[np.float64] | None] | None:
     """``"fr_est"`` on a large record with candidates fitted on the search's rows only, the chosen one refitted on
     all rows and scored again; None (choose the full way) when that refit is not admissible."""
     pairs = run.candidate_pairs(run.config.fr_candidates or None)
@@ -208,7 +244,7 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
     if not again.admissible:
         return None
     ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible, "screened_on_rows": run.search_rows}
-    return final.with_metrics(free_run_choice=ev), float(again.scores[0])
+    return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
 
 
 def _ensemble(

@@ -217,6 +217,13 @@ class CoEAConfig:
         squares on the estimation data, weights refitted); each competes with its parent
         by ``complexity`` on the estimation free run (range guard included), then the runs
         as before. Evidence in ``metrics.neuron_choice`` and ``metrics.complexity``.
+    run_ensembles : bool
+        With ``selection="fr_est"`` and several runs: False, the final model is one run's network.
+        True, after that choice the means of the top 2, the top 3 and all admissible runs' networks
+        (ranked by ``complexity``) compete too (:mod:`streamid.engine.ensemble_choice`): each scored
+        on the estimation free run of the mean (every member on its own past outputs), range guard
+        included, ``p`` the members' weights summed; one is taken when its criterion is below the
+        single network's (a ``streamid.model/3`` model; evidence in ``metrics.complexity.ensembles``).
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.
     require_input : bool
@@ -269,6 +276,7 @@ class CoEAConfig:
     complexity: str = "score"
     prune_runs: int = 0
     fallback_below: float = -1e9
+    run_ensembles: bool = False
 
     def __post_init__(self) -> None:
         _int("neurons", self.neurons, 1, 1000)
@@ -323,6 +331,8 @@ class CoEAConfig:
             raise ConfigError(f"CoEAConfig.linear_alternation must be true or false; got {self.linear_alternation!r}")
         if not isinstance(self.linear_search, bool):
             raise ConfigError(f"CoEAConfig.linear_search must be true or false; got {self.linear_search!r}")
+        if not isinstance(self.run_ensembles, bool):
+            raise ConfigError(f"CoEAConfig.run_ensembles must be true or false; got {self.run_ensembles!r}")
         if not isinstance(self.screen_rows, bool):
             raise ConfigError(f"CoEAConfig.screen_rows must be true or false; got {self.screen_rows!r}")
         _int("max_lag_cap", self.max_lag_cap, 0, 1000)
