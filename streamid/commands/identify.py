@@ -99,6 +99,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help=f"two-stage runs: generations of the lag-search stage (default {DEFAULT.lag_search_generations})",
     )
     p.add_argument("--restarts", type=int, metavar="K", help=f"coevolution runs per identification (default {DEFAULT.restarts}; --paper 1)")
+    p.add_argument("--ensembles", action=argparse.BooleanOptionalAction, default=None,
+                   help="the means of the best 2, 3 and all admissible restarts' networks compete in the final choice "
+                        f"by the same criterion (default {'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
     p.add_argument("--selection", choices=SELECTIONS, help=f"how the final model is chosen among candidates (default {DEFAULT.selection})")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
     p.add_argument("--runs", type=int, default=1, metavar="R", help="independent identifications, seeds S..S+R-1 (default 1)")
@@ -106,7 +109,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON line on stdout instead of the table (as every streamid command's --json)")
     p.add_argument("--report", metavar="REPORT.json", help="also write the report as a JSON file")
-    p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (streamid.model/1 JSON)")
+    p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (JSON: streamid.model/1, /2 with a linear part, /3 for a mean of networks)")
     p.add_argument("--rrd", metavar="FILE.rrd",
                    help="draw the kept model in the daemon's Rerun layout into FILE.rrd (streamid view FILE.rrd)")
     p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal, after a second; always: from the start); one identification moves it every generation "
@@ -137,6 +140,11 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         changes["max_lag_u"] = args.max_lag_u
     if any(v is not None for v in (args.max_lag, args.max_lag_y, args.max_lag_u)):
         changes["max_lag_cap"] = 0  # lags as given, not chosen from the data
+    if args.ensembles is not None:
+        if args.paper and args.ensembles:
+            raise ConfigError("--ensembles averages several restarts' networks; --paper makes one run chosen by fitness "
+                              "(drop one of the two)")
+        changes["run_ensembles"] = bool(args.ensembles)
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1; got {args.workers}")
     if args.runs < 1:
@@ -234,6 +242,23 @@ def _lags_text(run: dict[str, Any]) -> str:
     return Model.from_json(run["model"]).lags_text()
 
 
+def _ensemble_lines(cx: dict[str, Any]) -> list[str]:
+    """The report's lines on the ensembles of the restarts' networks (``metrics.complexity.ensembles``)."""
+    ens = cx.get("ensembles")
+    if ens is None:
+        return []
+    if not ens:
+        return ["ensembles of the restarts' networks: none (fewer than 2 admissible restarts)\n"]
+    rows = "; ".join(
+        f"{e['name']} (restarts {', '.join(str(i) for i in e['members'])}, p {e['params']}, "
+        + ("not admissible" if e["criterion"] is None else f"FR R2 est {e['r2_fr_est']:.5f}, {e['criterion']:.1f}")
+        + (", taken" if e["taken"] else "") + ")" for e in ens)
+    taken = [e for e in ens if e["taken"]]
+    verdict = (f"kept the mean of {len(taken[0]['members'])} networks ({' + '.join(str(n) for n in taken[0]['neurons'])}"
+               " neurons)" if taken else "kept the single network (no mean had a lower criterion)")
+    return [f"ensembles of the restarts' networks by {cx['rule']} (mean of the members' free runs): {rows}; {verdict}\n"]
+
+
 def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str, Any]], best: int, wall: float) -> None:
     w = out.write
     w(f"streamid identify: {ds.path}\n")
@@ -281,6 +306,8 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
           + "; ".join(f"{c['neurons']}, 1..{c['lag_space']}, {c['params']}, "
                       + ("not admissible" if c["criterion"] is None else f"{c['r2_fr_est']:.5f}, {c['criterion']:.1f}")
                       for c in cx["candidates"]) + "\n")
+        for line in _ensemble_lines(cx):
+            w(line)
     nc = Model.from_json(b["model"]).metrics.get("neuron_choice")
     if nc:  # the chosen run's network against its pruned versions (CoEAConfig.prune)
         w(f"neurons of the chosen run by {nc['rule']}: {nc['neurons']} of "

@@ -48,7 +48,11 @@ from streamid.engine.model import MODEL_FORMAT_ENSEMBLE, Model, _finite_array
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["EnsembleModel", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
+__all__ = ["EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
+
+#: Most members an ensemble holds (each costs a network's evaluation: a document from elsewhere is bounded
+#: by this and by the wire's document size). The engine's "all admissible runs" ensemble takes the top ones.
+MAX_MEMBERS = 32
 
 _MEMBER_FORM = "an object with regressors, centres (M x k), widths (M), weights (M) and optionally linear (k + 1)"
 
@@ -91,7 +95,7 @@ class EnsembleModel(Model):
     def of(cls, members: Sequence[Model], **fields: Any) -> EnsembleModel:
         """An ensemble of ``members`` (their first's normalisation and names unless given in ``fields``)."""
         if not members:
-            raise ModelFormatError(f"model field 'members' must be a list of >= 2 networks ({_MEMBER_FORM}); got none")
+            raise ModelFormatError(f"model field 'members' must be a list of 2 to {MAX_MEMBERS} networks ({_MEMBER_FORM}); got none")
         m0 = members[0]
         base = {"regressors": m0.regressors, "centres": m0.centres, "widths": m0.widths, "weights": m0.weights,
                 "linear": m0.linear, "normalisation": m0.normalisation, "input_names": m0.input_names,
@@ -100,9 +104,9 @@ class EnsembleModel(Model):
 
     def __post_init__(self) -> None:
         ms = self.members
-        if not isinstance(ms, tuple) or len(ms) < 2:
+        if not isinstance(ms, tuple) or not 2 <= len(ms) <= MAX_MEMBERS:
             raise ModelFormatError(
-                f"model field 'members' must be a list of >= 2 networks ({_MEMBER_FORM}); got {len(ms) if isinstance(ms, tuple) else ms!r} "
+                f"model field 'members' must be a list of 2 to {MAX_MEMBERS} networks ({_MEMBER_FORM}); got {len(ms) if isinstance(ms, tuple) else ms!r} "
                 "(a single network is a streamid.model/1 or /2 document)")
         for i, m in enumerate(ms):
             if not isinstance(m, Model) or isinstance(m, EnsembleModel):
@@ -249,9 +253,9 @@ class EnsembleModel(Model):
         if d.get("format") != MODEL_FORMAT_ENSEMBLE:
             raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT_ENSEMBLE!r} for an ensemble; got {d.get('format')!r}")
         raw = d.get("members")
-        if not isinstance(raw, list) or len(raw) < 2:
-            got = f"{len(raw)} member(s)" if isinstance(raw, list) else repr(raw)
-            raise ModelFormatError(f"model field 'members' must be a list of >= 2 networks ({_MEMBER_FORM}); got {got}")
+        if not isinstance(raw, list) or not 2 <= len(raw) <= MAX_MEMBERS:
+            got = f"{len(raw)} member(s)" if isinstance(raw, list) else repr(raw)[:200]
+            raise ModelFormatError(f"model field 'members' must be a list of 2 to {MAX_MEMBERS} networks ({_MEMBER_FORM}); got {got}")
         try:
             norm = Normalisation.from_dict(d["normalisation"])
         except KeyError:

@@ -34,12 +34,13 @@ from numpy.typing import NDArray
 
 from streamid.engine.choice import path_score
 from streamid.engine.complexity import criterion, parameter_count
-from streamid.engine.ensemble import ensemble_of
+from streamid.engine.ensemble import MAX_MEMBERS, ensemble_of
 from streamid.engine.model import Model
 
 __all__ = ["ENSEMBLE_SIZES", "choose_ensemble"]
 
-#: The ensembles offered: the mean of the top 2, the top 3 and all admissible runs (0 = all).
+#: The ensembles offered: the mean of the top 2, the top 3 and all admissible runs (0 = all; at most
+#: :data:`~streamid.engine.ensemble.MAX_MEMBERS`, the top ones).
 ENSEMBLE_SIZES = (2, 3, 0)
 
 
@@ -70,7 +71,7 @@ def choose_ensemble(
     best: tuple[float, Model | None, list[int]] = (single, None, [])
     seen: set[int] = set()
     for size in ENSEMBLE_SIZES:
-        k = len(ranked) if size == 0 else size
+        k = min(len(ranked), MAX_MEMBERS) if size == 0 else size
         if k > len(ranked) or k in seen:
             continue
         seen.add(k)

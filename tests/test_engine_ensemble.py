@@ -1,0 +1,256 @@
+"""Ensembles of the restarts' networks (issue 13 round 7): the ``streamid.model/3`` model, the final choice's
+option ``run_ensembles``, and the consumers of a model (file, identify, recalibration, the model subscriber)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import endpoint
+from streamid.engine import DEFAULT, Model, identify
+from streamid.engine.choice import free_run_scores, group_free_run
+from streamid.engine.complexity import choose, criterion, padded, parameter_count, pruned
+from streamid.engine.ensemble import MAX_MEMBERS, EnsembleModel, ensemble_of, members_of
+from streamid.engine.ensemble_choice import choose_ensemble
+from streamid.engine.regressors import Normalisation, Regressor
+from streamid.engine.selection import refit_weights
+from streamid.engine.validation import r2
+from streamid.errors import ConfigError, DataError, ModelFormatError
+from streamid.online.recalibrate import recalibrate
+
+NORM = Normalisation((-1.0,), (1.0,), -2.0, 2.0)
+DATA = Path(__file__).parent / "data" / "ensemble_off"
+
+
+def _net(seed: int, regs: tuple[Regressor, ...], m: int = 4, linear: bool = False) -> Model:
+    rng = np.random.default_rng(seed)
+    return Model(regressors=regs, centres=rng.uniform(-1, 1, (m, len(regs))), widths=rng.uniform(0.5, 1.5, m),
+                 weights=rng.normal(0, 0.4, m), normalisation=NORM, input_names=("volt",), output_name="um",
+                 linear=rng.normal(0, 0.05, len(regs) + 1) if linear else None)
+
+
+Y1, Y2, U1, U3 = Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 1), Regressor("u", 0, 3)
+
+
+def _members() -> list[Model]:
+    return [_net(0, (Y1, U1)), _net(1, (Y1, Y2, U1, U3), 5), _net(2, (Y1, U1, U3), 3, linear=True)]
+
+
+def _data(n: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(7)
+    u = rng.uniform(-1, 1, n)
+    y = np.zeros(n)
+    for t in range(3, n):
+        y[t] = 0.6 * y[t - 1] + np.tanh(u[t - 1]) - 0.2 * u[t - 3]
+    return u, y
+
+
+def test_predictions_are_the_mean_of_the_members() -> None:
+    ms = _members()
+    ens = ensemble_of(ms, metrics={"fitness": 1.0})
+    assert isinstance(ens, EnsembleModel) and ens.max_lag == 3 and ens.neurons == 12
+    u, y = _data()
+    osa = ens.predict_osa(u, y)
+    np.testing.assert_allclose(osa[3:], np.mean([m.predict_osa(u, y)[3:] for m in ms], axis=0), rtol=0, atol=1e-12)
+    assert np.array_equal(osa[:3], y[:3])
+    fr = ens.simulate(u, y[:3])  # each member on its own past outputs, from its own max_lag measured outputs
+    own = np.mean([m.simulate(u, y[: m.max_lag])[3:] for m in ms], axis=0)
+    np.testing.assert_allclose(fr[3:], own, rtol=0, atol=1e-12)
+    assert np.array_equal(fr[:3], y[:3])
+    # Not the averaged one-step model fed back (another model): the difference is real.
+    assert np.max(np.abs(fr[3:] - osa[3:])) > 1e-3
+    a, b = ens.simulate_many([(u, y), (u[:100], y[:3])])
+    np.testing.assert_allclose(a, fr, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b, fr[:100], rtol=0, atol=1e-12)
+    with pytest.raises(DataError, match="max_lag = 3"):
+        ens.simulate(u, y[:2])
+    assert ens.lags == {"y": [1, 2], "u": [[1, 3]]} and ens.lags_text() == "um(t-1,t-2) volt(t-1,t-3)"
+    text = ens.summary()
+    assert "mean of 3 networks" in text and "4, 5, 3 + linear" in text and "member 1" in text
+
+
+def test_v3_round_trip_and_v1_v2_unchanged(tmp_path: Path) -> None:
+    ens = ensemble_of(_members(), metrics={"fitness": 0.5, "r2_fr_val": 0.9}, window={"n_samples": 300})
+    doc = json.loads(ens.to_json())
+    assert doc["format"] == "streamid.model/3" and len(doc["members"]) == 3
+    assert "linear" in doc["members"][2] and "linear" not in doc["members"][0]
+    assert set(doc["members"][0]) == {"regressors", "lags", "max_lag", "centres", "widths", "weights"}
+    back = Model.from_json(ens.to_json())
+    assert isinstance(back, EnsembleModel) and back.to_dict() == ens.to_dict()
+    u, y = _data()
+    assert np.array_equal(back.simulate(u, y), ens.simulate(u, y))
+    loaded = Model.load(ens.save(tmp_path / "e.json"))
+    assert isinstance(loaded, EnsembleModel) and np.array_equal(loaded.predict_osa(u, y), ens.predict_osa(u, y))
+    # a single network is still written (and read) as /1 or /2, never /3
+    for m, fmt in ((_members()[0], "streamid.model/1"), (_members()[2], "streamid.model/2")):
+        single = ensemble_of([m])
+        assert single.to_dict()["format"] == fmt
+        again = Model.from_json(single.to_json())
+        assert type(again) is Model and np.array_equal(again.simulate(u, y), m.simulate(u, y))
+    # a /1 document written before round 7 loads as it did
+    old = Model.load(DATA / "reactor_seed0.json")
+    assert type(old) is Model and old.to_dict() == json.loads((DATA / "reactor_seed0.json").read_text())
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.pop("members"), r"'members' must be a list of 2 to 32 networks"),
+    (lambda d: d.update(members=[]), r"'members' must be a list of 2 to 32 networks .*got 0 member"),
+    (lambda d: d.update(members=d["members"][:1]), r"got 1 member.*"),
+    (lambda d: d.update(members=d["members"] * 11), r"2 to 32 networks .*got 33 member"),
+    (lambda d: d.update(members="x"), r"'members' must be a list"),
+    (lambda d: d["members"].__setitem__(1, 5), r"'members\[1\]' must be an object with regressors"),
+    (lambda d: d["members"][1].update(centres=[[0.0, 1.0]]), r"'members\[1\]\.centres' must have shape \(5, 4\)"),
+    (lambda d: d["members"][0]["weights"].__setitem__(0, float("nan")), r"'members\[0\]\.weights' must contain only finite"),
+    (lambda d: d["members"][2].update(linear=[1.0]), r"'members\[2\]\.linear' must have shape \(4,\)"),
+    (lambda d: d["members"][0].pop("widths"), r"'members\[0\]' is missing or has a malformed field"),
+    (lambda d: d["members"][0].update(regressors=[{"signal": "y"}]), r"'members\[0\]\.regressors' must be a list"),
+    (lambda d: d.pop("normalisation"), r"'normalisation' is missing"),
+])
+def test_bad_v3_documents_name_the_field_and_the_form(change, message) -> None:
+    d = ensemble_of(_members()).to_dict()
+    change(d)
+    with pytest.raises(ModelFormatError, match=message):
+        Model.from_json(json.dumps(d))
+
+
+def test_the_choice_takes_an_ensemble_only_when_its_criterion_is_lower() -> None:
+    rng = np.random.default_rng(3)
+    n = 400
+    u = rng.uniform(-1, 1, (n, 1))
+    y = np.sin(np.arange(n) / 9.0) + 0.3 * u[:, 0]
+    ms = [_net(i, (Y1, U1), 2) for i in range(3)]
+
+    def run(paths: list[np.ndarray]) -> tuple[Model | None, list[int], list[dict], dict]:
+        scores = [r2(y[1:], p[1:]) for p in paths]
+        _, cx = choose("aic", ms, scores, n, [1, 1, 1])
+        ens, members, ev = choose_ensemble("aic", ms, paths, cx, u, y, 0.25)
+        return ens, members, ev, cx
+
+    e = [0.1 * rng.standard_normal(n) for _ in range(3)]
+    ens, members, ev, cx = run([y + e[0], y + e[1], y + 3 * e[2]])  # two independent errors: their mean halves it
+    assert isinstance(ens, EnsembleModel) and len(ens.members) == 2 and members == ev[0]["members"]
+    mean = (2 * y + e[0] + e[1]) / 2
+    assert ev[0]["criterion"] == pytest.approx(criterion("aic", r2(y[1:], mean[1:]), n - 1, 4), abs=1e-9)
+    single = cx["candidates"][cx["chosen_run"]]["criterion"]
+    assert ev[0]["taken"] and ev[0]["criterion"] < single and ev[1]["criterion"] > ev[0]["criterion"]
+    assert ens.metrics["ensemble"]["name"] == "top2" and ens.metrics["ensemble"]["params"] == parameter_count(ens) == 4
+    # the same error twice: the mean is no better, p doubles -> the single network stays
+    ens, _, ev, _ = run([y + e[0], y + e[0], y + e[0] + 1e-9])
+    assert ens is None and not any(r["taken"] for r in ev) and ev[0]["criterion"] is not None
+    # a much worse second network: its mean is worse than the best alone
+    ens, _, ev, _ = run([y + e[0], y + 4 * e[1], y + 5 * e[2]])
+    assert ens is None and all(r["criterion"] > cx["candidates"][0]["criterion"] for r in ev)
+    # a mean that leaves the range (two runs far off on either side... and back) is not admissible
+    off = np.where(np.arange(n) > 200, 3.0, 0.0)
+    ens, _, ev, _ = run([y + e[0] + off, y + e[1] + off, y + e[2]])
+    assert ens is None and ev[0]["criterion"] is None and ev[0]["excursion_spans"] > 0
+
+
+def test_consumers_of_one_network_refuse_or_handle_an_ensemble() -> None:
+    u, y = _data()
+    ms = _members()
+    ens = ensemble_of(ms)
+    assert isinstance(ens, EnsembleModel)
+    assert parameter_count(ens) == 4 + 5 + 3 + 4 and members_of(ens) == ens.members and members_of(ms[0]) == (ms[0],)
+    ua = u[:, None]
+    for call in (lambda: pruned(ens, ua, y, (2,), 1e-10), lambda: padded(ens, 40), lambda: ens.regressor_rows(ua, y),
+                 lambda: group_free_run([ens], ua, y[:3])):
+        with pytest.raises(ModelFormatError, match="ensemble"):
+            call()
+    fr = free_run_scores([ms[0], ens], ua, y)  # an ensemble is scored on the mean of its members' free runs
+    sim = ens.simulate(u, y[:3])
+    path = fr.paths[1]
+    assert fr.scores[1] == pytest.approx(r2(y[3:], sim[3:]), abs=1e-12) and path is not None and np.array_equal(path, sim)
+    refit = refit_weights(ens, u, y, 1e-10)  # every member refitted on its own regressors
+    assert isinstance(refit, EnsembleModel) and [type(m) for m in refit.members] == [Model] * 3
+    for m, mr in zip(ms, refit.members):
+        assert np.array_equal(mr.weights, refit_weights(m, u, y, 1e-10).weights)
+    assert refit.metrics["fitness"] == pytest.approx(np.mean((refit.predict_osa(u, y)[3:] - y[3:]) ** 2))
+
+
+def test_recalibration_rescales_the_mean() -> None:
+    u, y = _data()
+    ens = ensemble_of(_members())
+    drifted = 1.5 * ens.simulate(u, y[:3]) + 0.3  # the device's output, gain 1.5 and offset 0.3 later
+    got = recalibrate(ens, u[:, None], drifted)
+    assert isinstance(got, EnsembleModel)
+    assert got.metrics["recalibrated_gain"] == pytest.approx(1.5, rel=1e-6)
+    assert got.metrics["recalibrated_offset"] == pytest.approx(0.3, abs=1e-6)
+    assert all(m.normalisation == got.normalisation for m in got.members)
+    np.testing.assert_allclose(got.simulate(u, drifted[:3])[3:], drifted[3:], atol=1e-6)
+
+
+def test_defaults_off_give_the_models_identified_before() -> None:
+    from benchmarks.suite import targets
+
+    for name, seed in (("reactor", 0), ("robot_arm", 2)):
+        t = targets((name,))[0]
+        got = identify(t.u_est, t.y_est, DEFAULT, seed).model.to_dict()
+        assert got["config"].pop("run_ensembles") is False
+        assert json.dumps(got, sort_keys=True) == json.dumps(json.loads((DATA / f"{name}_seed{seed}.json").read_text()),
+                                                             sort_keys=True), name
+    with pytest.raises(ConfigError, match="run_ensembles must be true or false; got 1"):
+        DEFAULT.replace(run_ensembles=1)
+
+
+def test_identify_cli_saves_an_ensemble_that_loads(tmp_path: Path) -> None:
+    from benchmarks.suite import targets
+
+    t = targets(("heat_exchanger",))[0]  # seed 0: the mean of two runs wins by AIC here (round 7 measurement)
+    data = tmp_path / "hx.csv"
+    np.savetxt(data, np.column_stack([np.concatenate([t.u_est[:, 0], t.u_val[:, 0]]), np.concatenate([t.y_est, t.y_val])]),
+               delimiter=",", header="q,temp", comments="", fmt="%.17g")
+    mod, rep = tmp_path / "m.json", tmp_path / "r.json"
+    p = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--input", "q", "--output", "temp",
+                        "--est", str(len(t.y_est)), "--ensembles", "--workers", "1", "--progress", "never",
+                        "--model", str(mod), "--report", str(rep)], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    m = Model.load(mod)
+    assert isinstance(m, EnsembleModel) and json.loads(mod.read_text())["format"] == "streamid.model/3"
+    ev = m.metrics["complexity"]["ensembles"]
+    taken = [e for e in ev if e["taken"]]
+    assert len(taken) == 1 and taken[0]["members"] == [r for r in m.metrics["ensemble"]["members"]]
+    assert taken[0]["criterion"] < m.metrics["complexity"]["candidates"][m.metrics["complexity"]["chosen_run"]]["criterion"]
+    assert f"kept the mean of {len(m.members)} networks" in p.stdout and "ensembles of the restarts' networks by aic" in p.stdout
+    run = json.loads(rep.read_text())["runs"][0]
+    fr = m.simulate(t.u_val, t.y_val[: m.max_lag])
+    assert run["r2"]["fr_val"] == pytest.approx(r2(t.y_val[m.max_lag:], fr[m.max_lag:]), abs=1e-9)
+    assert run["lags"] == m.lags
+    bad = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--paper", "--ensembles"],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "--paper makes one run" in bad.stderr
+
+
+def test_a_subscriber_receives_and_evaluates_an_ensemble_over_zenoh() -> None:
+    from streamid.transport import Bus, ZenohSettings
+    from streamid.transport.client import ModelSubscriber
+    from streamid.wire.documents import encode_json, model_update_message
+
+    ens = ensemble_of(_members(), metrics={"r2_fr_val": 0.9})
+    now = time.time_ns()
+    payload = encode_json(model_update_message(
+        stream="piezo", version=5, model=ens.to_dict(), window={"n_samples": 300}, metrics={"r2_osa_val": 0.99,
+        "r2_fr_val": 0.9}, warm=False, generations=10, identification_s=0.1, window_closed_unix_ns=now,
+        published_unix_ns=now))
+    ep = endpoint()
+    u, y = _data()
+    with Bus(ZenohSettings(listen=(ep,))) as server:
+        got: list[np.ndarray] = []  # evaluated on the subscriber's thread, as a user's callback would
+        with ModelSubscriber(ep, "piezo", lambda up: got.append(up.model.simulate(u, y[: up.model.max_lag])),
+                             latest_timeout_s=0.5) as sub:
+            pub = server.publisher("streamid/piezo/model")
+            assert pub.wait_for_subscribers(5.0)
+            pub.put(payload)
+            up = sub.wait_for_version(5, timeout_s=5.0)
+            deadline = time.monotonic() + 5.0  # the callback runs on the subscriber's thread, after the wait ends
+            while not got and time.monotonic() < deadline:
+                time.sleep(0.01)
+    assert up is not None and isinstance(up.model, EnsembleModel) and len(up.model.members) == 3
+    assert len(got) == 1 and np.array_equal(got[0], ens.simulate(u, y[:3]))
+    assert MAX_MEMBERS == 32
