@@ -254,3 +254,22 @@ def test_a_subscriber_receives_and_evaluates_an_ensemble_over_zenoh() -> None:
     assert up is not None and isinstance(up.model, EnsembleModel) and len(up.model.members) == 3
     assert len(got) == 1 and np.array_equal(got[0], ens.simulate(u, y[:3]))
     assert MAX_MEMBERS == 32
+
+
+def test_the_rerun_model_text_says_it_is_a_mean() -> None:
+    from streamid.engine.validation import validate
+    from streamid.viz.identify_report import Clock, identify_update_report
+    from streamid.viz.reports import model_markdown
+
+    u, y = _data()
+    ens = ensemble_of(_members())
+    rep = validate(ens, u[:150], y[:150], u[150:], y[150:])
+    up = identify_update_report("s", ens, rep, u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
+                                fitness_history=[1.0], generations=1, seconds=0.1)
+    text = model_markdown(up)
+    assert "um(t) = mean of 3 networks on F[um(t-1,t-2) volt(t-1,t-3)] (the union of their lags)" in text
+    assert up.fr_val.shape == (150,) and np.allclose(up.fr_val[3:], ens.simulate(u[150:], y[150:153])[3:])
+    single = identify_update_report("s", _members()[0], validate(_members()[0], u[:150], y[:150], u[150:], y[150:]),
+                                    u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
+                                    fitness_history=[1.0], generations=1, seconds=0.1)
+    assert "um(t) = F[um(t-1) volt(t-1)]" in model_markdown(single)

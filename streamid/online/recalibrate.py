@@ -16,6 +16,10 @@ the recalibrated champion next to the identified challenger, and the better of
 the two on the held-out data goes to the champion/challenger rule
 (:mod:`streamid.online.acceptance`): it is served only if it beats the drifted
 champion there by the margin, like any challenger.
+
+An ensemble (``streamid.model/3``, :mod:`streamid.engine.ensemble`) has one normalisation shared by its
+members: replacing it rescales every member, so the gain and offset fitted on the mean's free run apply to
+the mean (tests/test_engine_ensemble.py). The online updates themselves never make an ensemble (one run each).
 """
 
 from __future__ import annotations

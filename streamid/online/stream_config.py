@@ -85,7 +85,8 @@ class StreamConfig:
         coalesced, counted).  A live stream that falls behind keeps only the
         newest window (coalescing the rest).  1: always only the newest.
     engine
-        Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs.
+        Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs. ``run_ensembles`` has no
+        effect online: an update is one run (warm starts need one), never a mean of runs (K x its time: piezo 0.5 s).
     """
 
     window_s: float | None = None

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine.ensemble import members_of
 from streamid.engine.model import Model
 from streamid.engine.validation import ValidationReport
 from streamid.viz.reports import UpdateReport, VizSettings, first_input_tests
@@ -91,6 +92,7 @@ def identify_update_report(
         identification_s=float(seconds),
         note=note,
         input_names=tuple(model.input_names),
+        networks=len(members_of(model)),
     )
 
 

@@ -175,6 +175,7 @@ class UpdateReport:
     note: str = ""
     input_names: tuple[str, ...] = field(default=())
     champion_r2_fr: float | None = None  # a rejected challenger's champion, re-validated on the same held-out data
+    networks: int = 1  # > 1: the model is the mean of this many networks (streamid.model/3); ``lags`` is their union
 
 
 def fmt_metric(v: float | None) -> str:
@@ -201,7 +202,9 @@ def model_markdown(r: UpdateReport) -> str:
         f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
         f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})",
         "",
-        f"model: {r.output_name}(t) = F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]",
+        f"model: {r.output_name}(t) = " + (f"mean of {r.networks} networks on " if r.networks > 1 else "")
+        + f"F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]"
+        + (" (the union of their lags)" if r.networks > 1 else ""),
     ]
     if verdicts:
         lines += ["", "correlation tests (validation residual):", *verdicts]
