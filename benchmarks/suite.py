@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from streamid.engine.ensemble import members_of
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
@@ -172,6 +173,7 @@ def identify_target(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
     seconds = time.perf_counter() - t0
     fr = free_run_val(res.model, t)
     return {"fr_val": fr, "seconds": seconds, "lags": res.model.lags_text(), "neurons": res.model.neurons,
+            "networks": len(members_of(res.model)),  # > 1: the mean of that many runs' networks (run_ensembles)
             "metrics": {k: v for k, v in res.model.metrics.items() if k != "fitness"}}
 
 
@@ -263,6 +265,8 @@ def bench(options: Any) -> Iterator[Any]:
                               tuple(r["fr_val"]), "median and min over seeds")
             yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"seconds, {label}", "s",
                               tuple(x["seconds"] for x in r["runs"]), "wall per identification")
+            yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"networks, {label}", "",
+                              tuple(float(x["networks"]) for x in r["runs"]), "in the kept model (> 1: a mean of runs)")
         if "frols" in row:
             f = row["frols"]
             yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", "FR R2 val, FROLS best", "",

@@ -66,7 +66,8 @@ def _narx_record() -> tuple[np.ndarray, np.ndarray]:
 
 def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
     u, y = _narx_record()
-    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, neuron_alternatives=(8,))
+    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, neuron_alternatives=(8,),
+                          run_ensembles=False)  # the single network's choice (ensembles: test_engine_ensemble.py)
     res = identify(u, y, cfg, 0)
     ev = res.model.metrics["complexity"]
     assert ev["rule"] == "aic" and ev["chosen_run"] == res.chosen and len(ev["candidates"]) == len(res.runs)

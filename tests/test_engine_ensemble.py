@@ -140,6 +140,7 @@ def test_the_choice_takes_an_ensemble_only_when_its_criterion_is_lower() -> None
     single = cx["candidates"][cx["chosen_run"]]["criterion"]
     assert ev[0]["taken"] and ev[0]["criterion"] < single and ev[1]["criterion"] > ev[0]["criterion"]
     assert ens.metrics["ensemble"]["name"] == "top2" and ens.metrics["ensemble"]["params"] == parameter_count(ens) == 4
+    assert ens.metrics["free_run_choice"]["run_ensemble"] == 2 and ens.metrics["free_run_choice"]["score"] == ev[0]["r2_fr_est"]
     # the same error twice: the mean is no better, p doubles -> the single network stays
     ens, _, ev, _ = run([y + e[0], y + e[0], y + e[0] + 1e-9])
     assert ens is None and not any(r["taken"] for r in ev) and ev[0]["criterion"] is not None
@@ -186,12 +187,13 @@ def test_recalibration_rescales_the_mean() -> None:
     np.testing.assert_allclose(got.simulate(u, drifted[:3])[3:], drifted[3:], atol=1e-6)
 
 
-def test_defaults_off_give_the_models_identified_before() -> None:
+def test_ensembles_off_give_the_models_identified_before() -> None:
+    assert DEFAULT.run_ensembles is True  # the default since round 7 (docs/engine-results.md)
     from benchmarks.suite import targets
 
     for name, seed in (("reactor", 0), ("robot_arm", 2)):
         t = targets((name,))[0]
-        got = identify(t.u_est, t.y_est, DEFAULT, seed).model.to_dict()
+        got = identify(t.u_est, t.y_est, DEFAULT.replace(run_ensembles=False), seed).model.to_dict()
         assert got["config"].pop("run_ensembles") is False
         assert json.dumps(got, sort_keys=True) == json.dumps(json.loads((DATA / f"{name}_seed{seed}.json").read_text()),
                                                              sort_keys=True), name
@@ -273,3 +275,21 @@ def test_the_rerun_model_text_says_it_is_a_mean() -> None:
                                     u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
                                     fitness_history=[1.0], generations=1, seconds=0.1)
     assert "um(t) = F[um(t-1) volt(t-1)]" in model_markdown(single)
+
+
+def test_an_ensemble_model_record_round_trips_through_an_mcap_log(tmp_path: Path) -> None:
+    from streamid.logs.mcap_files import LogWriter, iter_log
+    from streamid.transport.updates import parse_model_update
+    from streamid.wire.documents import encode_json, model_update_message
+
+    ens = ensemble_of(_members())
+    payload = encode_json(model_update_message(
+        stream="piezo", version=2, model=ens.to_dict(), window={"n_samples": 300}, metrics={"r2_fr_val": 0.9},
+        warm=False, generations=10, identification_s=0.1, window_closed_unix_ns=1, published_unix_ns=2))
+    with LogWriter(tmp_path / "m.mcap") as w:
+        w.write("streamid/piezo/model", payload, 5)
+    msgs = list(iter_log(tmp_path / "m.mcap"))
+    assert [m.key for m in msgs] == ["streamid/piezo/model"] and msgs[0].data == payload
+    back = parse_model_update(msgs[0].data).model
+    u, y = _data()
+    assert isinstance(back, EnsembleModel) and np.array_equal(back.predict_osa(u, y), ens.predict_osa(u, y))

@@ -110,8 +110,11 @@ def choose_ensemble(
     ens = ensemble_of([models[i] for i in members])
     L = ens.max_lag
     fitness = float(np.mean((ens.predict_osa(u, y)[L:] - y[L:]) ** 2))  # one-step MSE, output units squared
-    return ens.with_metrics(fitness=fitness, ensemble={k: taken[k] for k in ("name", "members", "neurons", "r2_fr_est",
-                                                                              "params", "criterion")}), members, evidence
+    choice = {"candidates": len(evidence), "admissible": sum(1 for e in evidence if e["criterion"] is not None),
+              "score": taken["r2_fr_est"], "excursion_spans": 0.0, "range_margin": float(range_margin),
+              "run_ensemble": len(members)}  # the mean's free run on the estimation record, as a single model's
+    return ens.with_metrics(fitness=fitness, free_run_choice=choice, ensemble={
+        k: taken[k] for k in ("name", "members", "neurons", "r2_fr_est", "params", "criterion")}), members, evidence
 
 
 def _simulate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64] | None:
