@@ -219,6 +219,7 @@ def test_identify_cli_saves_an_ensemble_that_loads(tmp_path: Path) -> None:
     taken = [e for e in ev if e["taken"]]
     assert len(taken) == 1 and taken[0]["members"] == [r for r in m.metrics["ensemble"]["members"]]
     assert taken[0]["criterion"] < m.metrics["complexity"]["candidates"][m.metrics["complexity"]["chosen_run"]]["criterion"]
+    assert f"temp(t) = mean of {len(m.members)} networks on F[{m.lags_text()}] (the union of their lags)" in p.stdout
     assert f"kept the mean of {len(m.members)} networks" in p.stdout and "ensembles of the restarts' networks by aic" in p.stdout
     run = json.loads(rep.read_text())["runs"][0]
     fr = m.simulate(t.u_val, t.y_val[: m.max_lag])

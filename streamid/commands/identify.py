@@ -294,7 +294,9 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(f"  min {st['min']:.6g}  max {st['max']:.6g}  mean {st['mean']:.6g}  std {st['std']:.4g}\n")
         w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
     b = runs[best]
-    w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = F[{_lags_text(b)}]\n")
+    k = len(getattr(Model.from_json(b["model"]), "members", ())) or 1
+    w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
+      + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "") + "\n")
     lag = Model.from_json(b["model"]).metrics.get("max_lag_choice")
     if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.lagspace)
         w(f"candidate lags 1..{lag['max_lag']} chosen from the data: input-output correlation peak at lag {lag['k_u']}, "
