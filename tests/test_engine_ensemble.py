@@ -294,3 +294,24 @@ def test_an_ensemble_model_record_round_trips_through_an_mcap_log(tmp_path: Path
     back = parse_model_update(msgs[0].data).model
     u, y = _data()
     assert isinstance(back, EnsembleModel) and np.array_equal(back.predict_osa(u, y), ens.predict_osa(u, y))
+
+
+def test_identify_takes_the_mean_and_keeps_the_best_members_run_for_warm_starts() -> None:
+    from benchmarks.suite import targets
+
+    t = targets(("heat_exchanger",))[0]  # seed 0: the mean of the two best runs wins by AIC (round 7)
+    res = identify(t.u_est, t.y_est, DEFAULT, 0)
+    m = res.model
+    assert isinstance(m, EnsembleModel)
+    members = m.metrics["ensemble"]["members"]
+    assert res.chosen == members[0] and len(m.members) == len(members) == 2
+    runs = res.extra["run_models"]  # each run's candidate after pruning: the members are those networks
+    for i, mm in zip(members, m.members):
+        assert np.array_equal(mm.centres, runs[i].centres) and np.array_equal(mm.weights, runs[i].weights)
+    # the warm-start state and the history are one run's: the best member's
+    assert res.state.best_fitness == res.runs[members[0]].fitness == res.fitness_history[-1]
+    assert res.runs[res.chosen].lags == runs[members[0]].lags
+    fr = m.simulate(t.u_est, t.y_est)  # the score it was chosen by: the mean's estimation free run
+    L = m.max_lag
+    assert m.metrics["selection_score"] == pytest.approx(r2(t.y_est[L:], fr[L:]), abs=1e-9)
+    assert m.metrics["fitness"] == pytest.approx(float(np.mean((m.predict_osa(t.u_est, t.y_est)[L:] - t.y_est[L:]) ** 2)))

@@ -2,7 +2,7 @@
 
 ``identify`` (one identification, possibly several runs), ``Coevolution`` (one
 steppable run with exportable ``CoEAState`` for warm starts), ``Model`` (prediction,
-free run, ``streamid.model/1`` JSON), ``validate`` / ``r2`` / ``correlation_tests``,
+free run, ``streamid.model/1`` JSON; ``EnsembleModel``: the mean of several networks, ``/3``), ``validate`` / ``r2`` / ``correlation_tests``,
 ``EvalHelper`` (a helper process evaluating half of every population batch: the second core).
 """
 
@@ -12,6 +12,7 @@ from streamid.engine.coevolution import CoEAState, Coevolution, Progress
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.identify import Result, RunSummary, identify
 from streamid.engine.model import MODEL_FORMAT, Model
+from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.validation import CorrelationReport, ValidationReport, correlation_tests, r2, validate
 
@@ -21,6 +22,7 @@ __all__ = [
     "Coevolution",
     "CorrelationReport",
     "DEFAULT",
+    "EnsembleModel",
     "EvalHelper",
     "MODEL_FORMAT",
     "Model",
