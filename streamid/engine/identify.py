@@ -414,8 +414,7 @@ def identify(
     if skipped and callback is not None:  # the progress reaches its end though some restarts were not made
         callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs)))
     models = [o["model"] if isinstance(o["model"], Model) else Model.from_json(o["model"]) for o in outs]
-    scores = [float(o["score"]) for o in outs]
-    paths = [o.get("path") for o in outs]
+    scores, paths = [float(o["score"]) for o in outs], [o.get("path") for o in outs]  # paths: estimation free runs
     complexity: dict[str, Any] | None = None
     spaces = [int(o.get("max_lag", cfg.max_lag)) for o in outs]
     if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.complexity)
@@ -425,15 +424,13 @@ def identify(
                             key=lambda c: (c["criterion"], c["run"]))[: cfg.prune_runs]
             for c in ranked:
                 i = int(c["run"])
-                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, cfg.range_margin,
-                                                               paths[i])
+                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, cfg.range_margin, paths[i])
             chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
     else:
         chosen = int(np.argmax(scores))
     final, score = models[chosen], float(outs[chosen]["score"])
     if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.ensemble_choice)
-        ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya,
-                                                                cfg.range_margin)
+        ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya, cfg.range_margin)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     if n_hold:
