@@ -102,6 +102,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--ensembles", action=argparse.BooleanOptionalAction, default=None,
                    help="the means of the best 2, 3 and all admissible restarts' networks compete in the final choice "
                         f"by the same criterion (default {'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
+    p.add_argument("--refine", type=int, metavar="N",
+                   help="at most N iterations fitting the kept model's weights to its free run on the estimation data, "
+                        f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}: "
+                        "off; 10 a good value; never with --paper)")
     p.add_argument("--selection", choices=SELECTIONS, help=f"how the final model is chosen among candidates (default {DEFAULT.selection})")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
     p.add_argument("--runs", type=int, default=1, metavar="R", help="independent identifications, seeds S..S+R-1 (default 1)")
@@ -145,6 +149,11 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
             raise ConfigError("--ensembles averages several restarts' networks; --paper makes one run chosen by fitness "
                               "(drop one of the two)")
         changes["run_ensembles"] = bool(args.ensembles)
+    if args.refine is not None:
+        if args.paper and args.refine:
+            raise ConfigError(f"--refine fits the weights to the free run; --paper keeps the paper's least squares "
+                              f"(drop one of the two); got --refine {args.refine}")
+        changes["refine_iterations"] = args.refine
     if args.workers < 1:
         raise ConfigError(f"--workers must be an integer >= 1; got {args.workers}")
     if args.runs < 1:
@@ -310,6 +319,11 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
                       for c in cx["candidates"]) + "\n")
         for line in _ensemble_lines(cx):
             w(line)
+    rf = Model.from_json(b["model"]).metrics.get("refinement")
+    if rf:  # the weights fitted to the free run (streamid.engine.refine)
+        w("weights refined to the free run: " + (
+            f"{rf['iterations']} iterations, FR R2 est {rf['r2_fr_est_before']:.5f} -> {rf['r2_fr_est_after']:.5f}\n"
+            if rf["taken"] else f"no ({rf['reason']})\n"))
     nc = Model.from_json(b["model"]).metrics.get("neuron_choice")
     if nc:  # the chosen run's network against its pruned versions (CoEAConfig.prune)
         w(f"neurons of the chosen run by {nc['rule']}: {nc['neurons']} of "

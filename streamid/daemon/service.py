@@ -63,6 +63,7 @@ from streamid.daemon.share_link import ShareLink
 from streamid.daemon.sharing import Life, Shares
 from streamid.daemon.versions import VersionKeeper
 from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
+from streamid.engine import warm_up_kernels
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, StreamidError
 from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name
@@ -148,6 +149,8 @@ class Daemon(SlotKeeping):
         for s in names:
             self._ensure(s)
         n_workers = self.config.workers if self.identify else 0
+        if n_workers:  # the compiled free run is loaded (or, the first time on a machine, compiled) before any decision
+            warm_up_kernels()
         self._helpers = [self._start_helper() for _ in range(n_workers)]  # before Zenoh's threads exist
         limit = self.config.max_payload_bytes
         self.bus = Bus(self.zenoh.with_max_message_bytes(min(1 << 30, max(ZENOH_MESSAGE_FACTOR * limit, 1 << 20))),

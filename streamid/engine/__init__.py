@@ -3,7 +3,8 @@
 ``identify`` (one identification, possibly several runs), ``Coevolution`` (one
 steppable run with exportable ``CoEAState`` for warm starts), ``Model`` (prediction,
 free run, ``streamid.model/1`` JSON; ``EnsembleModel``: the mean of several networks, ``/3``), ``validate`` / ``r2`` / ``correlation_tests``,
-``EvalHelper`` (a helper process evaluating half of every population batch: the second core).
+``EvalHelper`` (a helper process evaluating half of every population batch: the second core),
+``warm_up_kernels`` (compile or load the compiled free-run loops before time-bound work).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from streamid.engine.identify import Result, RunSummary, identify
 from streamid.engine.model import MODEL_FORMAT, Model
 from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.parallel import EvalHelper
+from streamid.engine._kernels import warm_up as warm_up_kernels
 from streamid.engine.validation import CorrelationReport, ValidationReport, correlation_tests, r2, validate
 
 __all__ = [
@@ -35,4 +37,5 @@ __all__ = [
     "identify",
     "r2",
     "validate",
+    "warm_up_kernels",
 ]

@@ -107,7 +107,8 @@ def choose_ensemble(
     for row in evidence:
         row["taken"] = row["members"] == members
         taken = row if row["taken"] else taken
-    ens = ensemble_of([models[i] for i in members])
+    first = models[members[0]]  # the document's config and window: the identification's (as a single network's)
+    ens = ensemble_of([models[i] for i in members], config=first.config, window=first.window)
     L = ens.max_lag
     fitness = float(np.mean((ens.predict_osa(u, y)[L:] - y[L:]) ** 2))  # one-step MSE, output units squared
     choice = {"candidates": len(evidence), "admissible": sum(1 for e in evidence if e["criterion"] is not None),

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine._kernels import recursion
 from streamid.engine.regressors import Regressor
 
 __all__ = ["free_run"]
@@ -82,67 +83,9 @@ def free_run(
         if lin_u is not None:
             y[L:] += lin_u[L:]
         return np.ascontiguousarray(y.T)
-    # Step t gathers y(t - lag_k) of network c for every neuron m from the flat slice y[t - L : t]:
-    # position (L - lag_k) * C + c of that slice, repeated for the M neurons (order c, m, k).
-    rel = ((L - lags)[None, None, :] * C + np.arange(C)[:, None, None]).repeat(M, axis=1).reshape(-1)
-    cy = np.ascontiguousarray(centres[:, :, yj]).reshape(-1)
-    af = np.ascontiguousarray(a).reshape(-1)
-    ones = np.ones(lags.size)
-    yf = y.reshape(-1)
-    diff = np.empty(cy.size)
-    diff2 = diff.reshape(C * M, lags.size)
-    d = np.empty(C * M)
-    sub, mul, dot, exp = np.subtract, np.multiply, np.dot, np.exp
-    if linear is not None and lin_u is not None:
-        # The linear part's output terms: row c of amat picks network c's y(t - lag_k) from the flat slice.
-        amat = np.zeros((C, L * C))
-        for k, j in enumerate(yj):
-            amat[np.arange(C), (L - int(lags[k])) * C + np.arange(C)] += linear[:, j]
-        wmat = np.zeros((C, C * M))
-        for c in range(C):
-            wmat[c, c * M : (c + 1) * M] = weights[c]
-        ly = np.empty(C)
-        for t in range(L, n):
-            win = yf[(t - L) * C : t * C]
-            sub(win[rel], cy, out=diff)
-            mul(diff, diff, out=diff)
-            dot(diff2, ones, out=d)
-            mul(d, af, out=d)
-            sub(ndu[t], d, out=d)
-            exp(d, out=d)
-            dot(wmat, d, out=y[t])
-            dot(amat, win, out=ly)
-            y[t] += ly
-            y[t] += lin_u[t]
-        return np.ascontiguousarray(y.T)
-    if C == 1:
-        w0 = np.ascontiguousarray(weights[0])
-        for t in range(L, n):
-            sub(yf[t - L : t][rel], cy, out=diff)
-            mul(diff, diff, out=diff)
-            dot(diff2, ones, out=d)
-            mul(d, af, out=d)
-            sub(ndu[t], d, out=d)  # -(du + a * sum_k (y(t - lag_k) - c_k)^2)
-            exp(d, out=d)
-            yf[t] = dot(d, w0)
-        return np.ascontiguousarray(y.T)
-    if C <= 64:  # block-diagonal weights: one matrix-vector product gives every network's output
-        wmat = np.zeros((C, C * M))
-        for c in range(C):
-            wmat[c, c * M : (c + 1) * M] = weights[c]
-    wts = np.ascontiguousarray(weights)
-    dm = d.reshape(C, M)
-    for t in range(L, n):
-        sub(yf[(t - L) * C : t * C][rel], cy, out=diff)
-        mul(diff, diff, out=diff)
-        dot(diff2, ones, out=d)
-        mul(d, af, out=d)
-        sub(ndu[t], d, out=d)
-        exp(d, out=d)
-        if C <= 64:
-            dot(wmat, d, out=y[t])
-        else:
-            np.einsum("cm,cm->c", dm, wts, out=y[t])
+    lin_y = np.zeros((C, lags.size)) if linear is None else np.ascontiguousarray(linear[:, yj])
+    recursion(np.ascontiguousarray(ndu.reshape(n, C, M)), np.ascontiguousarray(centres[:, :, yj]), a, lags.astype(np.int64),
+              np.array(weights, dtype=np.float64, order="C"), lin_y, np.zeros((n, C)) if lin_u is None else lin_u, y, L)
     return np.ascontiguousarray(y.T)
 
 

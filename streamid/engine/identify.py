@@ -59,6 +59,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.complexity import choose as choose_complexity
 from streamid.engine.ensemble_choice import choose_ensemble
+from streamid.engine.refine import refine_weights
 from streamid.engine.fanout import fan_out
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
@@ -435,6 +436,9 @@ def identify(
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
+    if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
+        final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, cfg.refine_above, cfg.range_margin)
+        final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
