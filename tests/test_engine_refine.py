@@ -198,3 +198,24 @@ def test_identify_cli_refines_and_reports_it(tmp_path: Path) -> None:
     bad = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--paper", "--refine", "5"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "--refine fits the weights to the free run" in bad.stderr and "--refine 5" in bad.stderr
+
+
+def test_online_updates_refine_only_when_asked() -> None:
+    from streamid import OnlineIdentifier, StreamConfig
+
+    u, y = _plant(1200, seed=9)
+    t_ns = np.arange(1200, dtype=np.int64) * 10_000_000  # 100 Hz
+    models = {}
+    for engine in ((), (("refine_iterations", 10),)):
+        ident = OnlineIdentifier(StreamConfig(window_s=6.0, update_every_s=6.0, cold_generations=20, engine=engine),
+                                 stream="plant")
+        ident.learn_many(t_ns, u[:, None], y[:, None], inputs=["volt"], outputs=["pos"])
+        ups = [up for up in ident.update_all() if up.model is not None]
+        assert ups, "an update was identified"
+        models[engine] = ups[0].model
+    off, on = models[()], models[(("refine_iterations", 10),)]
+    assert "refinement" not in off.metrics  # the default online: one run, unrefined (the decision latency)
+    ev = on.metrics["refinement"]
+    assert ev["gate"] == 0.8 and ev["taken"] is True and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
+    # the same run (the same seed), its weights fitted to the free run
+    assert on.regressors == off.regressors and not np.array_equal(on.weights, off.weights)

@@ -87,6 +87,9 @@ class StreamConfig:
     engine
         Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs. ``run_ensembles`` has no
         effect online: an update is one run (warm starts need one), never a mean of runs (K x its time: piezo 0.5 s).
+        ``refine_iterations`` (0 online unless set here) fits each update's weights to its free run
+        (:mod:`streamid.engine.refine`); measured on the drift sweep (32 seeds): new champions within 5 s
+        in 32 (31 without), detections within 3 s in 30 (31 without), slowest 4.1 s (11.6 s without).
     """
 
     window_s: float | None = None

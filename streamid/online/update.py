@@ -36,6 +36,7 @@ import numpy as np
 
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine.identify import select_model
+from streamid.engine.refine import refine_weights
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.recalibrate import recalibrate
@@ -306,6 +307,10 @@ def identify_window(
         model, score = select_model(co, u_est, y_est, engine_cfg.selection)
         if engine_cfg.selection != "fitness":
             model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
+        if engine_cfg.refine_iterations:  # opt-in online (engine.refine_iterations): the weights fitted to the free run
+            model, refined = refine_weights(model, u_est, y_est, engine_cfg.refine_iterations, engine_cfg.refine_above,
+                                            engine_cfg.range_margin)
+            model = model.with_metrics(refinement=refined)
         state = co.state()
         fitness = np.asarray(co.history, dtype=np.float64)
         summary = summarise(model, u_est, y_est, u_val, y_val)
