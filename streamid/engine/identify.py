@@ -2,46 +2,39 @@
 
 Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
 -----------------------------------------------------------------
-* ``restarts=1, selection="fitness"`` -- the paper's procedure: one
-  :class:`~streamid.engine.coevolution.Coevolution` on all the estimation data,
-  the best pair ever evaluated, weights refitted. Runs in this process and
-  reports every generation to the callback.
-* otherwise ``restarts`` independent runs (seeds drawn from ``rng``; two-stage
-  when ``lag_search_neurons > 0``, see :class:`~streamid.engine.settings.CoEAConfig`) in
-  ``workers`` processes (spawned, never forked: the caller may hold a Zenoh
-  session) or in this process. Each run offers candidates -- its best pair and
-  every parameter vector of its final population paired with the best harmony
-  (weights refitted) -- and the selection rule picks one per run, then one overall:
+* ``restarts=1, selection="fitness"`` -- the paper's procedure: one :class:`~streamid.engine.coevolution.Coevolution`
+  on all the estimation data, the best pair ever evaluated, weights refitted. Runs in this process and reports
+  every generation to the callback.
+* otherwise ``restarts`` independent runs (seeds drawn from ``rng``; two-stage when ``lag_search_neurons > 0``,
+  see :class:`~streamid.engine.settings.CoEAConfig`) in ``workers`` processes (spawned, never forked: the caller
+  may hold a Zenoh session) or in this process. Each run offers candidates -- its best pair and every parameter
+  vector of its final population paired with the best harmony (weights refitted) -- and the selection rule picks
+  one per run, then one overall:
 
-  - ``"fr_est"``: highest free-run R^2 on the estimation data, simulated from
-    its first samples (the OSA-trained candidates differ most in how their free
-    runs hold up; this choice removes the runs whose simulation drifts);
-  - ``"holdout_fr"``: the runs search on the first ``1 - holdout_fraction`` of
-    the estimation data; highest free-run R^2 over the held-out tail; the chosen
-    structure's weights are then refitted on all the estimation data;
-  - ``"cv_fr"``: as ``"fr_est"`` for the range guard; among admissible candidates
-    the highest blocked cross-validated free-run R^2 (weights refitted on the other
-    blocks, :func:`~streamid.engine.choice.blocked_cv_scores`);
+  - ``"fr_est"``: highest free-run R^2 on the estimation data, simulated from its first samples (the OSA-trained
+    candidates differ most in how their free runs hold up; this choice removes the runs whose simulation drifts);
+  - ``"holdout_fr"``: the runs search on the first ``1 - holdout_fraction`` of the estimation data; highest
+    free-run R^2 over the held-out tail; the chosen structure's weights are then refitted on all of it;
+  - ``"cv_fr"``: as ``"fr_est"`` for the range guard; among admissible candidates the highest blocked
+    cross-validated free-run R^2 (weights refitted on the other blocks,
+    :func:`~streamid.engine.choice.blocked_cv_scores`);
   - ``"fitness"``: lowest OSA MSE.
 
-Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen
-from the estimation data (:mod:`streamid.engine.lagspace`; evidence in the model's
-``metrics.max_lag_choice``); when ``L`` is at least twice the floor and
-``lag_alternation`` is set, the odd restarts keep ``1..floor`` (restart 1 of every 4
-with ``hedge_neurons`` neurons when > 0). A two-stage run's
-second stage always trains on a lag set with an input term. After the runs, if no
-run has an admissible candidate, one more run is made with each of
-``fallback_neurons`` in turn until one has (``metrics.fallback_runs``; with
-``fallback_below``, also while the best run's score is at most that).
+Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen from the estimation data
+(:mod:`streamid.engine.lagspace`; evidence in ``metrics.max_lag_choice``); when ``L`` is at least twice the floor
+and ``lag_alternation`` is set, the odd restarts keep ``1..floor`` (restart 1 of every 4 with ``hedge_neurons``
+neurons when > 0). A two-stage run's second stage always trains on a lag set with an input term. After the runs,
+if no run has an admissible candidate, one more run is made with each of ``fallback_neurons`` in turn until one
+has (``metrics.fallback_runs``; with ``fallback_below``, also while the best run's score is at most that).
 
-With ``selection="fr_est"`` the run kept is chosen by ``complexity``
-(:mod:`streamid.engine.complexity`: by default the lowest ``n log(1 - R2_fr) + 2 p``
-over the runs' admissible candidates, ``p`` the weights fitted; evidence in
-``metrics.complexity``), after the ``prune_runs`` best runs have offered their
-networks pruned to ``M // 3`` and ``2 M // 3`` neurons (``metrics.neuron_choice``).
+With ``selection="fr_est"`` the run kept is chosen by ``complexity`` (:mod:`streamid.engine.complexity`: by
+default the lowest ``n log(1 - R2_fr) + 2 p`` over the runs' admissible candidates, ``p`` the weights fitted;
+``metrics.complexity``), after the ``prune_runs`` best runs have offered their networks pruned to ``M // 3`` and
+``2 M // 3`` neurons (``metrics.neuron_choice``); with ``run_ensembles`` the means of the best runs' networks
+compete by the same criterion (:mod:`streamid.engine.ensemble_choice`); with ``refine_iterations`` the kept
+model's weights are then fitted to its free run (:mod:`streamid.engine.refine`, ``metrics.refinement``).
 
-The normalisation is always the min/max of all the estimation data. Validation
-data are never looked at.
+The normalisation is always the min/max of all the estimation data. Validation data are never looked at.
 """
 
 from __future__ import annotations

@@ -427,48 +427,26 @@ class CoEAConfig:
         10 fittest final members, the highest free-run R^2 on the estimation data
         among those whose free run stays within the data's range widened by 25 % of
         its span and that have an input term (:mod:`streamid.engine.choice`); when
-        no run has one, one more run with 15 neurons, then 8.
+        no run has one or the best fits at most 0.5, one more run with 15 neurons, then 8.
 
-        Measured across ``streamid bench --suite`` (docs/engine-results.md), 5 seeds,
-        median / min of the validation free-run R^2: ``require_input`` (robot arm,
-        heat exchanger: the lag search chose output-only lags; robot arm's two
-        failing seeds -577 and -0.004 -> 0.21 and 0.34, heat exchanger median
-        0.006 -> 0.48); lags from the data (robot arm 0.975 / -577 -> 0.997 / 0.994,
-        heat exchanger 0.006 / -2.28 -> 0.56 / 0.53, MR damper 0.980 / 0.977 kept;
-        the hedge with lags 1..10 because every restart at 30 took the F-16's
-        accelerations 2 and 3 from 0.10 / 0.22 to -1.15 / 0.02; its restart with 10
-        neurons: F-16 accelerations 2 and 3 0.098 / -0.045 -> 0.216 / 0.372, CSTR
-        kept at 0.9999 (both hedged restarts at 10 neurons: CSTR 0.9995). Kept from the
-        previous round: M = 30 (the MR damper's 0.98), one process, 2000 rows and
-        10 candidates per run (10,000 Bouc-Wen samples in about 3 s).
-        ``selection="cv_fr"`` (blocked cross-validation) and ``neuron_alternatives``
-        measured worse (MR damper 0.975 and 0.977) and are options.
+        Then (``complexity="aic"``, ``prune_runs=2``, ``run_ensembles``, ``refine_iterations=10``) the size by
+        AIC on the estimation free run with the two best runs' pruned networks competing, the means of the best
+        runs' networks competing by the same AIC, and the kept model's weights fitted to its free run.
 
-        Round 3 (:mod:`streamid.engine.complexity`): the final size by AIC on the
-        estimation free run with the weights counted (``complexity="aic"``; counting
-        centres and widths too cost the MR damper's worst seed 0.980 -> 0.970), and the
-        two best runs' networks pruned to ``M // 3`` and ``2 M // 3`` neurons by forward
-        selection compete (``prune_runs=2``: heat exchanger 0.568 / 0.527 -> 0.610 / 0.541,
-        F-16 accel2 median 0.216 -> 0.246, accel3 worst seed -0.210 -> 0.049, the rest
-        unchanged within 0.005; every run pruned gave the same, at about 0.3 s more on
-        10,000 samples). ``linear_terms`` (a direct linear part) measured mixed and is
-        an option (robot arm 0.997 -> 0.31, MR damper worst seed 0.968); round 5, with the linear
-        part in the search's fitness and both kinds competing by AIC (``linear_search``,
-        ``linear_alternation``): F-16 accel3 0.431 -> 0.227, or the MR damper's worst seed 0.968,
-        or the heat exchanger's worst seed 0.316; no system gained against FROLS; still an option. When the best
-        run's estimation free-run R^2 is at most 0.5 (a poor fit: every size tried so far is
-        wrong for the record) the fallback runs with 15 and 8 neurons are made too
-        (``fallback_below``; F-16 accel3 0.372 / 0.049 -> 0.431 / 0.277, accel2 median 0.246 ->
-        0.281, at about 0.7 s more there; no other system of the suite fits that poorly
-        except the ball and beam). Round 7: the means of the top 2, top 3 and all admissible runs compete by the
-        same AIC (``run_ensembles``, :mod:`streamid.engine.ensemble_choice`; 5 seeds, median / min: heat
-        exchanger 0.610 / 0.541 -> 0.610 / 0.597, F-16 accel2 0.281 / -1.61 -> 0.345 / -0.124, Bouc-Wen 0.984 /
-        0.982 -> 0.991 / 0.987, MR damper ten seeds 0.9796 / 0.9668 -> 0.9799 / 0.9746, no other median or
-        worst seed lower; Bouc-Wen 10,000 samples 2.83 -> 2.86 s). Round 8: the kept model's weights fitted
-        to its free run (``refine_iterations=10``, :mod:`streamid.engine.refine`; 5 seeds, median / min: MR
-        damper 0.9811 / 0.9774 -> 0.9826 / 0.9807 (ten seeds 0.9799 / 0.9746 -> 0.9824 / 0.9805), Bouc-Wen
-        0.9906 / 0.9868 -> 0.9943 / 0.9852, heat exchanger 0.610 / 0.597 -> 0.649 / 0.608, robot arm, CSTR,
-        piezo, reactor up by 1e-6 to 5e-4; F-16 and ball and beam below the gate, unchanged).
+        What drove each default (``streamid bench --suite``, 5 seeds, validation free-run R^2 median / min;
+        the full record: docs/engine-results.md, rounds 1-8): ``require_input`` (robot arm -577 -> 0.21 on
+        its failing seeds, heat exchanger median 0.006 -> 0.48); lags from the data (robot arm 0.975 / -577 ->
+        0.997 / 0.994, heat exchanger 0.006 / -2.28 -> 0.56 / 0.53, MR damper kept); the 1..10 hedge and its
+        10-neuron restart (F-16 accelerations 2 and 3: every restart at 30 gave -1.15 / 0.02; hedged 0.216 /
+        0.372); M = 30, one process, 2000 search rows (the MR damper's 0.98; 10,000 samples in about 3 s);
+        AIC with the weights counted and pruning (heat exchanger 0.568 / 0.527 -> 0.610 / 0.541; counting
+        centres and widths cost the MR damper 0.980 -> 0.970); the fallback runs below 0.5 (F-16 accel3
+        worst seed 0.049 -> 0.277); ensembles (heat exchanger worst seed 0.541 -> 0.597, F-16 accel2 -1.61
+        -> -0.124, Bouc-Wen 0.984 / 0.982 -> 0.991 / 0.987); refinement (MR damper ten seeds 0.9799 / 0.9746
+        -> 0.9824 / 0.9805, Bouc-Wen 0.9906 -> 0.9943 median, heat exchanger 0.610 -> 0.649; its gate from
+        the F-16). Measured and not defaults: ``linear_terms`` (robot arm 0.997 -> 0.31 or the MR damper's
+        0.968), ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
+        (Bouc-Wen's worst seed 0.982 -> 0.958, +50 % time).
         """
         base = {
             "neurons": 30,
