@@ -174,6 +174,7 @@ def identify_target(t: Target, cfg: CoEAConfig, seed: int) -> dict[str, Any]:
     fr = free_run_val(res.model, t)
     return {"fr_val": fr, "seconds": seconds, "lags": res.model.lags_text(), "neurons": res.model.neurons,
             "networks": len(members_of(res.model)),  # > 1: the mean of that many runs' networks (run_ensembles)
+            "refined": bool((res.model.metrics.get("refinement") or {}).get("taken")),  # weights fitted to the free run
             "metrics": {k: v for k, v in res.model.metrics.items() if k != "fitness"}}
 
 
@@ -267,6 +268,9 @@ def bench(options: Any) -> Iterator[Any]:
                               tuple(x["seconds"] for x in r["runs"]), "wall per identification")
             yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"networks, {label}", "",
                               tuple(float(x["networks"]) for x in r["runs"]), "in the kept model (> 1: a mean of runs)")
+            yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"refined, {label}", "",
+                              tuple(float(x["refined"]) for x in r["runs"]),
+                              "1: the kept model's weights fitted to its free run (CoEAConfig.refine_iterations)")
         if "frols" in row:
             f = row["frols"]
             yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", "FR R2 val, FROLS best", "",

@@ -63,8 +63,11 @@ def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixt
     for system in QUICK_SYSTEMS:
         mine = [r for r in rows if r["case"].startswith(system)]
         assert {r["metric"] for r in mine} == {"FR R2 val, paper", "FR R2 val, default", "seconds, paper",
-                                               "seconds, default", "networks, paper", "networks, default"}, system
+                                               "seconds, default", "networks, paper", "networks, default",
+                                               "refined, paper", "refined, default"}, system
         assert all(r["median"] >= 1 for r in mine if r["metric"].startswith("networks"))
+        assert next(r for r in mine if r["metric"] == "refined, paper")["max"] == 0.0  # the paper never refines
+        assert all(v in (0.0, 1.0) for r in mine if r["metric"].startswith("refined") for v in r["values"])
         assert all(np.isfinite(r["median"]) for r in mine)
     reactor = [r for r in rows if r["case"].startswith("reactor") and r["metric"] == "FR R2 val, default"]
     assert reactor[0]["median"] > 0.99  # even the smoke run identifies the reactor
