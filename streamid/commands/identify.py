@@ -104,8 +104,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         f"by the same criterion (default {'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
     p.add_argument("--refine", type=int, metavar="N",
                    help="at most N iterations fitting the kept model's weights to its free run on the estimation data, "
-                        f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}: "
-                        "off; 10 a good value; never with --paper)")
+                        f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}; "
+                        "0: off, the search's one-step weights; never with --paper)")
     p.add_argument("--selection", choices=SELECTIONS, help=f"how the final model is chosen among candidates (default {DEFAULT.selection})")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
     p.add_argument("--runs", type=int, default=1, metavar="R", help="independent identifications, seeds S..S+R-1 (default 1)")
