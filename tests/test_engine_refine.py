@@ -219,3 +219,19 @@ def test_online_updates_refine_only_when_asked() -> None:
     assert ev["gate"] == 0.8 and ev["taken"] is True and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
     # the same run (the same seed), its weights fitted to the free run
     assert on.regressors == off.regressors and not np.array_equal(on.weights, off.weights)
+
+
+def test_warm_up_compiles_the_versions_the_engine_then_uses() -> None:
+    from streamid.engine import warm_up_kernels
+    from streamid.engine._kernels import recursion
+
+    warm_up_kernels()
+    before = (list(recursion.signatures), list(free_run_sensitivities.signatures))
+    assert before[0] and before[1]
+    u, y = _plant(300)
+    for linear in (False, True):  # a free run (Model.simulate, the choice) and a refinement: nothing new to compile
+        net = _osa_net(u, y, (Y1, Y2, U1, U2), 5, 11, linear)
+        net.simulate(u, y[:2])
+        refine_weights(net, u[:, None], y, 2, -1e9, 0.25)
+        sensitivities(net, NORM.u(u[:, None]), NORM.y(y))
+    assert (list(recursion.signatures), list(free_run_sensitivities.signatures)) == before
