@@ -235,3 +235,18 @@ def test_warm_up_compiles_the_versions_the_engine_then_uses() -> None:
         refine_weights(net, u[:, None], y, 2, -1e9, 0.25)
         sensitivities(net, NORM.u(u[:, None]), NORM.y(y))
     assert (list(recursion.signatures), list(free_run_sensitivities.signatures)) == before
+
+
+def test_the_penalty_keeps_the_weights_at_the_searchs_scale(monkeypatch: pytest.MonkeyPatch) -> None:
+    import streamid.engine.refine as refine
+    from benchmarks.suite import targets
+
+    t = targets(("mr_damper",))[0]  # seed 3: without the penalty its weights ran off to 1e43 (round 8)
+    model = identify(t.u_est, t.y_est, DEFAULT.replace(refine_iterations=0), 3).model
+    scale = max(float(np.abs(m.weights).max()) for m in members_of(model))
+    out, ev = refine_weights(model, t.u_est, t.y_est, 10, 0.8, 0.25)
+    assert ev["taken"] is True and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
+    assert max(float(np.abs(m.weights).max()) for m in members_of(out)) <= 2.0 * scale
+    monkeypatch.setattr(refine, "RIDGE", 0.0)  # the same refinement without it: what the penalty prevents
+    loose, _ = refine.refine_weights(model, t.u_est, t.y_est, 10, 0.8, 0.25)
+    assert max(float(np.abs(m.weights).max()) for m in members_of(loose)) > 1e6 * scale
