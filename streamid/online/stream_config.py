@@ -89,7 +89,7 @@ class StreamConfig:
         effect online: an update is one run (warm starts need one), never a mean of runs (K x its time: piezo 0.5 s).
         ``refine_iterations`` (0 online unless set here) fits each update's weights to its free run
         (:mod:`streamid.engine.refine`); measured on the drift sweep (32 seeds): new champions within 5 s
-        in 32 (31 without), detections within 3 s in 30 (31 without), slowest 4.1 s (11.6 s without).
+        in 32 (31 without), detections within 3 s in 30 (31 without), slowest 4.6 s (11.6 s without).
     """
 
     window_s: float | None = None
