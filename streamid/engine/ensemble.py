@@ -36,7 +36,6 @@ model predicts, simulates, saves and loads it the same way). Its single-network 
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -271,15 +270,6 @@ class EnsembleModel(Model):
             if isinstance(exc, ModelFormatError):
                 raise
             raise ModelFormatError(f"model fields 'metrics', 'window', 'config' must be JSON objects ({exc})") from None
-
-    @classmethod
-    def from_json(cls, text: str | bytes) -> EnsembleModel:
-        """Parse a ``streamid.model/3`` JSON document."""
-        try:
-            d = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError) as exc:
-            raise ModelFormatError(f"a model file must be JSON text; parsing failed: {exc}") from None
-        return cls.from_dict(d)
 
 
 def _member(i: int, e: Any, norm: Normalisation, names: tuple[str, ...], output: str) -> Model:
