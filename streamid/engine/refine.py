@@ -59,7 +59,7 @@ from streamid.engine.choice import path_score
 from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.model import Model
 
-__all__ = ["DAMPING", "RIDGE", "refine_weights", "sensitivities"]
+__all__ = ["DAMPING", "RIDGE", "parts", "refine_weights", "sensitivities"]
 
 #: Levenberg-Marquardt damping (times the diagonal of J'J): the first, the least, and the most before giving up.
 DAMPING = (1e-2, 1e-4, 1e2)
@@ -77,8 +77,11 @@ _TRIALS = 4  # free runs per iteration on average, at most (a bound on the work 
 
 _STOP = 1e-4  # stop when an iteration lowers the error by less than this fraction of it
 
+
 def parts(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[Any], ...]:
-    """``(du, cy, a, lags, lin_y, lin_u)`` of one network on the normalised inputs ``un`` (N, n_inputs)."""
+    """``(du, cy, a, lags, lin_y, lin_u)`` of one network on the normalised inputs ``un`` (N, n_inputs): the
+    arguments of :func:`~streamid.engine._kernels.free_run_sensitivities` (the input terms of every step are
+    computed here as :func:`~streamid.engine.freerun.free_run` computes them for several networks at once)."""
     n = un.shape[0]
     a = 1.0 / (2.0 * model.widths**2)
     du = np.zeros((n, model.neurons))
