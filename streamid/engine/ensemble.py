@@ -43,9 +43,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine.model import MODEL_FORMAT_ENSEMBLE, Model, _finite_array
+from streamid.engine.model import MODEL_FORMAT_ENSEMBLE, Model, _finite_array, initial_outputs
 from streamid.engine.regressors import Normalisation, Regressor
-from streamid.errors import DataError, ModelFormatError
+from streamid.errors import ModelFormatError
 
 __all__ = ["EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
 
@@ -190,15 +190,7 @@ class EnsembleModel(Model):
         from the first ``members[i].max_lag`` of them. The first ``max_lag`` values returned are measured.
         """
         L = self.max_lag
-        inits: list[NDArray[np.float64]] = []
-        for _, y_init in runs:
-            try:
-                yi = np.asarray(y_init, dtype=np.float64).reshape(-1)
-            except (TypeError, ValueError):
-                raise DataError(f"y_init must be an array of numbers; got {y_init!r}") from None
-            if yi.size < L:
-                raise DataError(f"y_init must hold at least max_lag = {L} samples; got {yi.size}")
-            inits.append(yi)
+        inits = [initial_outputs(y_init, L) for _, y_init in runs]
         if not inits:
             return []
         per_member = [m.simulate_many(runs) for m in self.members]

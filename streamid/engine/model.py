@@ -62,6 +62,17 @@ def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.f
     return a
 
 
+def initial_outputs(y_init: ArrayLike, max_lag: int) -> NDArray[np.float64]:
+    """A free run's ``y_init`` as a flat float array of at least ``max_lag`` samples, or a :class:`DataError`."""
+    try:
+        yi = np.asarray(y_init, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise DataError(f"y_init must be an array of numbers; got {y_init!r}") from None
+    if yi.size < max_lag:
+        raise DataError(f"y_init must hold at least max_lag = {max_lag} samples; got {yi.size}")
+    return yi
+
+
 @dataclass(frozen=True, eq=False)
 class Model:
     """A Gaussian RBF NARX model (see the module docstring for the formula).
@@ -290,12 +301,7 @@ class Model:
         L = self.max_lag
         parts: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         for u, y_init in runs:
-            try:
-                yi = np.asarray(y_init, dtype=np.float64).reshape(-1)
-            except (TypeError, ValueError):
-                raise DataError(f"y_init must be an array of numbers; got {y_init!r}") from None
-            if yi.size < L:
-                raise DataError(f"y_init must hold at least max_lag = {L} samples; got {yi.size}")
+            yi = initial_outputs(y_init, L)
             try:
                 n_u = int(np.shape(u)[0])
             except (IndexError, TypeError):
