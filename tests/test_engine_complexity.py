@@ -151,7 +151,8 @@ def test_fallback_runs_are_made_while_the_best_fit_is_poor() -> None:
     y = np.zeros(500)
     for t in range(1, 500):  # mostly noise: no model free-runs well
         y[t] = 0.3 * np.tanh(u[t - 1]) + rng.normal()
-    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, max_lag_cap=0, restarts=2, prune_runs=0)
+    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, max_lag_cap=0, restarts=2, prune_runs=0,
+                         more_restarts=0)
     poor = identify(u, y, cfg.replace(fallback_below=0.9), 0)
     assert max(r.score for r in poor.runs[:2]) <= 0.9
     assert poor.model.metrics["fallback_runs"] == [15, 8] and len(poor.runs) == 4

@@ -3,12 +3,16 @@ fewer rows, fewer restarts of one configuration when they agree (an option)."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from streamid.engine import PAPER, identify
 from streamid.engine.coevolution import Coevolution
-from streamid.engine.identify import _repeats_agree
+from streamid.engine.restarts import repeats_agree as _repeats_agree, wants_more
 from streamid.engine.model import Model
 from streamid.errors import ConfigError
 from streamid.sim import simulate_reactor
@@ -108,3 +112,63 @@ def test_agreeing_restarts_stop_early(reactor: tuple[np.ndarray, np.ndarray]) ->
     assert [r.score for r in some.runs] == [r.score for r in every.runs[:2]]  # the same first two runs
     none = identify(u, y, cfg.replace(agree_tol=1e-15), 6)  # scores never agree that closely
     assert none.model.to_json() == every.model.to_json().replace('"agree_tol": 0.0', '"agree_tol": 1e-15')
+
+
+def test_more_runs_only_where_the_record_is_half_explained() -> None:
+    cfg = PAPER.replace(more_restarts=4, more_below=0.95, selection="fr_est")
+    assert wants_more([_out(0.3), _out(0.92)], cfg)  # the heat exchanger's and the F-16's band
+    assert not wants_more([_out(0.3), _out(0.97)], cfg)  # one run explains most of the record
+    assert not wants_more([_out(-1e9), _out(-0.8)], cfg)  # none explains anything: the fallback runs' case
+    assert not wants_more([_out(0.0)], cfg) and not wants_more([_out(0.95)], cfg)  # the band is open
+    assert not wants_more([_out(0.5)], cfg.replace(more_restarts=0))  # off
+    assert not wants_more([], cfg)
+    assert not wants_more([_out(0.5)], cfg.replace(selection="fitness"))  # its scores are not R^2
+
+
+def test_more_restarts_add_runs_after_the_same_first_ones(reactor: tuple[np.ndarray, np.ndarray]) -> None:
+    u, y = reactor
+    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, lag_search_generations=10, restarts=2,
+                        selection="fr_est", more_restarts=2)
+    plain = identify(u, y, cfg.replace(more_below=0.5), 6)  # the reactor's runs fit above 0.5: none added
+    seen: list[tuple[int, int]] = []
+    more = identify(u, y, cfg.replace(more_below=1.0), 6, callback=lambda p: seen.append((p.generation, p.generations)))
+    assert min(r.score for r in plain.runs) > 0.5
+    assert plain.model.metrics["more_restarts"] == 0 and len(plain.runs) == 2
+    assert more.model.metrics["more_restarts"] == 2 and len(more.runs) == 4
+    assert [r.score for r in more.runs[:2]] == [r.score for r in plain.runs]  # the same first runs, then new seeds
+    assert len({r.seed for r in more.runs}) == 4
+    again = identify(u, y, cfg.replace(more_below=1.0), 6)
+    assert again.model.to_json() == more.model.to_json()  # same seed, same result
+    per_run = 20
+    assert seen[-1] == (4 * per_run, 4 * per_run)  # the bar's total grew with the runs added
+    assert all(g <= total for g, total in seen) and [g for g, _ in seen] == sorted(g for g, _ in seen)
+
+
+@pytest.mark.parametrize("field, value", [("more_restarts", -1), ("more_restarts", 1.5), ("more_below", 0.0),
+                                          ("more_below", 1.5)])
+def test_more_restarts_settings_are_checked(field: str, value: object) -> None:
+    with pytest.raises(ConfigError, match=f"CoEAConfig.{field} must be"):
+        PAPER.replace(**{field: value})
+
+
+def test_identify_cli_reports_the_runs_added(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    u = rng.uniform(-1, 1, 800)
+    y = np.zeros(800)
+    for t in range(2, 800):  # half signal, half noise: the runs explain part of the record
+        y[t] = 0.5 * y[t - 1] + np.tanh(2 * u[t - 1]) + 0.6 * rng.normal()
+    data = tmp_path / "half.csv"
+    np.savetxt(data, np.column_stack([u, y]), delimiter=",", header="volt,pos", comments="", fmt="%.17g")
+    mod = tmp_path / "m.json"
+    args = [sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos",
+            "--generations", "5", "--lag-search-generations", "5", "--workers", "1", "--progress", "never"]
+    p = subprocess.run(args + ["--more-restarts", "2", "--model", str(mod)], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    m = Model.load(mod).metrics
+    assert m["more_restarts"] == 2 and len(m["run_scores"]) == 6 and 0 < max(m["run_scores"][:4]) < 0.95
+    assert (f"runs made: 4 + 2 more (the best of those fit the estimation record at FR R2 "
+            f"{max(m['run_scores'][:4]):.5f}, in (0, 0.95))") in p.stdout
+    off = subprocess.run(args + ["--more-restarts", "0", "--model", str(mod)], capture_output=True, text=True, timeout=120)
+    assert off.returncode == 0 and "runs made" not in off.stdout and Model.load(mod).metrics["more_restarts"] == 0
+    bad = subprocess.run(args + ["--more-restarts", "-1"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "more_restarts must be an integer in [0, 100]; got -1" in bad.stderr

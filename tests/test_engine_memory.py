@@ -150,12 +150,15 @@ def test_an_ensemble_of_networks_with_the_same_lags_is_one_network(reactor) -> N
 def test_a_long_lag_space_is_hedged_by_short_restarts() -> None:
     u, y = _delayed(12, n=800)
     cfg = DEFAULT.replace(generations=3, lag_search_generations=3, neurons=8, lag_search_neurons=4, restarts=4,
-                          max_lag_cap=30, lag_alternation=True, hedge_neurons=5)
+                          max_lag_cap=30, lag_alternation=True, hedge_neurons=5, more_restarts=0)
     m = identify(u, y, cfg, 0).model.metrics
     assert m["run_max_lags"] == [30, 10, 30, 10]
     assert m["run_neurons"] == [8, 5, 8, 8]
     plain = identify(u, y, cfg.replace(lag_alternation=False), 0).model.metrics
     assert plain["run_max_lags"] == [30, 30, 30, 30] and plain["run_neurons"] == [8, 8, 8, 8]
+    more = identify(u, y, cfg.replace(more_restarts=4, more_below=1.0), 0).model.metrics  # runs added: the same pattern
+    assert more["more_restarts"] == 4 and more["run_max_lags"] == [30, 10, 30, 10] * 2
+    assert more["run_neurons"] == [8, 5, 8, 8] * 2
 
 
 def test_screening_on_the_search_rows_refits_the_chosen_model_on_all_rows(reactor) -> None:  # type: ignore[no-untyped-def]

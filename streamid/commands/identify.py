@@ -99,6 +99,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help=f"two-stage runs: generations of the lag-search stage (default {DEFAULT.lag_search_generations})",
     )
     p.add_argument("--restarts", type=int, metavar="K", help=f"coevolution runs per identification (default {DEFAULT.restarts}; --paper 1)")
+    p.add_argument("--more-restarts", type=int, metavar="N",
+                   help=f"N more runs when the best run's estimation free-run R2 is between 0 and {DEFAULT.more_below} "
+                        f"(a record explained in part; default {DEFAULT.more_restarts}; 0: never; --paper 0)")
     p.add_argument("--ensembles", action=argparse.BooleanOptionalAction, default=None,
                    help="the means of the best 2, 3 and all admissible restarts' networks compete in the final choice "
                         f"by the same criterion (default {'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
@@ -129,6 +132,7 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         ("generations", "generations"),
         ("population", "population"),
         ("restarts", "restarts"),
+        ("more_restarts", "more_restarts"),
         ("selection", "selection"),
         ("lag_search_neurons", "lag_search_neurons"),
         ("lag_search_generations", "lag_search_generations"),
@@ -306,7 +310,15 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     k = len(getattr(Model.from_json(b["model"]), "members", ())) or 1
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "") + "\n")
-    lag = Model.from_json(b["model"]).metrics.get("max_lag_choice")
+    made = Model.from_json(b["model"]).metrics
+    if made.get("more_restarts") or made.get("fallback_runs"):  # runs beyond --restarts (streamid.engine.restarts)
+        first = len(made["run_scores"]) - made.get("more_restarts", 0) - len(made.get("fallback_runs", ()))
+        w(f"runs made: {first}" + (
+            f" + {made['more_restarts']} more (the best of those fit the estimation record at FR R2 "
+            f"{max(made['run_scores'][:first]):.5f}, in (0, {cfg.more_below}))" if made.get("more_restarts") else "")
+          + (f" + fallback runs of {', '.join(str(m) for m in made['fallback_runs'])} neurons" if made.get("fallback_runs") else "")
+          + "\n")
+    lag = made.get("max_lag_choice")
     if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.lagspace)
         w(f"candidate lags 1..{lag['max_lag']} chosen from the data: input-output correlation peak at lag {lag['k_u']}, "
           f"output autocorrelation below 0.5 from lag {lag['k_y']} (floor {lag['floor']}, cap {lag['cap']})\n")

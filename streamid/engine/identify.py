@@ -25,7 +25,9 @@ Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chose
 and ``lag_alternation`` is set, the odd restarts keep ``1..floor`` (restart 1 of every 4 with ``hedge_neurons``
 neurons when > 0). A two-stage run's second stage always trains on a lag set with an input term. After the runs,
 if no run has an admissible candidate, one more run is made with each of ``fallback_neurons`` in turn until one
-has (``metrics.fallback_runs``; with ``fallback_below``, also while the best run's score is at most that).
+has (``metrics.fallback_runs``; with ``fallback_below``, also while the best run's score is at most that). Before
+those, with ``more_restarts``, that many more runs when the best run's score lies in ``(0, more_below)``
+(:mod:`streamid.engine.restarts`; ``metrics.more_restarts``).
 
 With ``selection="fr_est"`` the run kept is chosen by ``complexity`` (:mod:`streamid.engine.complexity`: by
 default the lowest ``n log(1 - R2_fr) + 2 p`` over the runs' admissible candidates, ``p`` the weights fitted;
@@ -53,6 +55,7 @@ from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rn
 from streamid.engine.complexity import choose as choose_complexity
 from streamid.engine.ensemble_choice import choose_ensemble
 from streamid.engine.refine import refine_weights
+from streamid.engine.restarts import report_after, runs_until_agreed, wants_more
 from streamid.engine.fanout import fan_out
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
@@ -201,43 +204,6 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     }
 
 
-def _report_after(report: Callable[[list[dict[str, Any]]], None], made: list[dict[str, Any]],
-                  rs: list[dict[str, Any]]) -> None:
-    report(made + rs)
-
-
-def _repeats_agree(outs: list[dict[str, Any]], job: dict[str, Any], cfg: CoEAConfig) -> bool:
-    """Whether ``job`` is a repeat not worth making: the runs already made with its configuration (neurons,
-    lag space) include two whose selection scores are the best two, both above ``fallback_below`` (good,
-    admissible fits), and within ``agree_tol`` of each other."""
-    same = sorted(float(o["score"]) for o in outs
-                  if (o["neurons"], o["max_lag"]) == (job["neurons"], job["max_lag"]))
-    return len(same) >= 2 and same[-2] > max(-1e9, cfg.fallback_below) and same[-1] - same[-2] <= cfg.agree_tol
-
-
-def _runs_until_agreed(jobs: list[dict[str, Any]], cfg: CoEAConfig, executor: Executor | None,
-                       helper: EvalHelper | None, report: Callable[[list[dict[str, Any]]], None],
-                       ) -> tuple[list[dict[str, Any]], list[int]]:
-    """The restarts in order, ``cfg.workers`` at a time, each skipped when :func:`_repeats_agree`;
-    returns the runs made and the indices of the jobs skipped."""
-    outs: list[dict[str, Any]] = []
-    skipped: list[int] = []
-    i = 0
-    while i < len(jobs):
-        chunk: list[int] = []
-        while i < len(jobs) and len(chunk) < max(1, cfg.workers):
-            if _repeats_agree(outs, jobs[i], cfg):
-                skipped.append(i)
-            else:
-                chunk.append(i)
-            i += 1
-        if chunk:
-            made = list(outs)
-            outs = made + fan_out(_one_run, [jobs[k] for k in chunk], cfg.workers, executor=executor,
-                                  helper=helper, on_result=partial(_report_after, report, made))
-    return outs, skipped
-
-
 def identify(
     u: ArrayLike,
     y: ArrayLike,
@@ -357,21 +323,22 @@ def identify(
         "output_name": output_name,
         "window": win,
     }
-    jobs = [
-        {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
-         "neurons": (cfg.hedge_neurons or sizes[i % len(sizes)]) if (hedge and i % 4 == 1) else sizes[i % len(sizes)],
-         "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1,
-         "linear": cfg.linear_terms and (not cfg.linear_alternation or i % 4 >= 2)}
-        for i, s in enumerate(seeds)
-    ]
     per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
-    total_gen = per_run * cfg.restarts
+    total_gen = per_run * cfg.restarts  # (grows when more_restarts are made)
     done: list[dict[str, Any]] = []  # finished runs (in-process progress)
-    if callback is not None and executor is None and min(cfg.workers, len(jobs)) <= 1:
-        for i, job in enumerate(jobs):  # runs made here report every generation, as the one-run path does
-            job["tick"] = lambda p, i=i: callback(Progress(
+
+    def restart(i: int, s: int, n_jobs: int) -> dict[str, Any]:  # restart i's job: the pattern repeats every 4
+        job = {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
+               "neurons": (cfg.hedge_neurons or sizes[i % len(sizes)]) if (hedge and i % 4 == 1) else sizes[i % len(sizes)],
+               "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1,
+               "linear": cfg.linear_terms and (not cfg.linear_alternation or i % 4 >= 2)}
+        if callback is not None and executor is None and min(cfg.workers, n_jobs) <= 1:
+            job["tick"] = lambda p: callback(Progress(  # runs made here report every generation, as one run does
                 i * per_run + p.generation, total_gen, min([p.best_fitness] + [o["fitness"] for o in done]),
                 sum(o["evaluations"] for o in done) + p.evaluations))
+        return job
+
+    jobs = [restart(i, s, len(seeds)) for i, s in enumerate(seeds)]
 
     def report(outs: list[dict[str, Any]]) -> None:
         done[:] = outs
@@ -385,11 +352,20 @@ def identify(
                 )
             )
 
-    if cfg.agree_tol > 0:  # fewer restarts when they agree (_repeats_agree)
-        outs, skipped = _runs_until_agreed(jobs, cfg, executor, helper, report)
+    if cfg.agree_tol > 0:  # fewer restarts when they agree (restarts.repeats_agree)
+        outs, skipped = runs_until_agreed(jobs, cfg, executor, helper, report, _one_run)
     else:
         outs, skipped = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report), []
     jobs = [j for i, j in enumerate(jobs) if i not in skipped]
+    more_made = 0  # more runs where the record is half explained (restarts.wants_more)
+    if wants_more(outs, cfg):
+        more_seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.more_restarts)]
+        total_gen = per_run * (cfg.restarts + cfg.more_restarts)
+        more = [restart(cfg.restarts + j, s, len(more_seeds)) for j, s in enumerate(more_seeds)]
+        made = list(outs)
+        outs = made + fan_out(_one_run, more, cfg.workers, executor=executor, helper=helper,
+                              on_result=partial(report_after, report, made))
+        jobs, more_made = jobs + more, len(more)
 
     # No run admissible (every candidate's free run leaves the data's range or ignores the input): smaller
     # networks, one run each in the order of fallback_neurons, until one has an admissible candidate.
@@ -403,7 +379,7 @@ def identify(
         jobs.append(job)
         fallback_made.append(m)
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
-                              on_result=partial(_report_after, report, made))
+                              on_result=partial(report_after, report, made))
 
     if skipped and callback is not None:  # the progress reaches its end though some restarts were not made
         callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs)))
@@ -436,6 +412,7 @@ def identify(
         restarts=len(outs),
         restarts_max=cfg.restarts,
         restarts_skipped=skipped,
+        more_restarts=more_made,
         run_neurons=[int(o.get("neurons", cfg.neurons)) for o in outs],
         fallback_runs=fallback_made,
         run_max_lags=[int(o.get("max_lag", cfg.max_lag)) for o in outs],
