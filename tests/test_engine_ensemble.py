@@ -216,6 +216,9 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
         # round 9: more runs only below an estimation fit of 0.95; these records fit above it, so none were made
         assert got["config"].pop("more_restarts") == 4 and got["config"].pop("more_below") == 0.95
         assert got["metrics"].pop("more_restarts") == 0
+        # round 10: the direct terms u(t) tested; neither record shows them, so the candidates are the same
+        assert got["config"].pop("feedthrough_test") is True and got["config"].pop("min_lag_u") == 1
+        assert got["metrics"].pop("feedthrough")["min_lag_u"] == 1
         # the same model to rounding: the free runs that score the candidates are compiled since round 8
         # (streamid.engine._kernels, sums in another order than the numpy loop that recorded these)
         _same(got, json.loads((DATA / f"{name}_seed{seed}.json").read_text()), name)

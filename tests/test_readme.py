@@ -146,6 +146,10 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     refined = next(ln for ln in p.stdout.splitlines() if ln.startswith("weights refined to the free run: "))
     assert re.fullmatch(r"weights refined to the free run: \d+ iterations, FR R2 est 0\.\d{5} -> 0\.\d{5}", refined)
     assert "weights refined to the free run" in explained  # the README says what that line means
+    direct = next(ln for ln in p.stdout.splitlines() if ln.startswith("direct terms u(t) are "))
+    assert re.fullmatch(r"direct terms u\(t\) are (not )?candidates: .+ \(likelihood ratio of u\(t\) in a linear ARX model "
+                        r"of order \d+: velocity_cm_s [0-9.]+; threshold 10\.83\)", direct)
+    assert "direct terms" in explained
     assert (work / "mr_damper.json").is_file()
     q = subprocess.run([sys.executable, "-c", _block_after("## 1. Your own data file")], cwd=work,
                        capture_output=True, text=True, timeout=60)

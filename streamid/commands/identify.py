@@ -99,6 +99,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help=f"two-stage runs: generations of the lag-search stage (default {DEFAULT.lag_search_generations})",
     )
     p.add_argument("--restarts", type=int, metavar="K", help=f"coevolution runs per identification (default {DEFAULT.restarts}; --paper 1)")
+    p.add_argument("--direct-terms", choices=("test", "on", "off"),
+                   help="each input's u(t) among the candidate lags: test (the default: when a likelihood-ratio test of "
+                        "a linear ARX model finds the output responds within the sample), on (always) or off (the paper: "
+                        "u(t-1) on; --paper)")
     p.add_argument("--more-restarts", type=int, metavar="N",
                    help=f"N more runs when the best run's estimation free-run R2 is between 0 and {DEFAULT.more_below} "
                         f"(a record explained in part; default {DEFAULT.more_restarts}; 0: never; --paper 0)")
@@ -148,6 +152,12 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         changes["max_lag_u"] = args.max_lag_u
     if any(v is not None for v in (args.max_lag, args.max_lag_y, args.max_lag_u)):
         changes["max_lag_cap"] = 0  # lags as given, not chosen from the data
+    if args.direct_terms is not None:
+        if args.paper and args.direct_terms != "off":
+            raise ConfigError(f"--direct-terms {args.direct_terms} adds u(t) to the candidate lags; --paper keeps the "
+                              "paper's u(t-1) on (drop one of the two)")
+        changes["feedthrough_test"] = args.direct_terms == "test"
+        changes["min_lag_u"] = 0 if args.direct_terms == "on" else 1
     if args.ensembles is not None:
         if args.paper and args.ensembles:
             raise ConfigError("--ensembles averages several restarts' networks; --paper makes one run chosen by fitness "
@@ -322,6 +332,12 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.lagspace)
         w(f"candidate lags 1..{lag['max_lag']} chosen from the data: input-output correlation peak at lag {lag['k_u']}, "
           f"output autocorrelation below 0.5 from lag {lag['k_y']} (floor {lag['floor']}, cap {lag['cap']})\n")
+    ft = made.get("feedthrough")
+    if ft:  # u(t) a candidate? (streamid.engine.feedthrough)
+        lr = ", ".join(f"{name} {v:.1f}" for name, v in zip(ds.input_names, ft["lr"]))
+        w(("direct terms u(t) are candidates: the output responds within the sample" if ft["min_lag_u"] == 0 else
+           "direct terms u(t) are not candidates: no response within the sample was found")
+          + f" (likelihood ratio of u(t) in a linear ARX model of order {ft['order']}: {lr}; threshold {ft['threshold']})\n")
     cx = Model.from_json(b["model"]).metrics.get("complexity")
     if cx:  # the network size chosen among the restarts' candidates (streamid.engine.complexity)
         w(f"complexity by {cx['rule']} on the estimation free run: {cx['neurons']} neurons (restart {cx['chosen_run']});"

@@ -161,9 +161,9 @@ class Coevolution:
                 f"the normalisation given has {self.norm.n_inputs} input(s); the data have {self.n_inputs}"
             )
         un, yn = self.norm.u(ua), self.norm.y(ya)
-        self.R = lag_matrix(un, yn, cfg.max_lag_y, cfg.max_lag_u)
+        self.R = lag_matrix(un, yn, cfg.max_lag_y, cfg.max_lag_u, min_lag_u=cfg.min_lag_u)
         self.target = yn[L:]
-        self.candidates = candidate_regressors(cfg.max_lag_y, cfg.max_lag_u, self.n_inputs)
+        self.candidates = candidate_regressors(cfg.max_lag_y, cfg.max_lag_u, self.n_inputs, cfg.min_lag_u)
         self.D = len(self.candidates)
         u_bits = np.array([c.signal == "u" for c in self.candidates], dtype=bool)
         self._u_bits: NDArray[np.bool_] | None = u_bits if (cfg.require_input and u_bits.any()) else None
@@ -256,12 +256,12 @@ class Coevolution:
 
     def _warm_start(self, st: CoEAState) -> None:
         cfg = self.config
-        want = (cfg.population, cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, self.n_inputs)
-        got = (st.population, st.neurons, st.max_lag_y, st.max_lag_u, st.n_inputs)
+        want = (cfg.population, cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, self.n_inputs, cfg.min_lag_u)
+        got = (st.population, st.neurons, st.max_lag_y, st.max_lag_u, st.n_inputs, st.min_lag_u)
         if want != got:
             raise ConfigError(
-                "warm_start state does not fit this run: (population, neurons, max_lag_y, max_lag_u, n_inputs) "
-                f"must be {want}; the state has {got}"
+                "warm_start state does not fit this run: (population, neurons, max_lag_y, max_lag_u, n_inputs, "
+                f"min_lag_u) must be {want}; the state has {got}"
             )
         self.H = st.harmonies.copy()
         self.X = self._renormalise(st.params, st.normalisation)
@@ -286,8 +286,9 @@ class Coevolution:
     def _ranges(self, norm: Normalisation) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Physical low/high of every candidate coordinate under ``norm``."""
         cfg = self.config
-        lo = np.concatenate([np.full(cfg.max_lag_y, norm.y_low), np.repeat(norm.u_low, cfg.max_lag_u)])
-        hi = np.concatenate([np.full(cfg.max_lag_y, norm.y_high), np.repeat(norm.u_high, cfg.max_lag_u)])
+        per_input = cfg.max_lag_u - cfg.min_lag_u + 1
+        lo = np.concatenate([np.full(cfg.max_lag_y, norm.y_low), np.repeat(norm.u_low, per_input)])
+        hi = np.concatenate([np.full(cfg.max_lag_y, norm.y_high), np.repeat(norm.u_high, per_input)])
         return lo, hi
 
     # ------------------------------------------------------------------ stepping
@@ -406,6 +407,7 @@ class Coevolution:
             normalisation=self.norm,
             generation=self.g,
             meta={"evaluations": self.evaluations},
+            min_lag_u=self.config.min_lag_u,
         )
 
     def model_for(self, mask: NDArray[np.bool_], x: NDArray[np.float64], *, search_rows: bool = False) -> Model:

@@ -57,6 +57,7 @@ from streamid.engine.ensemble_choice import choose_ensemble
 from streamid.engine.refine import refine_weights
 from streamid.engine.restarts import report_after, runs_until_agreed, wants_more
 from streamid.engine.fanout import fan_out
+from streamid.engine.feedthrough import feedthrough_test
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
@@ -275,6 +276,12 @@ def identify(
         st = warm_start
         cfg = cfg.replace(max_lag_y=st.max_lag_y, max_lag_u=st.max_lag_u, neurons=st.neurons,
                           max_lag_cap=max(st.max_lag_y, st.max_lag_u, cfg.max_lag_cap))
+    if warm_start is not None:  # the state's candidates decide whether u(t) is one
+        cfg = cfg.replace(min_lag_u=warm_start.min_lag_u)
+    feed: dict[str, Any] | None = None
+    if cfg.feedthrough_test and warm_start is None and (cfg.restarts > 1 or cfg.lag_search_neurons):
+        feed = feedthrough_test(ua, ya, cfg.max_lag)  # u(t) a candidate? (streamid.engine.feedthrough)
+        cfg = cfg.replace(min_lag_u=feed["min_lag_u"])
     n_hold = int(round(cfg.holdout_fraction * n)) if cfg.selection == "holdout_fr" else 0
     n_search = n - n_hold
     need = cfg.max_lag + 2 * max((cfg.neurons, *cfg.neuron_alternatives))
@@ -423,6 +430,7 @@ def identify(
         holdout_samples=n_hold,
         evaluations=int(sum(o["evaluations"] for o in outs)),
         max_lag_choice=lag_evidence,
+        **({"feedthrough": feed} if feed is not None else {}),
         complexity=complexity,
     )
     runs = tuple(

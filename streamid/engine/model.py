@@ -128,9 +128,9 @@ class Model:
         n_in = self.normalisation.n_inputs
         for r in self.regressors:
             ok = (r.signal == "y" and r.index == 0) or (r.signal == "u" and 0 <= r.index < n_in)
-            if not ok or r.lag < 1:
+            if not ok or r.lag < (1 if r.signal == "y" else 0):
                 raise ModelFormatError(
-                    f"regressor {r} must be signal 'y' (index 0) or 'u' (index 0..{n_in - 1}) with lag >= 1"
+                    f"regressor {r} must be signal 'y' (index 0) with lag >= 1 or 'u' (index 0..{n_in - 1}) with lag >= 0"
                 )
         if not self.input_names:
             object.__setattr__(self, "input_names", tuple(f"u{i}" for i in range(n_in)))

@@ -45,6 +45,7 @@ class CoEAState:
     normalisation: Normalisation
     generation: int = 0
     meta: dict[str, Any] = field(default_factory=dict)
+    min_lag_u: int = 1  # each input's first candidate lag (0: its direct term u(t) too)
 
     def __post_init__(self) -> None:
         P, D = np.shape(self.harmonies)
@@ -59,10 +60,12 @@ class CoEAState:
         for ok, name, shape in checks:
             if not ok:
                 raise ModelFormatError(f"CoEAState.{name} must have shape {shape}; got {np.shape(getattr(self, name))}")
-        if D != self.max_lag_y + self.n_inputs * self.max_lag_u:
+        if self.min_lag_u not in (0, 1):
+            raise ModelFormatError(f"CoEAState.min_lag_u must be 0 or 1; got {self.min_lag_u!r}")
+        if D != self.max_lag_y + self.n_inputs * (self.max_lag_u - self.min_lag_u + 1):
             raise ModelFormatError(
-                f"CoEAState has {D} candidate lags but max_lag_y + n_inputs * max_lag_u = "
-                f"{self.max_lag_y} + {self.n_inputs} * {self.max_lag_u}"
+                f"CoEAState has {D} candidate lags but max_lag_y + n_inputs * (max_lag_u - min_lag_u + 1) = "
+                f"{self.max_lag_y} + {self.n_inputs} * ({self.max_lag_u} - {self.min_lag_u} + 1)"
             )
         for name in ("harmony_fitness", "params", "param_fitness", "best_params"):
             if not np.all(np.isfinite(getattr(self, name))):
@@ -91,6 +94,7 @@ class CoEAState:
             "best_params": self.best_params.tolist(),
             "best_fitness": self.best_fitness,
             "meta": self.meta,
+            **({"min_lag_u": self.min_lag_u} if self.min_lag_u != 1 else {}),  # (documents before it: 1)
         }
 
     def to_json(self) -> str:
@@ -118,6 +122,7 @@ class CoEAState:
                 normalisation=Normalisation.from_dict(d["normalisation"]),
                 generation=int(d.get("generation", 0)),
                 meta=dict(d.get("meta", {})),
+                min_lag_u=int(d.get("min_lag_u", 1)),
             )
         except ModelFormatError:
             raise

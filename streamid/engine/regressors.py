@@ -7,7 +7,7 @@ Candidate regressors are ordered output lags first, then each input's lags::
 
     y(t-1) .. y(t-Ly), u_0(t-1) .. u_0(t-Lu), u_1(t-1) .. u_1(t-Lu), ...
 
-This order is the bit order of a lag harmony and the coordinate order of a
+(with ``min_lag_u = 0`` each input's run starts at its direct term ``u_i(t)``). This order is the bit order of a lag harmony and the coordinate order of a
 centre. Row ``k`` of the regressor matrix is the regressor at time
 ``t = L + k`` where ``L = max(Ly, Lu)``; rows exist for ``t = L .. N-1``.
 """
@@ -48,10 +48,15 @@ class Regressor:
             name = output_name or "y"
         else:
             name = input_names[self.index] if input_names else f"u{self.index}"
-        return f"{name}(t-{self.lag})"
+        return f"{name}({_t(self.lag)})"
 
     def to_dict(self) -> dict[str, Any]:
         return {"signal": self.signal, "index": self.index, "lag": self.lag}
+
+
+def _t(lag: int) -> str:
+    """``t-3`` for lag 3, ``t`` for lag 0 (an input's direct term)."""
+    return f"t-{lag}" if lag else "t"
 
 
 def _lag_runs(lags: Sequence[int]) -> str:
@@ -64,9 +69,9 @@ def _lag_runs(lags: Sequence[int]) -> str:
         while j + 1 < len(vals) and vals[j + 1] == vals[j] + 1:
             j += 1
         if j - i >= 2:
-            parts.append(f"t-{vals[i]}..t-{vals[j]}")
+            parts.append(f"{_t(vals[i])}..{_t(vals[j])}")
         else:
-            parts.extend(f"t-{v}" for v in vals[i : j + 1])
+            parts.extend(_t(v) for v in vals[i : j + 1])
         i = j + 1
     return ",".join(parts)
 
@@ -86,11 +91,12 @@ def format_lags(output_name: str, y_lags: Sequence[int], input_names: Sequence[s
     return " ".join(parts) if parts else "(no regressors)"
 
 
-def candidate_regressors(max_lag_y: int, max_lag_u: int, n_inputs: int) -> tuple[Regressor, ...]:
-    """All candidate terms in harmony-bit order (see the module docstring)."""
+def candidate_regressors(max_lag_y: int, max_lag_u: int, n_inputs: int, min_lag_u: int = 1) -> tuple[Regressor, ...]:
+    """All candidate terms in harmony-bit order (see the module docstring); each input's lags
+    ``min_lag_u..max_lag_u`` (``min_lag_u`` 0: the input's direct term ``u(t)`` is a candidate)."""
     regs = [Regressor("y", 0, k) for k in range(1, max_lag_y + 1)]
     for i in range(n_inputs):
-        regs.extend(Regressor("u", i, k) for k in range(1, max_lag_u + 1))
+        regs.extend(Regressor("u", i, k) for k in range(min_lag_u, max_lag_u + 1))
     return tuple(regs)
 
 
@@ -249,6 +255,7 @@ def lag_matrix(
     max_lag_u: int,
     *,
     start: int | None = None,
+    min_lag_u: int = 1,
 ) -> NDArray[np.float64]:
     """Regressor matrix of all candidate lags (normalised data).
 
@@ -260,10 +267,12 @@ def lag_matrix(
     start : int, optional
         First time index with a row (default ``max(max_lag_y, max_lag_u)``;
         must be at least that).
+    min_lag_u : int
+        Each input's first lag (1; 0: its direct term ``u(t)`` too).
 
     Returns
     -------
-    ndarray, shape (N - start, max_lag_y + n_inputs * max_lag_u)
+    ndarray, shape (N - start, max_lag_y + n_inputs * (max_lag_u - min_lag_u + 1))
         Row ``k`` holds the candidates at ``t = start + k`` in harmony-bit order.
 
     Raises
@@ -279,14 +288,14 @@ def lag_matrix(
     rows = n - s
     if rows < 1:
         raise DataError(f"{n} samples are too few for lags up to {L}: at least {L + 1} samples are needed")
-    D = max_lag_y + n_in * max_lag_u
+    D = max_lag_y + n_in * (max_lag_u - min_lag_u + 1)
     R = np.empty((rows, D))
     col = 0
     for k in range(1, max_lag_y + 1):
         R[:, col] = yn[s - k : n - k]
         col += 1
     for i in range(n_in):
-        for k in range(1, max_lag_u + 1):
+        for k in range(min_lag_u, max_lag_u + 1):
             R[:, col] = un[s - k : n - k, i]
             col += 1
     return R
