@@ -210,3 +210,24 @@ def test_the_readme_example_runs_and_every_window_gets_a_model() -> None:
     readme = (example.parent.parent / "README.md").read_text(encoding="utf-8")
     body = "\n".join(example.read_text(encoding="utf-8").splitlines()[2:])  # without the docstring
     assert body.strip() in readme, "the README's online example must be examples/online_identifier.py verbatim"
+
+
+def test_direct_terms_online_when_asked_and_kept_by_warm_updates() -> None:
+    rng = np.random.default_rng(7)  # 200 Hz, an output that responds within the sample: y(t) has u(t) in it
+    n = 1600
+    u = rng.uniform(-1, 1, n)
+    y = np.zeros(n)
+    for k in range(1, n):
+        y[k] = 0.5 * y[k - 1] + np.tanh(2 * u[k]) + 0.3 * u[k - 1]
+    y += rng.normal(0, 0.02, n)
+    t = np.arange(n, dtype=np.int64) * 5_000_000
+    asked = OnlineIdentifier(StreamConfig(**{**CFG.to_dict(), "engine": (("feedthrough_test", True),)}), stream="d")
+    asked.learn_many(t, u, y, **NAMES)
+    ups = asked.update_all()
+    assert [up.outcome.warm for up in ups] == [False, True, True, True]  # the state carries u(t): warm starts fit
+    models = [up.outcome.model for up in ups]
+    assert all(m is not None and m.config["min_lag_u"] == 0 and m.config["feedthrough_test"] for m in models)
+    assert any(0 in m.lags["u"][0] for m in models if m is not None)
+    plain = OnlineIdentifier(CFG, stream="d")  # the default online: the paper's u(t-1) on
+    plain.learn_many(t, u, y, **NAMES)
+    assert all(up.outcome.model is not None and up.outcome.model.config["min_lag_u"] == 1 for up in plain.update_all())
