@@ -45,8 +45,8 @@ def feedthrough_test(u: NDArray[np.float64], y: NDArray[np.float64], order: int)
     """The test of the module docstring on ``u`` (N, n_inputs) and ``y`` (N,) with ARX order ``order``.
 
     Returns ``{"order", "lr": [LR_i per input], "threshold", "min_lag_u"}`` (``min_lag_u`` 0 when some
-    ``LR_i`` exceeds the threshold, else 1); an order the record cannot support (fewer than ``10 x``
-    the coefficients of rows) is lowered to what it can.
+    ``LR_i`` exceeds the threshold, else 1); an order the record cannot support (fewer than 10 rows
+    per coefficient) is lowered to one it can.
     """
     u2 = np.asarray(u, dtype=np.float64).reshape(len(y), -1)
     y1 = np.asarray(y, dtype=np.float64)
