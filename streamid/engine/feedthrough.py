@@ -21,12 +21,16 @@ Pure numpy; no I/O.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["THRESHOLD", "feedthrough_test"]
+if TYPE_CHECKING:
+    from streamid.engine.populations import CoEAState
+    from streamid.engine.settings import CoEAConfig
+
+__all__ = ["THRESHOLD", "direct_terms", "feedthrough_test"]
 
 #: chi-square with one degree of freedom at p = 0.001
 THRESHOLD = 10.83
@@ -66,3 +70,19 @@ def feedthrough_test(u: NDArray[np.float64], y: NDArray[np.float64], order: int)
         without = _residual_variance(np.column_stack(lagged + [d for j, d in enumerate(direct) if j != i]), target)
         lr.append(float(rows * np.log(without / full)) if full > 0 and without > 0 else 0.0)
     return {"order": p, "lr": lr, "threshold": THRESHOLD, "min_lag_u": 0 if max(lr) > THRESHOLD else 1}
+
+
+def direct_terms(cfg: CoEAConfig, u: NDArray[np.float64], y: NDArray[np.float64], warm: CoEAState | None,
+                 *, test: bool = True) -> tuple[CoEAConfig, dict[str, Any] | None]:
+    """``cfg`` with ``min_lag_u`` for a run on ``u``/``y``, and the test's evidence (None: not tested).
+
+    A warm start keeps its state's candidates (its populations' bits are theirs); otherwise, with
+    ``cfg.feedthrough_test`` and ``test``, the record is tested (:func:`feedthrough_test`, order
+    ``cfg.max_lag``); otherwise ``cfg`` as given. Used by ``identify`` and the online updates alike.
+    """
+    if warm is not None:
+        return cfg.replace(min_lag_u=warm.min_lag_u), None
+    if cfg.feedthrough_test and test:
+        ev = feedthrough_test(u, y, cfg.max_lag)
+        return cfg.replace(min_lag_u=ev["min_lag_u"]), ev
+    return cfg, None

@@ -57,7 +57,7 @@ from streamid.engine.ensemble_choice import choose_ensemble
 from streamid.engine.refine import refine_weights
 from streamid.engine.restarts import report_after, runs_until_agreed, wants_more
 from streamid.engine.fanout import fan_out
-from streamid.engine.feedthrough import feedthrough_test
+from streamid.engine.feedthrough import direct_terms
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
@@ -276,12 +276,8 @@ def identify(
         st = warm_start
         cfg = cfg.replace(max_lag_y=st.max_lag_y, max_lag_u=st.max_lag_u, neurons=st.neurons,
                           max_lag_cap=max(st.max_lag_y, st.max_lag_u, cfg.max_lag_cap))
-    if warm_start is not None:  # the state's candidates decide whether u(t) is one
-        cfg = cfg.replace(min_lag_u=warm_start.min_lag_u)
-    feed: dict[str, Any] | None = None
-    if cfg.feedthrough_test and warm_start is None and (cfg.restarts > 1 or cfg.lag_search_neurons):
-        feed = feedthrough_test(ua, ya, cfg.max_lag)  # u(t) a candidate? (streamid.engine.feedthrough)
-        cfg = cfg.replace(min_lag_u=feed["min_lag_u"])
+    # u(t) a candidate? A warm start's state says; else the test on the record (streamid.engine.feedthrough)
+    cfg, feed = direct_terms(cfg, ua, ya, warm_start, test=cfg.restarts > 1 or bool(cfg.lag_search_neurons))
     n_hold = int(round(cfg.holdout_fraction * n)) if cfg.selection == "holdout_fr" else 0
     n_search = n - n_hold
     need = cfg.max_lag + 2 * max((cfg.neurons, *cfg.neuron_alternatives))

@@ -35,7 +35,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
-from streamid.engine.feedthrough import feedthrough_test
+from streamid.engine.feedthrough import direct_terms
 from streamid.engine.identify import select_model
 from streamid.engine.refine import refine_weights
 from streamid.engine.settings import CoEAConfig
@@ -288,15 +288,15 @@ def identify_window(
         return Outcome("dropped", why, "constant_signal", **common)
     sig = signature_of(window, cfg, out_name)
     warm = warm_state is not None and not force_cold and warm_signature == sig
-    engine_cfg = _direct_terms(cfg.coea_config(cold=not warm, generations=generations), u_est, y_est,
-                               warm_state if warm else None)
+    engine_cfg, _ = direct_terms(cfg.coea_config(cold=not warm, generations=generations), u_est, y_est,
+                                 warm_state if warm else None)  # u(t) a candidate? (engine.feedthrough_test)
     rng = rng_for(cfg, window.stream, version, col)
     try:
         try:
             co = _start(u_est, y_est, engine_cfg, rng, warm_state if warm else None, window, out_name, meta, helper)
         except _WarmMismatch:  # the saved populations do not fit this data: start cold
             warm = False
-            engine_cfg = _direct_terms(cfg.coea_config(cold=True, generations=generations), u_est, y_est, None)
+            engine_cfg, _ = direct_terms(cfg.coea_config(cold=True, generations=generations), u_est, y_est, None)
             co = _start(u_est, y_est, engine_cfg, rng, None, window, out_name, meta, helper)
     except StreamidError as exc:
         return Outcome("failed", f"identification could not start: {exc}", "engine_error", signature=sig, **common)
@@ -352,16 +352,6 @@ def identify_window(
 
 class _WarmMismatch(Exception):
     pass
-
-
-def _direct_terms(engine_cfg: CoEAConfig, u: np.ndarray, y: np.ndarray, warm: CoEAState | None) -> CoEAConfig:
-    """Whether ``u(t)`` is a candidate: a warm run keeps its populations' candidates; a cold one tests its
-    window when asked (``engine.feedthrough_test``, :mod:`streamid.engine.feedthrough`)."""
-    if warm is not None:
-        return engine_cfg.replace(min_lag_u=warm.min_lag_u)
-    if engine_cfg.feedthrough_test:
-        return engine_cfg.replace(min_lag_u=feedthrough_test(u, y, engine_cfg.max_lag)["min_lag_u"])
-    return engine_cfg
 
 
 def _start(
