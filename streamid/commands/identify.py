@@ -317,10 +317,11 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(f"  min {st['min']:.6g}  max {st['max']:.6g}  mean {st['mean']:.6g}  std {st['std']:.4g}\n")
         w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
     b = runs[best]
-    k = len(getattr(Model.from_json(b["model"]), "members", ())) or 1
+    kept = Model.from_json(b["model"])  # parsed once; its metrics hold the evidence below
+    k = len(getattr(kept, "members", ())) or 1
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "") + "\n")
-    made = Model.from_json(b["model"]).metrics
+    made = kept.metrics
     if made.get("more_restarts") or made.get("fallback_runs"):  # runs beyond --restarts (streamid.engine.restarts)
         first = len(made["run_scores"]) - made.get("more_restarts", 0) - len(made.get("fallback_runs", ()))
         w(f"runs made: {first}" + (
@@ -338,7 +339,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(("direct terms u(t) are candidates: the output responds within the sample" if ft["min_lag_u"] == 0 else
            "direct terms u(t) are not candidates: no response within the sample was found")
           + f" (likelihood ratio of u(t) in a linear ARX model of order {ft['order']}: {lr}; threshold {ft['threshold']})\n")
-    cx = Model.from_json(b["model"]).metrics.get("complexity")
+    cx = made.get("complexity")
     if cx:  # the network size chosen among the restarts' candidates (streamid.engine.complexity)
         w(f"complexity by {cx['rule']} on the estimation free run: {cx['neurons']} neurons (restart {cx['chosen_run']});"
           " candidates (neurons, lags 1..L, weights p, FR R2 est, criterion): "
@@ -347,12 +348,12 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
                       for c in cx["candidates"]) + "\n")
         for line in _ensemble_lines(cx):
             w(line)
-    rf = Model.from_json(b["model"]).metrics.get("refinement")
+    rf = made.get("refinement")
     if rf:  # the weights fitted to the free run (streamid.engine.refine)
         w("weights refined to the free run: " + (
             f"{rf['iterations']} iterations, FR R2 est {rf['r2_fr_est_before']:.5f} -> {rf['r2_fr_est_after']:.5f}\n"
             if rf["taken"] else f"no ({rf['reason']})\n"))
-    nc = Model.from_json(b["model"]).metrics.get("neuron_choice")
+    nc = made.get("neuron_choice")
     if nc:  # the chosen run's network against its pruned versions (CoEAConfig.prune)
         w(f"neurons of the chosen run by {nc['rule']}: {nc['neurons']} of "
           + ", ".join(f"{c['neurons']} (" + ("not admissible" if c["criterion"] is None
