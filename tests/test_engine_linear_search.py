@@ -109,7 +109,8 @@ def test_linear_alternation_makes_runs_of_each_kind_and_keeps_the_plain_runs_bit
     from streamid.engine import DEFAULT, identify
 
     u, y = _narx(500, 3)
-    cfg = DEFAULT.replace(generations=6, lag_search_generations=6, max_lag_cap=0, fallback_neurons=(), prune_runs=0)
+    cfg = DEFAULT.replace(generations=6, lag_search_generations=6, max_lag_cap=0, fallback_neurons=(), prune_runs=0,
+                          linear_terms=False, linear_search=True)
     plain = identify(u, y, cfg, 0)
     alt = identify(u, y, cfg.replace(linear_terms=True, linear_alternation=True), 0)
     runs = alt.extra["run_models"]

@@ -143,6 +143,11 @@ def test_an_ensemble_of_networks_with_the_same_lags_is_one_network(reactor) -> N
     want = (a.predict_osa(u, y) + b.predict_osa(u, y)) / 2  # one step ahead the mean network is the mean
     np.testing.assert_allclose(ens.predict_osa(u, y)[a.max_lag :], want[a.max_lag :], rtol=1e-9, atol=1e-9)
     assert np.isfinite(score) and ens.simulate(u, y0).shape == y.shape
+    # a network with a linear part and one without are of different kinds: no mean of the two
+    c = replace(b, linear=np.zeros(len(b.regressors) + 1))
+    assert _ensemble([a, c], (0.9, 0.8), 0, 3, u, y, 0.25) == (None, -np.inf)
+    both, _ = _ensemble([a, c, b], (0.9, 0.85, 0.8), 0, 3, u, y, 0.25)
+    assert both is not None and both.linear is None and both.neurons == 2 * a.neurons  # a and b, not c
     res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, ensemble=3), 0)
     assert res.model.metrics["free_run_choice"].get("ensemble") in (None, 2, 3)
 

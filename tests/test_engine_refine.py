@@ -55,23 +55,29 @@ def _fr(model: Model, u: np.ndarray, y: np.ndarray) -> float:
     return r2(y[L:], model.simulate(u, y[:L])[L:])
 
 
-@pytest.mark.parametrize("linear, direct", [(False, False), (True, False), (False, True)])
+@pytest.mark.parametrize("linear, direct", [(False, False), (True, False), (False, True), (True, True)])
 def test_sensitivities_are_the_free_runs_derivatives(linear: bool, direct: bool) -> None:
     u, y = _plant(300)
-    net = _osa_net(u, y, (Y1, Y2, Regressor("u", 0, 0), U1) if direct else (Y1, Y2, U1, U2), 6, 0, linear)
+    regs = (Y1, Y2, Regressor("u", 0, 0), U1) if direct else (Y1, U1, Y2, U2)  # output and input terms interleaved
+    net = _osa_net(u, y, regs, 6, 0, linear)
     un, yn = NORM.u(u[:, None]), NORM.y(y)
     L = net.max_lag
 
-    def path(w: np.ndarray) -> np.ndarray:
-        return NORM.y(replace(net, weights=w).simulate(u, y[:L]))
+    def theta(m: Model) -> np.ndarray:
+        return m.weights if m.linear is None else np.concatenate([m.weights, m.linear])
 
-    S = sensitivities(net, un, path(net.weights))
-    assert S.shape == (300, 6) and np.all(S[:L] == 0.0)
+    def path(t: np.ndarray) -> np.ndarray:
+        m = replace(net, weights=t[:6], linear=None if net.linear is None else t[6:])
+        return NORM.y(m.simulate(u, y[:L]))
+
+    S = sensitivities(net, un, path(theta(net)))
+    P = 6 + (len(regs) + 1 if linear else 0)  # the weights, then the linear part's coefficients and constant
+    assert S.shape == (300, P) and np.all(S[:L] == 0.0)
     h = 1e-6
-    for j in range(6):
-        w = net.weights.copy()
-        w[j] += h
-        fd = (path(w) - path(net.weights)) / h
+    for j in range(P):
+        t = theta(net).copy()
+        t[j] += h
+        fd = (path(t) - path(theta(net))) / h
         np.testing.assert_allclose(S[:, j], fd, rtol=0, atol=1e-4 * max(1.0, float(np.max(np.abs(fd)))))
     assert yn.shape == (300,)
 
@@ -96,7 +102,7 @@ def test_the_compiled_free_runs_follow_the_formula(linear: bool, direct: bool) -
     for n, w in zip(nets, want):  # one network (Model.simulate), and its sensitivities kernel
         np.testing.assert_allclose(NORM.y(n.simulate(u, y[:2])), w, rtol=0, atol=1e-11)
         du, cy, a, lags, lin_y, lin_u = parts(n, NORM.u(u[:, None]))
-        got, _ = free_run_sensitivities(du, cy, a, lags, n.weights, lin_y, lin_u, NORM.y(y)[:2], 2)
+        got, _ = free_run_sensitivities(du, cy, a, lags, n.weights, lin_y, lin_u, NORM.y(y)[:2], 2, np.zeros((400, 0)), 0)
         np.testing.assert_allclose(got, w, rtol=0, atol=1e-11)
     # several networks sharing their regressors advance together (the final choice's batched free runs)
     both = free_run(nets[0].regressors, np.stack([n.centres for n in nets]), np.stack([n.widths for n in nets]),
@@ -147,7 +153,8 @@ def test_an_ensemble_is_refined_jointly_on_the_mean_of_its_free_runs() -> None:
     for old, new in zip(members_of(ens), members_of(out)):
         assert new.regressors == old.regressors and not np.array_equal(new.weights, old.weights)
         np.testing.assert_array_equal(new.centres, old.centres)
-    np.testing.assert_array_equal(out.members[1].linear, ens.members[1].linear)  # a linear part is kept
+    assert out.members[0].linear is None  # a linear part is refined with the weights; none is added
+    assert out.members[1].linear is not None and not np.array_equal(out.members[1].linear, ens.members[1].linear)
     assert Model.from_json(out.to_json()).simulate(u, y[:2]).tolist() == out.simulate(u, y[:2]).tolist()
 
 

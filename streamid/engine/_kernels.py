@@ -9,8 +9,8 @@ them from ``__pycache__``).
 
 * :func:`recursion`: the free runs of :func:`streamid.engine.freerun.free_run` (C networks sharing
   their regressors), after numpy has computed every step's input terms at once.
-* :func:`free_run_sensitivities`: one network's free run and ``d yhat(t) / d w`` along it, for the
-  output-error refinement (:mod:`streamid.engine.refine`, which prepares its arguments).
+* :func:`free_run_sensitivities`: one network's free run and its derivatives by the output weights (and a
+  linear part's coefficients) along it, for the output-error refinement (:mod:`streamid.engine.refine`, which prepares its arguments).
 
 The arithmetic is the free run's: ``yhat(t) = lin_u(t) + sum_k lin_y_k yhat(t - lag_k) +
 sum_m w_m exp(-(du(t, m) + a_m sum_k (yhat(t - lag_k) - cy_mk)^2))``, ``du`` the input regressors'
@@ -60,18 +60,24 @@ def recursion(ndu: F64, cy: F64, a: F64, lags: NDArray[np.int64], W: F64, lin_y:
 
 @njit(cache=True, nogil=True)
 def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w: F64, lin_y: F64, lin_u: F64, y0: F64,
-                           L: int) -> tuple[F64, F64]:
-    """The network's free run (n,) with weights ``w`` (M,) from ``y0`` (L,), and ``d yhat(t) / d w`` (n, M) along it.
+                           L: int, xu: F64, ny: int) -> tuple[F64, F64]:
+    """The network's free run (n,) with weights ``w`` (M,) from ``y0`` (L,), and its derivatives along it.
 
-    ``s(t) = phi(t) + sum_k g_k(t) s(t - lag_k)``, zero before ``L`` (measured outputs), with
-    ``g_k(t) = lin_y_k - sum_m 2 a_m w_m phi_m(t) (yhat(t - lag_k) - cy_mk)``: the derivative of
-    step ``t``'s output by its fed-back outputs.
+    The derivatives ``S`` (n, M + ny + q) are by the weights ``w``, then (``ny`` = ky) by the linear
+    part's output coefficients ``lin_y``, then by the coefficients of the columns ``xu`` (n, q) of which
+    ``lin_u`` is made (a linear part's input regressors and its constant; q = 0 and ny = 0 to
+    differentiate by the weights only). Each column follows ``s(t) = x(t) + sum_k g_k(t) s(t - lag_k)``,
+    zero before ``L`` (measured outputs), where ``x(t)`` is the parameter's own term at step ``t``
+    (``phi_m(t)``, ``yhat(t - lag_k)`` or ``xu(t, j)``) and ``g_k(t) = lin_y_k - sum_m 2 a_m w_m phi_m(t)
+    (yhat(t - lag_k) - cy_mk)`` the derivative of step ``t``'s output by its fed-back outputs.
     """
     n, M = du.shape
     ky = lags.shape[0]
+    q = xu.shape[1]
+    P = M + ny + q
     Y = np.empty(n)
-    S = np.zeros((n, M))
-    phi = np.empty(M)
+    S = np.zeros((n, P))
+    x = np.empty(P)
     g = np.empty(ky)
     for t in range(L):
         Y[t] = y0[t]
@@ -85,14 +91,18 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
             for k in range(ky):
                 d = Y[t - lags[k]] - cy[m, k]
                 s += d * d
-            phi[m] = np.exp(-(du[t, m] + a[m] * s))
-            acc += w[m] * phi[m]
-            f = 2.0 * a[m] * w[m] * phi[m]
+            x[m] = np.exp(-(du[t, m] + a[m] * s))
+            acc += w[m] * x[m]
+            f = 2.0 * a[m] * w[m] * x[m]
             for k in range(ky):
                 g[k] -= f * (Y[t - lags[k]] - cy[m, k])
         Y[t] = acc
-        for m in range(M):
-            v = phi[m]
+        for k in range(ny):
+            x[M + k] = Y[t - lags[k]]
+        for j in range(q):
+            x[M + ny + j] = xu[t, j]
+        for m in range(P):
+            v = x[m]
             for k in range(ky):  # rows before L are zero
                 v += g[k] * S[t - lags[k], m]
             S[t, m] = v
@@ -109,4 +119,4 @@ def warm_up() -> None:
     recursion(ndu, cy, a, np.ones(1, dtype=np.int64), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((3, 1)),
               np.zeros((3, 1)), 1)
     free_run_sensitivities(np.zeros((3, 1)), np.zeros((1, 1)), np.ones(1), np.ones(1, dtype=np.int64), np.zeros(1),
-                           np.zeros(1), np.zeros(3), np.zeros(3), 1)
+                           np.zeros(1), np.zeros(3), np.zeros(3), 1, np.zeros((3, 0)), 0)

@@ -7,8 +7,8 @@ the chosen model's output weights to the free run itself: Levenberg-Marquardt on
     J(w) = sum_t (y(t) - yhat_sim(t; w))^2        (the estimation record, after the first L samples)
 
 where ``yhat_sim`` is the model's free run (for an ensemble, the mean of its members' free runs,
-every member's weights refined together). Centres, widths, lags, the normalisation and a linear
-part are kept. It is the classical output-error (simulation-error) fit of a model structure found
+every member's weights refined together), and with them a linear part's coefficients and constant
+(an output-error fit of the whole output layer). Centres, widths, lags and the normalisation are kept. It is the classical output-error (simulation-error) fit of a model structure found
 by a one-step-ahead method (Ljung, *System Identification*, 2nd ed., sections 4.2 and 10.1: the
 output-error predictor).
 
@@ -104,12 +104,43 @@ def parts(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[Any], ...]:
     return du, np.ascontiguousarray(model.centres[:, yj]), a, lags, lin_y, lin_u
 
 
+def _linear_columns(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[int], list[int]]:
+    """``(xu, yj, uj)``: the columns (n, q) whose coefficients make a linear part's input terms (its input
+    regressors in order, then ones for the constant), and the regressor indices of its output and input terms."""
+    n = un.shape[0]
+    yj = [j for j, reg in enumerate(model.regressors) if reg.signal == "y"]
+    uj = [j for j, reg in enumerate(model.regressors) if reg.signal != "y"]
+    xu = np.ones((n, len(uj) + 1))
+    for c, j in enumerate(uj):
+        reg = model.regressors[j]
+        xu[: reg.lag, c] = 0.0
+        xu[reg.lag :, c] = un[: n - reg.lag, reg.index]
+    return xu, yj, uj
+
+
 def sensitivities(model: Model, un: NDArray[np.float64], y0: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``d yhat(t) / d weights`` (n, M) of one network's free run on the normalised inputs ``un`` from the
-    normalised initial outputs ``y0`` (its first ``max_lag`` are used); rows before ``max_lag`` are zero."""
+    """``d yhat(t) / d theta`` of one network's free run on the normalised inputs ``un`` from the normalised
+    initial outputs ``y0`` (its first ``max_lag`` are used); rows before ``max_lag`` are zero. ``theta`` is
+    the weights (n, M), then, with a linear part, its coefficients in the model's order and its constant
+    (n, M + k + 1)."""
     du, cy, a, lags, lin_y, lin_u = parts(model, un)
-    return np.asarray(free_run_sensitivities(du, cy, a, lags, np.array(model.weights), lin_y, lin_u, y0,
-                                             model.max_lag)[1])
+    if model.linear is None:
+        return np.asarray(free_run_sensitivities(du, cy, a, lags, np.array(model.weights), lin_y, lin_u, y0,
+                                                 model.max_lag, np.zeros((un.shape[0], 0)), 0)[1])
+    xu, yj, uj = _linear_columns(model, un)
+    S = free_run_sensitivities(du, cy, a, lags, np.array(model.weights), lin_y, lin_u, y0, model.max_lag, xu,
+                               len(yj))[1]
+    return np.asarray(S[:, _model_order(model.neurons, yj, uj)])
+
+
+def _model_order(M: int, yj: list[int], uj: list[int]) -> NDArray[np.intp]:
+    """The kernel's columns (weights, output terms, input terms, constant) in the model's order (weights, then
+    the linear part's coefficients by regressor, then its constant)."""
+    k = len(yj) + len(uj)
+    where = np.empty(k, dtype=np.intp)
+    where[yj] = M + np.arange(len(yj))
+    where[uj] = M + len(yj) + np.arange(len(uj))
+    return np.concatenate([np.arange(M), where, [M + k]]).astype(np.intp)
 
 
 def refine_weights(
@@ -143,17 +174,31 @@ def refine_weights(
     un, yn = norm.u(u), norm.y(y)
     L = max(m.max_lag for m in nets)
     lo, hi = float(np.min(y)), float(np.max(y))
-    K, sizes = len(nets), [m.neurons for m in nets]
-    W = [m.weights.copy() for m in nets]
+    K = len(nets)
+    W = [m.weights.copy() if m.linear is None else np.concatenate([m.weights, m.linear]) for m in nets]
+    sizes = [w.size for w in W]
     P = [parts(m, un) for m in nets]
+    lin = [None if m.linear is None else _linear_columns(m, un) for m in nets]
+    orders = [None if li is None else _model_order(m.neurons, li[1], li[2]) for m, li in zip(nets, lin)]
+    none = np.zeros((un.shape[0], 0))
     offs = np.cumsum([0, *sizes])
 
+    def one(i: int, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Network ``i``'s free run with parameters ``theta`` (weights, then a linear part) and its derivatives."""
+        du, cy, a, lags, lin_y, lin_u = P[i]
+        M, li = nets[i].neurons, lin[i]
+        if li is None:
+            return free_run_sensitivities(du, cy, a, lags, theta, lin_y, lin_u, yn, nets[i].max_lag, none, 0)
+        xu, yj, uj = li
+        c = theta[M:]
+        Y, S = free_run_sensitivities(du, cy, a, lags, theta[:M], np.ascontiguousarray(c[yj]),
+                                      xu @ np.append(c[uj], c[-1]), yn, nets[i].max_lag, xu, len(yj))
+        return Y, S[:, orders[i]]
+
     def runs(ws: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The mean free run with weights ``ws`` and the Jacobian of that mean by all weights (rows L:)."""
-        outs = []
+        """The mean free run with parameters ``ws`` and the Jacobian of that mean by all of them (rows L:)."""
         with np.errstate(over="ignore", invalid="ignore"):
-            for i, (du, cy, a, lags, lin_y, lin_u) in enumerate(P):
-                outs.append(free_run_sensitivities(du, cy, a, lags, ws[i], lin_y, lin_u, yn, nets[i].max_lag))
+            outs = [one(i, w) for i, w in enumerate(ws)]
             return np.mean([o[0] for o in outs], axis=0), np.concatenate([o[1][L:] for o in outs], axis=1) / K
 
     mean, J = runs(W)
@@ -169,7 +214,8 @@ def refine_weights(
     eye = np.eye(w0.size)
 
     def objective(mean_run: NDArray[np.float64], w: NDArray[np.float64]) -> float:
-        return float(np.sum((yn[L:] - mean_run[L:]) ** 2) + rho * np.sum((w - w0) ** 2))
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial's free run: inf, refused below
+            return float(np.sum((yn[L:] - mean_run[L:]) ** 2) + rho * np.sum((w - w0) ** 2))
 
     cost = cost0 = objective(mean, w0)
     lam, trials = DAMPING[0], 0
@@ -202,9 +248,9 @@ def refine_weights(
         ev["reason"] = "no step lowered the free-run error"
         return model, ev
     if isinstance(model, EnsembleModel):
-        refined: Model = replace(model, members=tuple(replace(m, weights=w) for m, w in zip(nets, W)))
+        refined: Model = replace(model, members=tuple(_with(m, w) for m, w in zip(nets, W)))
     else:
-        refined = replace(model, weights=W[0])
+        refined = _with(model, W[0])
     after, excursion = path_score(norm.y_inverse(mean), y, L, L, lo, hi, range_margin)
     ev.update(r2_fr_est_after=float(after) if np.isfinite(after) else None, excursion_spans=float(excursion))
     if not after > score:
@@ -213,3 +259,9 @@ def refine_weights(
     osa = refined.predict_osa(u, y)
     ev.update(taken=True, osa_mse_est=float(np.mean((osa[L:] - y[L:]) ** 2)))
     return refined, ev
+
+
+def _with(model: Model, theta: NDArray[np.float64]) -> Model:
+    """``model`` with the parameters ``theta`` (its weights, then its linear part's coefficients if it has one)."""
+    M = model.neurons
+    return replace(model, weights=theta[:M].copy(), linear=None if model.linear is None else theta[M:].copy())

@@ -253,13 +253,15 @@ def _ensemble(
 ) -> tuple[Model | None, float]:
     """The mean of the ``size`` best admissible candidates sharing candidate ``k``'s regressors, as one network.
 
-    Networks with the same regressors and normalisation average into one RBF network:
-    their neurons side by side, each weight divided by the number of members. It is
+    Networks with the same regressors and normalisation, of one kind (all with a linear part or all
+    without), average into one RBF network: their neurons side by side, each weight (and the linear
+    parts' coefficients) divided by the number of members. It is
     scored like any candidate (free run over the estimation record, range guard).
     """
     base = cands[k]
     same = [i for i in np.argsort(scores)[::-1] if np.isfinite(scores[i])
-            and cands[i].regressors == base.regressors and cands[i].normalisation == base.normalisation][:size]
+            and cands[i].regressors == base.regressors and cands[i].normalisation == base.normalisation
+            and (cands[i].linear is None) == (base.linear is None)][:size]  # of one kind: with a linear part or not
     if len(same) < 2:
         return None, -np.inf
     ens = replace(

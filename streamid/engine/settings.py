@@ -462,9 +462,12 @@ class CoEAConfig:
         Each input's direct term ``u(t)`` is a candidate when a likelihood-ratio test on the estimation data
         finds the output responds within the sample (``feedthrough_test``).
 
+        Every run's candidates are offered with a direct linear part and without it (``linear_terms``, the same
+        centres and widths from the RBF-only search, ``linear_search=False``), the kind chosen by AIC.
         Then (``complexity="aic"``, ``prune_runs=2``, ``run_ensembles``, ``refine_iterations=10``) the size by
         AIC on the estimation free run with the two best runs' pruned networks competing, the means of the best
-        runs' networks competing by the same AIC, and the kept model's weights fitted to its free run.
+        runs' networks competing by the same AIC, and the kept model's weights (and linear part) fitted to its
+        free run.
 
         What drove each default (``streamid bench --suite``, 5 seeds, validation free-run R^2 median / min;
         the full record: docs/engine-results.md, rounds 1-8): ``require_input`` (robot arm -577 -> 0.21 on
@@ -482,8 +485,12 @@ class CoEAConfig:
         -0.124 / 0.277 -> 0.675 / 0.039 / 0.343; eight runs everywhere cost Bouc-Wen 0.9938 / 0.9921 -> 0.9927 /
         0.9902 and doubled its time); the direct terms by test (heat exchanger 0.650 / 0.638 -> 0.943 / 0.936, MR
         damper ten seeds 0.9847 / 0.9821, F-16 accel1 / 2 0.711 / 0.352 -> 0.765 / 0.407 median; accel3 0.472 ->
-        0.422; offered to every record, Bouc-Wen's seed 2 fell to -3.4, hence the test). Measured and not defaults: ``linear_terms`` (robot arm 0.997 -> 0.31 or the MR damper's
-        0.968), ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
+        0.422; offered to every record, Bouc-Wen's seed 2 fell to -3.4, hence the test); the linear part offered
+        beside the RBF-only candidates and refined with the weights (round 11: heat exchanger 0.943 / 0.936 ->
+        0.960 / 0.942, CSTR Ca / T medians 0.999848 / 0.999914 -> 0.999889 / 0.999919, F-16 medians up, accel3 worst
+        seed 0.280 -> 0.335; cost: accel2 worst seed 0.323 -> 0.196, Bouc-Wen 0.9938 / 0.9921 -> 0.9940 / 0.9867;
+        searched with the linear part, ``linear_search``, the F-16 accel3 median fell to 0.30 and the ball and
+        beam's free runs diverged). Measured and not defaults: ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
         (Bouc-Wen's worst seed 0.982 -> 0.958, +50 % time).
         """
         base = {
@@ -508,6 +515,8 @@ class CoEAConfig:
             "feedthrough_test": True,
             "run_ensembles": True,
             "refine_iterations": 10,
+            "linear_terms": True,
+            "linear_search": False,
         }
         return cls(**{**base, **changes})
 
