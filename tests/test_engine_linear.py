@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -126,3 +129,27 @@ def test_linear_terms_fit_a_near_linear_system_and_refit_keeps_them() -> None:
     assert again.linear is not None
     # the same fit up to the rows used (the run fits from its candidate lag space's maximum, refit_weights from the model's)
     np.testing.assert_allclose(again.linear, lin.linear, rtol=1e-3, atol=1e-3)
+
+
+def test_identify_cli_offers_the_linear_part_by_default_reports_it_and_obeys_no_linear(tmp_path: Path) -> None:
+    assert DEFAULT.linear_terms is True and DEFAULT.linear_search is False  # the default since round 11
+    u, y = _arx(900, 1)  # a linear plant: the kind with the linear part wins by AIC
+    data = tmp_path / "arx.csv"
+    np.savetxt(data, np.column_stack([u, y]), delimiter=",", header="volt,pos", comments="", fmt="%.17g")
+    mod = tmp_path / "m.json"
+    args = [sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos", "--generations",
+            "5", "--lag-search-generations", "5", "--restarts", "2", "--more-restarts", "0", "--no-ensembles",
+            "--workers", "1", "--progress", "never", "--model", str(mod)]
+    p = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    m = Model.load(mod)
+    assert m.linear is not None and m.config["linear_terms"] is True
+    assert ("direct linear part a'r + b: kept (every candidate was offered with and without one, the kind chosen by "
+            "aic)") in p.stdout
+    off = subprocess.run(args + ["--no-linear"], capture_output=True, text=True, timeout=120)
+    assert off.returncode == 0, off.stderr
+    m = Model.load(mod)
+    assert m.linear is None and m.config["linear_terms"] is False and "direct linear part" not in off.stdout
+    bad = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos",
+                          "--paper", "--linear"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "--linear offers networks with a direct linear part; --paper keeps" in bad.stderr

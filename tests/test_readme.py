@@ -150,6 +150,10 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     assert re.fullmatch(r"direct terms u\(t\) are (not )?candidates: .+ \(likelihood ratio of u\(t\) in a linear ARX model "
                         r"of order \d+: velocity_cm_s [0-9.]+; threshold 10\.83\)", direct)
     assert "direct terms" in explained
+    linear = next(ln for ln in p.stdout.splitlines() if ln.startswith("direct linear part a'r + b: "))
+    assert re.fullmatch(r"direct linear part a'r \+ b: (not )?kept \(every candidate was offered with and without one, "
+                        r"the kind chosen by aic\)", linear)
+    assert "direct linear part" in explained and linear in section  # the README shows the real line and explains it
     assert (work / "mr_damper.json").is_file()
     q = subprocess.run([sys.executable, "-c", _block_after("## 1. Your own data file")], cwd=work,
                        capture_output=True, text=True, timeout=60)

@@ -109,6 +109,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--ensembles", action=argparse.BooleanOptionalAction, default=None,
                    help="the means of the best 2, 3 and all admissible restarts' networks compete in the final choice "
                         f"by the same criterion (default {'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
+    p.add_argument("--linear", action=argparse.BooleanOptionalAction, default=None,
+                   help="every candidate network is also offered with a direct linear part a'r + b over its regressors, "
+                        "the kind chosen by the same criterion (default "
+                        f"{'on' if DEFAULT.linear_terms else 'off'}; never with --paper)")
     p.add_argument("--refine", type=int, metavar="N",
                    help="at most N iterations fitting the kept model's weights to its free run on the estimation data, "
                         f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}; "
@@ -163,6 +167,11 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
             raise ConfigError("--ensembles averages several restarts' networks; --paper makes one run chosen by fitness "
                               "(drop one of the two)")
         changes["run_ensembles"] = bool(args.ensembles)
+    if args.linear is not None:
+        if args.paper and args.linear:
+            raise ConfigError("--linear offers networks with a direct linear part; --paper keeps the paper's RBF "
+                              "network (drop one of the two)")
+        changes["linear_terms"] = bool(args.linear)
     if args.refine is not None:
         if args.paper and args.refine:
             raise ConfigError(f"--refine fits the weights to the free run; --paper keeps the paper's least squares "
@@ -348,6 +357,12 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
                       for c in cx["candidates"]) + "\n")
         for line in _ensemble_lines(cx):
             w(line)
+    if cfg.linear_terms and cfg.selection == "fr_est":  # both kinds offered (CoEAConfig.linear_terms)
+        nets = getattr(kept, "members", None) or (kept,)
+        with_lin = sum(m.linear is not None for m in nets)
+        w("direct linear part a'r + b: " + (
+            ("kept" if with_lin else "not kept") if len(nets) == 1 else f"in {with_lin} of the {len(nets)} networks")
+          + f" (every candidate was offered with and without one, the kind chosen by {cfg.complexity})\n")
     rf = made.get("refinement")
     if rf:  # the weights fitted to the free run (streamid.engine.refine)
         w("weights refined to the free run: " + (
