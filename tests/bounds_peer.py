@@ -68,4 +68,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from streamid.commands.main import leave
+
     main()
+    leave(0)  # as the streamid command leaves (streamid.commands.main.console_main: why)

@@ -15,6 +15,7 @@ import os
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 from importlib.metadata import entry_points
 
 from streamid import __version__
@@ -95,6 +96,13 @@ def console_main() -> None:
         rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
         if exc.code is not None and not isinstance(exc.code, int):
             print(exc.code, file=sys.stderr)
+    leave(rc)
+
+
+def leave(rc: int) -> NoReturn:
+    """Flush standard output and error and end the process with ``os._exit(rc)`` (why: :func:`console_main`).
+    For any process of streamid's that has used Zenoh and closed its sessions (the command, a test's daemon or
+    publisher process)."""
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
