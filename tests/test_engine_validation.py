@@ -27,6 +27,11 @@ def test_r2_formula() -> None:
     assert r2(y, yhat) == pytest.approx(expected)
     assert r2(y, y) == 1.0
     assert r2(y, np.full(4, y.mean())) == pytest.approx(0.0)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a diverged free run (finite, huge) scores -inf without a numpy warning
+        assert r2(y, np.array([1.0, 2.0, 3.0, 1e300])) == -np.inf
 
 
 def test_r2_errors() -> None:

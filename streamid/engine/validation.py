@@ -102,7 +102,8 @@ def r2(y: ArrayLike, yhat: ArrayLike) -> float:
     ss = float(np.sum((ya - ya.mean()) ** 2))
     if ss == 0.0:
         raise DataError(f"r2 is undefined for a constant measured signal (all values {ya[0]!r})")
-    return 1.0 - float(np.sum((ya - yh) ** 2)) / ss
+    with np.errstate(over="ignore"):  # a finite but huge prediction (a diverged free run): R^2 = -inf, said once
+        return 1.0 - float(np.sum((ya - yh) ** 2)) / ss
 
 
 def ccf(a: NDArray[np.float64], b: NDArray[np.float64], lags: NDArray[np.int64]) -> NDArray[np.float64]:
