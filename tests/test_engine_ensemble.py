@@ -297,12 +297,18 @@ def test_the_rerun_model_text_says_it_is_a_mean() -> None:
     up = identify_update_report("s", ens, rep, u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
                                 fitness_history=[1.0], generations=1, seconds=0.1)
     text = model_markdown(up)
-    assert "um(t) = mean of 3 networks on F[um(t-1,t-2) volt(t-1,t-3)] (the union of their lags)" in text
+    assert ("um(t) = mean of 3 networks on F[um(t-1,t-2) volt(t-1,t-3)] (the union of their lags); 1 of the 3 "
+            "networks with a direct linear part a'r + b") in text
     assert up.fr_val.shape == (150,) and np.allclose(up.fr_val[3:], ens.simulate(u[150:], y[150:153])[3:])
     single = identify_update_report("s", _members()[0], validate(_members()[0], u[:150], y[:150], u[150:], y[150:]),
                                     u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
                                     fitness_history=[1.0], generations=1, seconds=0.1)
-    assert "um(t) = F[um(t-1) volt(t-1)]" in model_markdown(single)
+    assert "um(t) = F[um(t-1) volt(t-1)]\n" in model_markdown(single) + "\n" and "linear" not in model_markdown(single)
+    lin = _members()[2]
+    one = identify_update_report("s", lin, validate(lin, u[:150], y[:150], u[150:], y[150:]), u_val=u[150:],
+                                 y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000), fitness_history=[1.0],
+                                 generations=1, seconds=0.1)
+    assert "um(t) = F[um(t-1) volt(t-1,t-3)] + a direct linear part a'r + b" in model_markdown(one)
 
 
 def test_an_ensemble_model_record_round_trips_through_an_mcap_log(tmp_path: Path) -> None:

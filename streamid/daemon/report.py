@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from streamid.engine.ensemble import members_of
 from streamid.online import Update
 from streamid.viz.reports import UpdateReport, first_input_tests
 
@@ -19,7 +20,7 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
     n_val = len(out.y_val)
     val_t0 = window.t0_ns + (window.n - n_val) * window.period_ns
     lags = out.model.lags if out.model is not None else {}
-    networks = len(getattr(out.model, "members", ())) or 1  # an ensemble (streamid.model/3) is drawn as the mean of its networks
+    nets = members_of(out.model) if out.model is not None else ()  # an ensemble (streamid.model/3): the mean of its networks
     return UpdateReport(
         stream=stream,
         version=version,
@@ -45,6 +46,7 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         note=up.reason if up.decision is not None or not up.accepted else "",
         input_names=tuple(out.input_names),
         champion_r2_fr=(out.champion_metrics or {}).get("r2_fr_val") if not up.accepted else None,
-        networks=networks,
+        networks=len(nets) or 1,
+        linear_parts=sum(m.linear is not None for m in nets),
     )
 

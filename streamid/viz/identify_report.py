@@ -93,6 +93,7 @@ def identify_update_report(
         note=note,
         input_names=tuple(model.input_names),
         networks=len(members_of(model)),
+        linear_parts=sum(m.linear is not None for m in members_of(model)),
     )
 
 

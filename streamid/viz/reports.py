@@ -176,6 +176,7 @@ class UpdateReport:
     input_names: tuple[str, ...] = field(default=())
     champion_r2_fr: float | None = None  # a rejected challenger's champion, re-validated on the same held-out data
     networks: int = 1  # > 1: the model is the mean of this many networks (streamid.model/3); ``lags`` is their union
+    linear_parts: int = 0  # how many of its networks have a direct linear part a'r + b (CoEAConfig.linear_terms)
 
 
 def fmt_metric(v: float | None) -> str:
@@ -204,11 +205,20 @@ def model_markdown(r: UpdateReport) -> str:
         "",
         f"model: {r.output_name}(t) = " + (f"mean of {r.networks} networks on " if r.networks > 1 else "")
         + f"F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]"
-        + (" (the union of their lags)" if r.networks > 1 else ""),
+        + (" (the union of their lags)" if r.networks > 1 else "") + _linear_text(r),
     ]
     if verdicts:
         lines += ["", "correlation tests (validation residual):", *verdicts]
     return "\n".join(lines)
+
+
+def _linear_text(r: UpdateReport) -> str:
+    """What the model text adds for direct linear parts: nothing without one."""
+    if not r.linear_parts:
+        return ""
+    if r.networks == 1:
+        return " + a direct linear part a'r + b"
+    return f"; {r.linear_parts} of the {r.networks} networks with a direct linear part a'r + b"
 
 
 def first_input_tests(tests: tuple[CorrelationTest, ...]) -> tuple[CorrelationTest, ...]:
