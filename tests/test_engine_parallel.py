@@ -124,6 +124,33 @@ def test_identify_with_a_helper_gives_the_same_model(helper, data):
     assert a.model.to_json() == b.model.to_json()
 
 
+def test_the_defaults_with_a_helper_give_the_same_model(helper, data):
+    """With a helper the candidates' fits, free runs and the refinement also use threads: the same model."""
+    from streamid.engine import DEFAULT
+
+    ue, ye = data
+    cfg = DEFAULT.replace(generations=15, lag_search_generations=15, max_lag_cap=0, max_lag_y=4, max_lag_u=4)
+    a = identify(ue, ye, cfg, 2)
+    b = identify(ue, ye, cfg, 2, helper=helper)
+    assert a.model.to_json() == b.model.to_json() and a.model.metrics["refinement"] == b.model.metrics["refinement"]
+
+
+def test_free_runs_in_threads_are_the_same_to_the_bit():
+    from streamid.engine.fanout import thread_map
+    from streamid.engine.freerun import free_run
+    from streamid.engine.regressors import Regressor
+
+    rng = np.random.default_rng(0)
+    regs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 1), Regressor("u", 1, 2))
+    C, M = 5, 6
+    args = (regs, rng.uniform(-1, 1, (C, M, 4)), rng.uniform(0.5, 1.5, (C, M)), rng.normal(0, 0.3, (C, M)),
+            rng.uniform(-1, 1, (200, 2)), rng.uniform(-1, 1, (C, 2)), rng.normal(0, 0.1, (C, 5)))
+    one = free_run(*args)
+    for threads in (2, 3, 8):
+        assert np.array_equal(free_run(*args, threads=threads), one)
+    assert thread_map(lambda x: x * x, list(range(7)), 3) == [x * x for x in range(7)]  # in the items' order
+
+
 def test_close_ends_the_process_and_removes_its_files():
     h = EvalHelper()
     ue, ye, _, _ = reactor_data(1, 200, 10)

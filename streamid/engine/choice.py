@@ -41,9 +41,11 @@ from streamid.errors import DataError, ModelFormatError
 __all__ = ["FreeRunScores", "blocked_cv_scores", "free_run_scores", "group_free_run", "path_score"]
 
 
-def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[np.float64]) -> NDArray[np.float64]:
+def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[np.float64],
+                   threads: int = 1) -> NDArray[np.float64]:
     """Free runs (normalised units, one row per model) of models sharing their regressors and normalisation,
-    simulated together from the same measured initial outputs ``y_init`` (``max_lag`` of them).
+    simulated together from the same measured initial outputs ``y_init`` (``max_lag`` of them); ``threads``:
+    :func:`~streamid.engine.freerun.free_run`'s (the same result).
     Ensembles are refused (their members have their own regressors: use ``model.simulate``)."""
     if any(isinstance(m, EnsembleModel) for m in models):
         raise ModelFormatError("group_free_run simulates single networks sharing their regressors; got an ensemble "
@@ -58,6 +60,7 @@ def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[
         m0.normalisation.u(u),
         np.broadcast_to(m0.normalisation.y(y_init[:L]), (len(models), L)),
         _linear_parts(models),
+        threads=threads,
     )
 
 
@@ -111,10 +114,12 @@ def free_run_scores(
     *,
     score_from: int | None = None,
     range_margin: float = 0.25,
+    threads: int = 1,
 ) -> FreeRunScores:
     """Free-run scores and range guard of ``models`` on ``(u, y)`` (``u`` of shape (N, n_inputs)).
 
-    Models sharing regressors and normalisation are simulated together (one recursion).
+    Models sharing regressors and normalisation are simulated together (one recursion; in ``threads``
+    groups at once, the same result).
     """
     if not models:
         raise DataError("no candidate models to choose from")
@@ -139,7 +144,7 @@ def free_run_scores(
             if isinstance(m0, EnsembleModel):  # each member on its own past outputs, averaged
                 ys = m0.simulate(u, y[:L])[None]
             else:
-                ys = m0.normalisation.y_inverse(group_free_run([models[i] for i in idx], u, y[:L]))
+                ys = m0.normalisation.y_inverse(group_free_run([models[i] for i in idx], u, y[:L], threads))
         drives = all(any(r.signal == "u" for r in mm.regressors) for mm in members_of(m0))
         for k, i in enumerate(idx):
             if not np.all(np.isfinite(ys[k, L:])):

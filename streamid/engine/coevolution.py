@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine import de, harmony
 from streamid.engine._blas import one_blas_thread
+from streamid.engine.fanout import thread_map
 from streamid.engine.settings import CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
@@ -421,11 +422,12 @@ class Coevolution:
             return self._fitted(cols, x, phi, R[:, cols], target)
 
     def models_for(self, mask: NDArray[np.bool_], xs: list[NDArray[np.float64]], *,
-                   search_rows: bool = False, both: bool = False) -> list[Model]:
+                   search_rows: bool = False, both: bool = False, threads: int = 1) -> list[Model]:
         """:meth:`model_for` of several parameter vectors with one mask, their activations computed
         together as the search computes them (:func:`~streamid.engine.rbf.activations_batch`).
         ``both`` (with ``linear_terms``): each vector's model with its linear part, then (after all
-        of those, in the same order) the same centres and widths without one, weights refitted."""
+        of those, in the same order) the same centres and widths without one, weights refitted. ``threads``:
+        the least squares in that many threads (the same models)."""
         if not xs:
             return []
         M, D = self.config.neurons, self.D
@@ -435,10 +437,9 @@ class Coevolution:
         with one_blas_thread():
             rs = np.ascontiguousarray(R[:, cols])
             phis = activations_batch(rs, X[:, : M * D].reshape(-1, M, D)[:, :, cols], X[:, M * D :])
-            out = [self._fitted(cols, x, phi.T, rs, target) for x, phi in zip(xs, phis)]
-            if both and self.config.linear_terms:
-                out += [self._fitted(cols, x, phi.T, rs, target, linear=False) for x, phi in zip(xs, phis)]
-            return out
+            kinds = (None, False) if both and self.config.linear_terms else (None,)
+            jobs = [(kind, x, phi) for kind in kinds for x, phi in zip(xs, phis)]
+            return thread_map(lambda j: self._fitted(cols, j[1], j[2].T, rs, target, linear=j[0]), jobs, threads)
 
     def _fit_rows(self, search_rows: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if search_rows and self._rows is not None:
@@ -486,7 +487,7 @@ class Coevolution:
         return [(self.best_h, self.best_x), *((self.H[b], self.X[i]) for i in self._members(limit))]
 
     def population_models(self, limit: int | None = None, *, search_rows: bool = False,
-                          both: bool = False) -> list[Model]:
+                          both: bool = False, threads: int = 1) -> list[Model]:
         """Models of every parameter vector paired with the best harmony, weights refitted
         (:meth:`models_for`: activations computed together).
 
@@ -496,9 +497,9 @@ class Coevolution:
         """
         b = int(np.argmin(self.fh))
         return self.models_for(self.H[b], [self.X[i] for i in self._members(limit)], search_rows=search_rows,
-                               both=both)
+                               both=both, threads=threads)
 
-    def candidate_models(self, limit: int | None = None, *, both: bool = False) -> list[Model]:
+    def candidate_models(self, limit: int | None = None, *, both: bool = False, threads: int = 1) -> list[Model]:
         """The best pair's model, then :meth:`population_models` without a member that is the best pair
         itself (same harmony and parameters: DE keeps the best trial, so a second stage's best pair is a
         member); fitted together when they share the harmony (the usual case). ``both`` (with
@@ -508,12 +509,12 @@ class Coevolution:
         b = int(np.argmin(self.fh))
         if not np.array_equal(self.H[b], self.best_h):
             if not (both and self.config.linear_terms):
-                return [self.best_model(), *self.population_models(limit)]
+                return [self.best_model(), *self.population_models(limit, threads=threads)]
             first = self.models_for(self.best_h, [self.best_x], both=True)
-            rest = self.population_models(limit, both=True)
+            rest = self.population_models(limit, both=True, threads=threads)
             return [first[0], *rest[: len(rest) // 2], first[1], *rest[len(rest) // 2 :]]
         xs = [self.X[i] for i in self._members(limit) if not np.array_equal(self.X[i], self.best_x)]
-        return self.models_for(self.best_h, [self.best_x, *xs], both=both)
+        return self.models_for(self.best_h, [self.best_x, *xs], both=both, threads=threads)
 
     def best_model(self) -> Model:
         """Model of the best pair ever evaluated, weights refitted (see :func:`~streamid.engine.rbf.fit_weights`)."""

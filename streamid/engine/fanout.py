@@ -1,4 +1,4 @@
-"""``fan_out``: run independent jobs here or in spawned worker processes, results in job order.
+"""``fan_out``: run independent jobs here or in spawned worker processes, results in job order; ``thread_map`` in threads.
 
 The one place the engine (``identify``'s restarts) and the ``streamid identify``
 command (its ``--runs``) hand work to other processes. Workers are spawned,
@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import multiprocessing
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
 
 from streamid.engine.parallel import EvalHelper
 
-__all__ = ["fan_out"]
+__all__ = ["fan_out", "thread_map"]
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -81,3 +81,14 @@ def fan_out(
         if own:
             ex.shutdown(wait=True, cancel_futures=True)
     return results
+
+
+def thread_map(fn: Callable[[J], R], items: Sequence[J], threads: int) -> list[R]:
+    """``fn`` applied to every item, in order: in this thread when ``threads <= 1`` or there is one item,
+    else in a pool of ``min(threads, len(items))`` threads made for the call. For numerics that release
+    the GIL (LAPACK, the compiled free runs) on a core the caller knows to be free (an
+    :class:`~streamid.engine.parallel.EvalHelper`'s, idle between search batches)."""
+    if threads <= 1 or len(items) <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max_workers=min(threads, len(items))) as ex:
+        return list(ex.map(fn, items))

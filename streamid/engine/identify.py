@@ -187,7 +187,10 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     else:
         run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
     evaluations += run.evaluations
-    model, score, path = select_model_path(run, u, y, cfg.selection, n_search=n_search)
+    # With a helper the second core is ours, and idle between search batches: the candidates' fits and free
+    # runs use it too (the same result).
+    model, score, path = select_model_path(run, u, y, cfg.selection, n_search=n_search,
+                                           threads=2 if helper is not None else 1)
     return {
         "seed": job["seed"],
         # A run made in this process hands back its objects; a worker's go back as JSON.
@@ -409,7 +412,8 @@ def identify(
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
-        final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, cfg.refine_above, cfg.range_margin)
+        final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, cfg.refine_above, cfg.range_margin,
+                                        threads=2 if helper is not None else 1)
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = final.with_metrics(
         restarts=len(outs),

@@ -57,6 +57,7 @@ from numpy.typing import NDArray
 from streamid.engine._kernels import free_run_sensitivities
 from streamid.engine.choice import path_score
 from streamid.engine.ensemble import EnsembleModel, members_of
+from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
 
 __all__ = ["DAMPING", "RIDGE", "parts", "refine_weights", "sensitivities"]
@@ -145,6 +146,7 @@ def _model_order(M: int, yj: list[int], uj: list[int]) -> NDArray[np.intp]:
 
 def refine_weights(
     model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float, range_margin: float,
+    threads: int = 1,
 ) -> tuple[Model, dict[str, Any]]:
     """``model`` with its output weights refined to its free run on ``(u, y)`` (the rule above).
 
@@ -160,6 +162,8 @@ def refine_weights(
         The gate: refine only when the model's free-run R^2 on ``(u, y)`` is at least ``above``.
     range_margin : float
         The range guard's margin (``CoEAConfig.range_margin``).
+    threads : int
+        An ensemble's members simulated in that many threads (a caller with a core to spare; the same result).
 
     Returns
     -------
@@ -197,8 +201,13 @@ def refine_weights(
 
     def runs(ws: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The mean free run with parameters ``ws`` and the Jacobian of that mean by all of them (rows L:)."""
+
+        def member(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            with np.errstate(over="ignore", invalid="ignore"):  # (numpy's error state is each thread's own)
+                return one(i, ws[i])
+
+        outs = thread_map(member, range(K), threads)
         with np.errstate(over="ignore", invalid="ignore"):
-            outs = [one(i, w) for i, w in enumerate(ws)]
             return np.mean([o[0] for o in outs], axis=0), np.concatenate([o[1][L:] for o in outs], axis=1) / K
 
     mean, J = runs(W)

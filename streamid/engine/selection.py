@@ -125,6 +125,7 @@ def select_model_path(
     *,
     n_search: int | None = None,
     range_margin: float | None = None,
+    threads: int = 1,
 ) -> tuple[Model, float, NDArray[np.float64] | None]:
     """The model of a finished run by the selection rule, its score (higher is better) and, with
     ``"fr_est"`` or ``"cv_fr"``, its free run over the estimation record in output units when the choice made
@@ -151,7 +152,8 @@ def select_model_path(
     admissible candidates (one network of K x M neurons) competes too, by the same score.
 
     ``n_search`` defaults to all the data; ``range_margin`` to the run's
-    ``config.range_margin``. A run with no candidate in range scores below
+    ``config.range_margin``. ``threads`` > 1: the candidates are fitted and simulated in that many
+    threads (for a caller with a core to spare; the same result). A run with no candidate in range scores below
     -1e9 (any run with one wins over it); its model says ``admissible: 0``.
     """
     if selection == "fitness":
@@ -166,12 +168,12 @@ def select_model_path(
         if screened is not None:
             return screened
     both = run.config.linear_terms and selection == "fr_est"  # both kinds compete (_by_criterion)
-    cands = run.candidate_models(run.config.fr_candidates or None, both=both)  # the best pair first
+    cands = run.candidate_models(run.config.fr_candidates or None, both=both, threads=threads)  # the best pair first
     with one_blas_thread():
         if selection in ("fr_est", "cv_fr"):
-            fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin)
+            fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin, threads=threads)
         else:
-            fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin)
+            fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin, threads=threads)
         cv: list[float] | None = None
         if selection == "cv_fr" and fr.admissible:
             ok = [i for i, e in enumerate(fr.excursions) if e == 0.0]
