@@ -10,7 +10,8 @@ them from ``__pycache__``).
 * :func:`recursion`: the free runs of :func:`streamid.engine.freerun.free_run` (C networks sharing
   their regressors), after numpy has computed every step's input terms at once.
 * :func:`free_run_sensitivities`: one network's free run and its derivatives by the output weights (and a
-  linear part's coefficients) along it, for the output-error refinement (:mod:`streamid.engine.refine`, which prepares its arguments).
+  linear part's coefficients) along it, for the output-error refinement (:mod:`streamid.engine.refine`,
+  which prepares its arguments).
 
 The arithmetic is the free run's: ``yhat(t) = lin_u(t) + sum_k lin_y_k yhat(t - lag_k) +
 sum_m w_m exp(-(du(t, m) + a_m sum_k (yhat(t - lag_k) - cy_mk)^2))``, ``du`` the input regressors'

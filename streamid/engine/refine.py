@@ -8,8 +8,9 @@ the chosen model's output weights to the free run itself: Levenberg-Marquardt on
 
 where ``yhat_sim`` is the model's free run (for an ensemble, the mean of its members' free runs,
 every member's weights refined together), and with them a linear part's coefficients and constant
-(an output-error fit of the whole output layer). Centres, widths, lags and the normalisation are kept. It is the classical output-error (simulation-error) fit of a model structure found
-by a one-step-ahead method (Ljung, *System Identification*, 2nd ed., sections 4.2 and 10.1: the
+(an output-error fit of the whole output layer). Centres, widths, lags and the normalisation are
+kept. It is the classical output-error (simulation-error) fit of a model structure found by a
+one-step-ahead method (Ljung, *System Identification*, 2nd ed., sections 4.2 and 10.1: the
 output-error predictor).
 
 The sensitivities ``s(t) = d yhat_sim(t) / dw`` follow the free run's own recursion,
