@@ -139,6 +139,12 @@ def _stage(
     return lambda p: tick(Progress(gen0 + p.generation, p.generations, p.best_fitness, evals0 + p.evaluations))
 
 
+def _threads(helper: EvalHelper | None) -> int:
+    """Threads for the numerics between search batches: 2 with a helper (its core is ours, and idle while a run's
+    candidates are fitted and simulated or the kept model refined), else 1. The results are the same either way."""
+    return 2 if helper is not None else 1
+
+
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
@@ -187,10 +193,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     else:
         run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
     evaluations += run.evaluations
-    # With a helper the second core is ours, and idle between search batches: the candidates' fits and free
-    # runs use it too (the same result).
-    model, score, path = select_model_path(run, u, y, cfg.selection, n_search=n_search,
-                                           threads=2 if helper is not None else 1)
+    model, score, path = select_model_path(run, u, y, cfg.selection, n_search=n_search, threads=_threads(helper))
     return {
         "seed": job["seed"],
         # A run made in this process hands back its objects; a worker's go back as JSON.
@@ -413,7 +416,7 @@ def identify(
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
         final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, cfg.refine_above, cfg.range_margin,
-                                        threads=2 if helper is not None else 1)
+                                        threads=_threads(helper))
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = final.with_metrics(
         restarts=len(outs),
