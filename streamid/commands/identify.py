@@ -39,6 +39,7 @@ import numpy as np
 from streamid.commands.identify_io import Bar, check_rrd_target, data_help, draw_rrd, load, read_summary
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
+from streamid.engine.ensemble import members_of
 from streamid.engine.fanout import fan_out
 from streamid.engine.identify import identify
 from streamid.engine.model import Model
@@ -327,7 +328,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
     b = runs[best]
     kept = Model.from_json(b["model"])  # parsed once; its metrics hold the evidence below
-    k = len(getattr(kept, "members", ())) or 1
+    k = len(members_of(kept))
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "") + "\n")
     made = kept.metrics
@@ -358,7 +359,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         for line in _ensemble_lines(cx):
             w(line)
     if cfg.linear_terms and cfg.selection == "fr_est":  # both kinds offered (CoEAConfig.linear_terms)
-        nets = getattr(kept, "members", None) or (kept,)
+        nets = members_of(kept)
         with_lin = sum(m.linear is not None for m in nets)
         w("direct linear part a'r + b: " + (
             ("kept" if with_lin else "not kept") if len(nets) == 1 else f"in {with_lin} of the {len(nets)} networks")

@@ -62,7 +62,7 @@ def free_run(
     """
     C, M, _ = centres.shape
     if threads > 1 and C > 1:
-        parts = [p for p in np.array_split(np.arange(C), min(threads, C)) if p.size]
+        parts = np.array_split(np.arange(C), min(threads, C))  # none empty: at most C groups
 
         def part(idx: NDArray[np.intp]) -> NDArray[np.float64]:
             return free_run(regressors, centres[idx], widths[idx], weights[idx], un if un.ndim == 2 else un[idx],
