@@ -145,6 +145,7 @@ max_lag_u = 2
 population = 8
 min_r2_osa = -1e9
 min_r2_fr = -1e9
+challenger_margin = -1.0
 """
 P_NS = 5_000_000  # 200 Hz
 BATCH = 50

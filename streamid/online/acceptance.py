@@ -11,7 +11,8 @@ The rule (:func:`decide`), in order:
 2. With no champion yet, a valid challenger is accepted (``first``); also when the
    champion cannot run on the current data (its signals changed: ``champion_inapplicable``).
 3. It is accepted if its free-run R^2 beats the champion's by at least
-   ``challenger_margin`` (``better``), or if the champion itself is no longer valid on
+   ``challenger_margin`` (``better``; a margin of -1 accepts every valid challenger,
+   one model per window as in the paper, since R^2 differences are unbounded: ``every``), or if the champion itself is no longer valid on
    the current data (free-run or OSA R^2 below the floors, or not finite) and the
    challenger's free run is better at all (``champion_invalid``).
 4. Otherwise it is rejected (``not_better``) and the champion stays, its current-data
@@ -154,6 +155,10 @@ def decide(outcome: Outcome, cfg: StreamConfig, champion_version: int) -> Decisi
         return Decision(True, "champion_inapplicable",
                         f"champion v{champion_version} cannot run on the current signals", margin, champ_doc)
     c_fr, c_osa = _fig(champ, "r2_fr_val"), _fig(champ, "r2_osa_val")
+    if margin <= -1.0:
+        return Decision(True, "every", f"every valid challenger replaces the champion (challenger_margin -1): FR R² "
+                        f"{fr:.4f} against champion v{champion_version}'s {c_fr:.4f} on the same held-out data"
+                        f"{describe(outcome.model)}", margin, champ_doc)
     if fr >= c_fr + margin:
         word = "beats" if fr > c_fr else "is within the margin of"
         return Decision(True, "better", f"FR R² {fr:.4f} {word} champion v{champion_version}'s {c_fr:.4f} on the same "
