@@ -67,9 +67,14 @@ def test_real_time_20khz_replay_loses_nothing_and_keeps_time(piezo_log: Path, tm
     assert len(report.lateness_ns) == 100 and min(report.lateness_ns) >= 0
     err = report.timing_error_us()
     assert set(err) >= {"p50", "p90", "p99", "max"} and err["p50"] <= err["p99"] <= err["max"]
-    # the recorder's receive times follow the sample clock (log_time = receive time)
-    t_rec = np.array([t for _, t, _ in mcaplog.iter_log(out)])
-    assert (t_rec[-1] - t_rec[0]) / 1e9 >= 0.99 * 0.98
+    # the recorder's receive times follow the sample clock (log_time = receive time): message by message,
+    # not by the first-to-last span, which one scheduler stall of a loaded machine at the first message
+    # shortened to 0.86 s in CI (the player itself was on schedule: lateness >= 0, wall >= 0.97 s)
+    t_rec = np.array([t for _, t, _ in mcaplog.iter_log(out)], dtype=np.int64)
+    t_src = np.array([t for _, t, _ in mcaplog.iter_log(piezo_log)], dtype=np.int64)
+    assert abs(np.median(np.diff(t_rec)) / np.median(np.diff(t_src)) - 1.0) < 0.1  # paced at 10 ms, not dumped
+    dev_ms = ((t_rec - t_src) - np.median(t_rec - t_src)) / 1e6
+    assert np.mean(np.abs(dev_ms) < 20.0) >= 0.9, np.round(dev_ms, 1)
 
 
 def test_stream_remap_start_end_and_loop(tmp_path: Path) -> None:
