@@ -180,6 +180,7 @@ def identify_target(t: Target, cfg: CoEAConfig, seed: int, helper: EvalHelper | 
     return {"fr_val": fr, "seconds": seconds, "lags": res.model.lags_text(), "neurons": res.model.neurons,
             "networks": len(members_of(res.model)),  # > 1: the mean of that many runs' networks (run_ensembles)
             "refined": bool((res.model.metrics.get("refinement") or {}).get("taken")),  # weights fitted to the free run
+            "long_linear": int(((res.model.metrics.get("complexity") or {}).get("long_linear") or {}).get("order") or 0),
             "metrics": {k: v for k, v in res.model.metrics.items() if k != "fitness"}}
 
 
@@ -290,6 +291,9 @@ def bench(options: Any) -> Iterator[Any]:
             yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"refined, {label}", "",
                               tuple(float(x["refined"]) for x in r["runs"]),
                               "1: the kept model's weights fitted to its free run (CoEAConfig.refine_iterations)")
+            yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", f"long linear order, {label}",
+                              "", tuple(float(x.get("long_linear", 0)) for x in r["runs"]),
+                              "of the kept model's dense linear ARX part (0: none; CoEAConfig.long_linear)")
         if "frols" in row:
             f = row["frols"]
             yield Measurement("suite", f"{row['target']} ({row['n_est']}/{row['n_val']})", "FR R2 val, FROLS best", "",

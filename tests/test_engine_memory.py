@@ -64,7 +64,8 @@ def test_identify_reports_the_chosen_maximum_lag() -> None:
     assert m.metrics["max_lag_choice"]["max_lag"] == 30
     assert m.config is not None and m.config["max_lag_y"] == 30 and m.config["max_lag_u"] == 30
     off = identify(u, y, cfg.replace(max_lag_cap=0), 0).model
-    assert off.metrics["max_lag_choice"] is None and off.max_lag <= 10
+    # the network's lags stay in the fixed space 1..10 (a long linear part, round 12, may reach the delay of 12)
+    assert off.metrics["max_lag_choice"] is None and max(r.lag for r in off.regressors) <= 10
 
 
 def test_a_cap_below_the_floor_is_refused() -> None:

@@ -64,7 +64,9 @@ def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixt
         mine = [r for r in rows if r["case"].startswith(system)]
         assert {r["metric"] for r in mine} == {"FR R2 val, paper", "FR R2 val, default", "seconds, paper",
                                                "seconds, default", "networks, paper", "networks, default",
-                                               "refined, paper", "refined, default"}, system
+                                               "refined, paper", "refined, default", "long linear order, paper",
+                                               "long linear order, default"}, system
+        assert next(r for r in mine if r["metric"] == "long linear order, paper")["max"] == 0.0  # never with the paper's
         assert all(r["median"] >= 1 for r in mine if r["metric"].startswith("networks"))
         assert next(r for r in mine if r["metric"] == "refined, paper")["max"] == 0.0  # the paper never refines
         assert all(v in (0.0, 1.0) for r in mine if r["metric"].startswith("refined") for v in r["values"])

@@ -154,6 +154,9 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     assert re.fullmatch(r"direct linear part a'r \+ b: (not )?kept \(every candidate was offered with and without one, "
                         r"the kind chosen by aic\)", linear)
     assert "direct linear part" in explained and linear in section  # the README shows the real line and explains it
+    longlin = next(ln for ln in p.stdout.splitlines() if ln.startswith("long linear part"))
+    assert longlin == "long linear part: not tried (the networks' estimation FR R2 is at least 0.95)", longlin
+    assert "long linear part" in explained and longlin in section
     assert (work / "mr_damper.json").is_file()
     q = subprocess.run([sys.executable, "-c", _block_after("## 1. Your own data file")], cwd=work,
                        capture_output=True, text=True, timeout=60)

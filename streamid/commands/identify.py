@@ -114,6 +114,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="every candidate network is also offered with a direct linear part a'r + b over its regressors, "
                         "the kind chosen by the same criterion (default "
                         f"{'on' if DEFAULT.linear_terms else 'off'}; never with --paper)")
+    p.add_argument("--long-linear", type=int, metavar="N", dest="long_linear",
+                   help="where the networks explain the estimation record in part (free-run R2 below "
+                        f"{DEFAULT.more_below}), offer the kept network with a dense linear ARX part of order up to N, "
+                        f"the order chosen by the same criterion (default {DEFAULT.long_linear}; 0: off; never with --paper)")
     p.add_argument("--refine", type=int, metavar="N",
                    help="at most N iterations fitting the kept model's weights to its free run on the estimation data, "
                         f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}; "
@@ -125,7 +129,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON line on stdout instead of the table (as every streamid command's --json)")
     p.add_argument("--report", metavar="REPORT.json", help="also write the report as a JSON file")
-    p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (JSON: streamid.model/1, /2 with a linear part, /3 for a mean of networks)")
+    p.add_argument("--model", metavar="MODEL.json", help="write the best run's model (JSON: streamid.model/1, /2 with a linear part, /3 for a mean of networks, "
+                        "/4 with a long linear part)")
     p.add_argument("--rrd", metavar="FILE.rrd",
                    help="draw the kept model in the daemon's Rerun layout into FILE.rrd (streamid view FILE.rrd)")
     p.add_argument("--progress", choices=("auto", "always", "never"), default="auto", help="progress bar on stderr (auto: on a terminal, after a second; always: from the start); one identification moves it every generation "
@@ -173,6 +178,11 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
             raise ConfigError("--linear offers networks with a direct linear part; --paper keeps the paper's RBF "
                               "network (drop one of the two)")
         changes["linear_terms"] = bool(args.linear)
+    if args.long_linear is not None:
+        if args.paper and args.long_linear:
+            raise ConfigError(f"--long-linear offers a dense linear ARX part; --paper keeps the paper's RBF network "
+                              f"(drop one of the two); got --long-linear {args.long_linear}")
+        changes["long_linear"] = args.long_linear
     if args.refine is not None:
         if args.paper and args.refine:
             raise ConfigError(f"--refine fits the weights to the free run; --paper keeps the paper's least squares "
@@ -275,6 +285,20 @@ def _lags_text(run: dict[str, Any]) -> str:
     return Model.from_json(run["model"]).lags_text()
 
 
+def _long_linear_line(ll: dict[str, Any] | None, gate: float) -> str:
+    """The report's line on the long linear part: not tried, taken (order, evidence) or not taken."""
+    if ll is None:
+        return f"long linear part: not tried (the networks' estimation FR R2 is at least {gate:g})\n"
+    tried = ", ".join(f"{o['order']}: " + ("not admissible" if o["criterion"] is None else f"{o['r2_fr_est']:.4f}")
+                      for o in ll["orders"])
+    cw = "none" if ll["criterion_without"] is None else f"{ll['criterion_without']:.1f}"
+    head = (f"long linear part of order {ll['order']} taken (FR R2 est {ll['r2_fr_est']:.5f}, criterion "
+            f"{ll['criterion']:.1f} against {cw} without)" if ll["taken"]
+            else "long linear part not taken" + (f" ({ll['reason']})" if "reason" in ll else
+                                                 " (no order lowered the criterion)"))
+    return head + (f"; orders (FR R2 est): {tried}\n" if tried else "\n")
+
+
 def _ensemble_lines(cx: dict[str, Any]) -> list[str]:
     """The report's lines on the ensembles of the restarts' networks (``metrics.complexity.ensembles``)."""
     ens = cx.get("ensembles")
@@ -364,6 +388,9 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w("direct linear part a'r + b: " + (
             ("kept" if with_lin else "not kept") if len(nets) == 1 else f"in {with_lin} of the {len(nets)} networks")
           + f" (every candidate was offered with and without one, the kind chosen by {cfg.complexity})\n")
+    ll = (cx or {}).get("long_linear")
+    if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.longlinear)
+        w(_long_linear_line(ll, cfg.more_below))
     rf = made.get("refinement")
     if rf:  # the weights fitted to the free run (streamid.engine.refine)
         w("weights refined to the free run: " + (

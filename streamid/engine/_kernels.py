@@ -34,22 +34,25 @@ F64 = NDArray[np.float64]
 
 
 @njit(cache=True, nogil=True)
-def recursion(ndu: F64, cy: F64, a: F64, lags: NDArray[np.int64], W: F64, lin_y: F64, lin_u: F64, y: F64, L: int) -> None:
+def recursion(ndu: F64, cy: F64, a: F64, lags: NDArray[np.int64], W: F64, llags: NDArray[np.int64], lin_y: F64,
+              lin_u: F64, y: F64, L: int) -> None:
     """Free runs of C networks sharing their regressors, in place: ``y`` (n, C) from row ``L`` on.
 
     ``ndu`` (n, C, M): minus the scaled squared distances the input regressors contribute;
     ``cy`` (C, M, ky): the centres' output coordinates; ``a`` (C, M): ``1 / (2 sigma^2)``;
-    ``lags`` (ky,); ``W`` (C, M); ``lin_y`` (C, ky) and ``lin_u`` (n, C): a linear part's output
-    coefficients and its input terms plus constant (zeros without one); rows ``< L`` of ``y``
-    hold the initial outputs.
+    ``lags`` (ky,) the network's output lags; ``W`` (C, M); ``llags`` (ly,) the linear part's output
+    lags (the network's, or its own: a long linear part); ``lin_y`` (C, ly) and ``lin_u`` (n, C): a
+    linear part's output coefficients and its input terms plus constant (zeros without one); rows
+    ``< L`` of ``y`` hold the initial outputs.
     """
     n, C, M = ndu.shape
     ky = lags.shape[0]
+    ly = llags.shape[0]
     for t in range(L, n):
         for c in range(C):
             acc = lin_u[t, c]
-            for k in range(ky):
-                acc += lin_y[c, k] * y[t - lags[k], c]
+            for k in range(ly):
+                acc += lin_y[c, k] * y[t - llags[k], c]
             for m in range(M):
                 s = 0.0
                 for k in range(ky):
@@ -117,7 +120,7 @@ def warm_up() -> None:
     The callers pass writable C-ordered float64 arrays, int64 lags and an int ``L``, as here: numba
     compiles one version per argument types, so these are the versions they use."""
     ndu, cy, a = np.zeros((3, 1, 1)), np.zeros((1, 1, 1)), np.ones((1, 1))
-    recursion(ndu, cy, a, np.ones(1, dtype=np.int64), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((3, 1)),
-              np.zeros((3, 1)), 1)
+    recursion(ndu, cy, a, np.ones(1, dtype=np.int64), np.zeros((1, 1)), np.ones(1, dtype=np.int64), np.zeros((1, 1)),
+              np.zeros((3, 1)), np.zeros((3, 1)), 1)
     free_run_sensitivities(np.zeros((3, 1)), np.zeros((1, 1)), np.ones(1), np.ones(1, dtype=np.int64), np.zeros(1),
                            np.zeros(1), np.zeros(3), np.zeros(3), 1, np.zeros((3, 0)), 0)

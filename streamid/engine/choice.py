@@ -51,7 +51,9 @@ def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[
         raise ModelFormatError("group_free_run simulates single networks sharing their regressors; got an ensemble "
                                "(simulate it with model.simulate, which runs each member)")
     m0 = models[0]
-    L = max((r.lag for r in m0.regressors), default=0)
+    if any(m.linear_regressors != m0.linear_regressors for m in models):
+        raise ModelFormatError("group_free_run simulates networks sharing their regressors; got different long linear parts")
+    L = m0.max_lag
     return free_run(
         m0.regressors,
         np.stack([m.centres for m in models]),
@@ -61,6 +63,7 @@ def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[
         np.broadcast_to(m0.normalisation.y(y_init[:L]), (len(models), L)),
         _linear_parts(models),
         threads=threads,
+        linear_regressors=m0.linear_regressors,
     )
 
 
@@ -68,7 +71,8 @@ def _linear_parts(models: list[Model]) -> NDArray[np.float64] | None:
     """The networks' linear parts stacked (zeros for a network without one); None when none has one."""
     if all(m.linear is None for m in models):
         return None
-    k = len(models[0].regressors) + 1
+    regs = models[0].regressors if models[0].linear_regressors is None else models[0].linear_regressors
+    k = len(regs) + 1
     return np.stack([np.zeros(k) if m.linear is None else m.linear for m in models])
 
 
@@ -132,7 +136,8 @@ def free_run_scores(
     paths: list[NDArray[np.float64] | None] = [None] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
-        key = ("ensemble", i) if isinstance(m, EnsembleModel) else (m.regressors, m.normalisation, m.neurons)
+        key = (("ensemble", i) if isinstance(m, EnsembleModel)
+               else (m.regressors, m.normalisation, m.neurons, m.linear_regressors))
         groups.setdefault(key, []).append(i)
     for key, idx in groups.items():
         m0 = models[idx[0]]
@@ -229,7 +234,8 @@ def _refit_rows(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) ->
     r, target = model.regressor_rows(u, y)
     phi = activations(r, model.centres, model.widths)
     if model.linear is not None:  # the linear part is refitted in the same least squares
-        phi = np.hstack([phi, r, np.ones((phi.shape[0], 1))])
+        rl = r if model.linear_regressors is None else model.linear_rows(u, y)
+        phi = np.hstack([phi, rl, np.ones((phi.shape[0], 1))])
     return phi, target
 
 
@@ -238,14 +244,14 @@ def _fr_r2(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64]) 
     out = [-np.inf] * len(models)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation, m.neurons), []).append(i)
-    for (regs, norm, _), idx in groups.items():
-        L = max((r.lag for r in regs), default=0)
+        groups.setdefault((m.regressors, m.normalisation, m.neurons, m.linear_regressors), []).append(i)
+    for (regs, norm, _, lregs), idx in groups.items():
+        L = models[idx[0]].max_lag
         with np.errstate(over="ignore", invalid="ignore"):
             sim = norm.y_inverse(free_run(
                 regs, np.stack([models[i].centres for i in idx]), np.stack([models[i].widths for i in idx]),
                 np.stack([models[i].weights for i in idx]), norm.u(u), np.broadcast_to(norm.y(y[:L]), (len(idx), L)),
-                _linear_parts([models[i] for i in idx])))
+                _linear_parts([models[i] for i in idx]), linear_regressors=lregs))
         for k, i in enumerate(idx):
             if np.all(np.isfinite(sim[k, L:])):
                 out[i] = r2(y[L:], sim[k, L:])

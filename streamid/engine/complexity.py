@@ -69,7 +69,7 @@ _ADMISSIBLE = -1e9  # a run's score at or below this has no admissible candidate
 def parameter_count(model: Model) -> int:
     """Parameters fitted by least squares on the estimation record: ``M`` weights (+ ``k + 1`` linear);
     of an ensemble, its members' summed."""
-    return sum(m.neurons + (0 if m.linear is None else len(m.regressors) + 1) for m in members_of(model))
+    return sum(m.neurons + (0 if m.linear is None else int(m.linear.shape[0])) for m in members_of(model))
 
 
 def criterion(rule: str, r2_fr: float, n_scored: int, params: int) -> float:
@@ -148,6 +148,9 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
     and widths of the neurons kept; a linear part, if any, refitted with the weights).
     """
     _single("pruned", model)
+    if model.linear_regressors is not None:
+        raise ModelFormatError("pruned takes networks whose linear part (if any) is on their own regressors; "
+                               "got one with a long linear part")
     r, target = model.regressor_rows(u, y)
     phi = activations(r, model.centres, model.widths)
     order = ols_order(phi, target)

@@ -110,6 +110,9 @@ class EnsembleModel(Model):
         for i, m in enumerate(ms):
             if not isinstance(m, Model) or isinstance(m, EnsembleModel):
                 raise ModelFormatError(f"model field 'members[{i}]' must be a single network ({_MEMBER_FORM}); got {type(m).__name__}")
+            if m.linear_regressors is not None:
+                raise ModelFormatError(f"model field 'members[{i}]' has a long linear part (linear_regressors); "
+                                       f"an ensemble's members are networks {_MEMBER_FORM}")
             if m.normalisation.n_inputs != self.normalisation.n_inputs:
                 raise ModelFormatError(f"model field 'members[{i}]' has {m.normalisation.n_inputs} input(s); "
                                        f"the ensemble has {self.normalisation.n_inputs} (one normalisation for all members)")

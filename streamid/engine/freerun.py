@@ -28,6 +28,7 @@ def free_run(
     yn_init: NDArray[np.float64],
     linear: NDArray[np.float64] | None = None,
     threads: int = 1,
+    linear_regressors: tuple[Regressor, ...] | None = None,
 ) -> NDArray[np.float64]:
     """Free-run simulation of several networks with the same regressors at once (normalised units).
 
@@ -43,6 +44,9 @@ def free_run(
         Normalised initial outputs (the first ``L`` samples).
     linear : ndarray, shape (C, k + 1), optional
         Each network's direct linear part: a coefficient per regressor, then the constant.
+    linear_regressors : tuple of Regressor, optional
+        The linear part's own regressors (a long linear part, :mod:`streamid.engine.longlinear`), shared by all
+        networks; ``linear`` then has shape (C, len(linear_regressors) + 1). None: the network's regressors.
     threads : int
         Split the networks into this many groups simulated at once in threads (the compiled loop
         releases the GIL): for a caller with a second core to spare. Each network's arithmetic is
@@ -66,13 +70,14 @@ def free_run(
 
         def part(idx: NDArray[np.intp]) -> NDArray[np.float64]:
             return free_run(regressors, centres[idx], widths[idx], weights[idx], un if un.ndim == 2 else un[idx],
-                            yn_init[idx], None if linear is None else linear[idx])
+                            yn_init[idx], None if linear is None else linear[idx], linear_regressors=linear_regressors)
 
         return np.concatenate(thread_map(part, parts, threads))
     if un.ndim == 2:
         un = un[None]
     n = un.shape[1]
-    L = max((r.lag for r in regressors), default=0)
+    lregs = regressors if linear_regressors is None or linear is None else linear_regressors
+    L = max((r.lag for r in (*regressors, *lregs)), default=0)
     a = 1.0 / (2.0 * widths**2)  # (C, M)
     yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
     lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
@@ -90,16 +95,19 @@ def free_run(
     ndu = np.negative(du, out=du).reshape(n, C * M)
     y = np.empty((n, C))
     y[:L] = yn_init[:, :L].T
-    lin_u = None if linear is None else _linear_inputs(regressors, linear, un, n)
-    if lags.size == 0:  # no output terms: nothing recursive
+    lin_u = None if linear is None else _linear_inputs(lregs, linear, un, n)
+    lyj = [j for j, r in enumerate(lregs) if r.signal == "y"]
+    if lags.size == 0 and (linear is None or not lyj):  # no output terms: nothing recursive
         np.exp(ndu[L:], out=ndu[L:])
         y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
         if lin_u is not None:
             y[L:] += lin_u[L:]
         return np.ascontiguousarray(y.T)
-    lin_y = np.zeros((C, lags.size)) if linear is None else np.ascontiguousarray(linear[:, yj])
+    llags = np.array([lregs[j].lag for j in lyj], dtype=np.int64)
+    lin_y = np.zeros((C, llags.size)) if linear is None else np.ascontiguousarray(linear[:, lyj])
     recursion(np.ascontiguousarray(ndu.reshape(n, C, M)), np.ascontiguousarray(centres[:, :, yj]), a, lags.astype(np.int64),
-              np.array(weights, dtype=np.float64, order="C"), lin_y, np.zeros((n, C)) if lin_u is None else lin_u, y, L)
+              np.array(weights, dtype=np.float64, order="C"), llags, lin_y,
+              np.zeros((n, C)) if lin_u is None else lin_u, y, L)
     return np.ascontiguousarray(y.T)
 
 

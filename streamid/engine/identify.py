@@ -59,6 +59,7 @@ from streamid.engine.restarts import report_after, runs_until_agreed, wants_more
 from streamid.engine.fanout import fan_out
 from streamid.engine.feedthrough import direct_terms
 from streamid.engine.lagspace import memory_lag, with_input_term
+from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.regressors import Normalisation, as_data
@@ -412,6 +413,12 @@ def identify(
         ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya, cfg.range_margin)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
+    own = scores[chosen] if final is models[chosen] else score
+    if cfg.long_linear and complexity is not None and own < cfg.more_below:  # a dense linear ARX part competes
+        ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.complexity, cfg.long_linear, ua, ya,
+                                                           cfg.range_margin, cfg.ridge)  # (streamid.engine.longlinear)
+        if ll is not None:
+            final, score = ll, float(complexity["long_linear"]["r2_fr_est"])
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)

@@ -17,6 +17,16 @@ constant); a ``streamid.model/1`` document has none (it is the same as ``linear 
 A model without a linear part is always written as ``streamid.model/1``, so readers
 of the first format keep reading every model they can evaluate correctly.
 
+A *long* linear part has regressors of its own (``streamid.model/4``, field
+``linear_regressors``, in the form of ``regressors``; ``linear`` then has one
+coefficient per linear regressor, then the constant)::
+
+    yn(t)   = sum_m weights[m] phi_m + sum_i linear[i] l_i(t) + linear[q]
+    l_i(t)  = norm(signal_i)(t - lag_i)                  i = 0 .. q-1   (the linear regressors)
+
+It is a dense linear ARX part of an order chosen from the data, for devices whose
+memory is longer than the network's lags (:mod:`streamid.engine.longlinear`).
+
 One-step-ahead prediction uses measured past outputs; free run (simulation)
 uses the model's own past predictions after ``max_lag`` measured initial outputs.
 Both return arrays aligned with the input whose first ``max_lag`` values are the
@@ -40,14 +50,17 @@ from streamid.engine.freerun import free_run
 from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_LINEAR", "MODEL_FORMATS", "free_run", "format_lags"]
+__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_LINEAR", "MODEL_FORMAT_LONG_LINEAR",
+           "MODEL_FORMATS", "free_run", "format_lags"]
 
 MODEL_FORMAT = "streamid.model/1"
 #: The format of a model with a direct linear part (``linear``); /1 documents load as ``linear = None``.
 MODEL_FORMAT_LINEAR = "streamid.model/2"
 #: The format of the mean of several networks (:mod:`streamid.engine.ensemble`); loads as an ``EnsembleModel``.
 MODEL_FORMAT_ENSEMBLE = "streamid.model/3"
-MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE)
+#: The format of a model whose linear part has regressors of its own (``linear_regressors``: a long linear part).
+MODEL_FORMAT_LONG_LINEAR = "streamid.model/4"
+MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_LONG_LINEAR)
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -60,6 +73,16 @@ def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.f
     if not np.all(np.isfinite(a)):
         raise ModelFormatError(f"model field {name!r} must contain only finite numbers (no NaN/inf); got {value!r}")
     return a
+
+
+def _rows(regs: Sequence[Regressor], un: NDArray[np.float64], yn: NDArray[np.float64], L: int) -> NDArray[np.float64]:
+    """The normalised lagged terms ``regs`` of rows ``t >= L`` (one column each)."""
+    n = yn.shape[0]
+    r = np.empty((max(0, n - L), len(regs)))
+    for j, reg in enumerate(regs):
+        src = yn if reg.signal == "y" else un[:, reg.index]
+        r[:, j] = src[L - reg.lag : n - reg.lag]
+    return r
 
 
 def initial_outputs(y_init: ArrayLike, max_lag: int) -> NDArray[np.float64]:
@@ -96,6 +119,9 @@ class Model:
     linear : ndarray, shape (k + 1,), optional
         Direct linear part: a coefficient per regressor (normalised units), then the
         constant. None: no linear part (the paper's network).
+    linear_regressors : tuple of Regressor, optional
+        The linear part's own regressors (a long linear part); ``linear`` then has shape
+        ``(len(linear_regressors) + 1,)``. None: the linear part (if any) is on ``regressors``.
 
     Raises
     ------
@@ -114,6 +140,7 @@ class Model:
     window: dict[str, Any] = field(default_factory=dict)
     config: dict[str, Any] = field(default_factory=dict)
     linear: NDArray[np.float64] | None = None
+    linear_regressors: tuple[Regressor, ...] | None = None
 
     def __post_init__(self) -> None:
         m = int(np.shape(self.widths)[0]) if np.ndim(self.widths) == 1 else -1
@@ -126,7 +153,9 @@ class Model:
         if np.any(self.widths <= 0):
             raise ModelFormatError(f"model widths must be > 0; got {self.widths.tolist()}")
         n_in = self.normalisation.n_inputs
-        for r in self.regressors:
+        if self.linear_regressors is not None and self.linear is None:
+            raise ModelFormatError("model linear_regressors need a linear part (their coefficients, then the constant)")
+        for r in (*self.regressors, *(self.linear_regressors or ())):
             ok = (r.signal == "y" and r.index == 0) or (r.signal == "u" and 0 <= r.index < n_in)
             if not ok or r.lag < (1 if r.signal == "y" else 0):
                 raise ModelFormatError(
@@ -140,7 +169,8 @@ class Model:
             if isinstance(val, float) and not math.isfinite(val):
                 raise ModelFormatError(f"model metric {key!r} must be finite; got {val!r}")
         if self.linear is not None:
-            object.__setattr__(self, "linear", _finite_array("linear", self.linear, (k + 1,)))
+            q = k if self.linear_regressors is None else len(self.linear_regressors)
+            object.__setattr__(self, "linear", _finite_array("linear", self.linear, (q + 1,)))
             self.linear.setflags(write=False)
         for c in self.centres, self.widths, self.weights:
             c.setflags(write=False)
@@ -156,8 +186,8 @@ class Model:
 
     @property
     def max_lag(self) -> int:
-        """Largest selected lag: samples needed before the first prediction."""
-        return max((r.lag for r in self.regressors), default=0)
+        """Largest selected lag (of the network and of a long linear part): samples needed before the first prediction."""
+        return max((r.lag for r in (*self.regressors, *(self.linear_regressors or ()))), default=0)
 
     @property
     def lags(self) -> dict[str, Any]:
@@ -185,6 +215,11 @@ class Model:
             f"  regressors  {self.lags_text()}  ({len(self.regressors)} terms, max lag {self.max_lag})",
             f"  network     {self.neurons} Gaussian neurons" + (" and a linear part" if self.linear is not None else ""),
         ]
+        if self.linear_regressors is not None:
+            ly = [r.lag for r in self.linear_regressors if r.signal == "y"]
+            lu = [[r.lag for r in self.linear_regressors if r.signal == "u" and r.index == i] for i in range(self.n_inputs)]
+            lines.append(f"  linear part {format_lags(self.output_name, ly, self.input_names, lu)}  "
+                         f"({len(self.linear_regressors)} terms of its own)")
         r2 = {k: self.metrics.get(f"r2_{k}") for k in ("osa_est", "fr_est", "osa_val", "fr_val")}
         if any(isinstance(v, (int, float)) for v in r2.values()):
 
@@ -236,11 +271,12 @@ class Model:
         """
         n, L = y.shape[0], self.max_lag
         un, yn = self.normalisation.u(u), self.normalisation.y(y)
-        r = np.empty((max(0, n - L), len(self.regressors)))
-        for j, reg in enumerate(self.regressors):
-            src = yn if reg.signal == "y" else un[:, reg.index]
-            r[:, j] = src[L - reg.lag : n - reg.lag]
-        return r, yn[L:]
+        return _rows(self.regressors, un, yn, L), yn[L:]
+
+    def linear_rows(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The normalised regressors of the linear part for rows ``t >= max_lag`` (its own, or the network's)."""
+        regs = self.regressors if self.linear_regressors is None else self.linear_regressors
+        return _rows(regs, self.normalisation.u(u), self.normalisation.y(y), self.max_lag)
 
     def predict_osa(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
         """One-step-ahead prediction from measured inputs and outputs.
@@ -260,7 +296,8 @@ class Model:
         out = ya.copy()
         yn_hat = self._phi(r) @ self.weights
         if self.linear is not None:
-            yn_hat += r @ self.linear[:-1] + self.linear[-1]
+            rl = r if self.linear_regressors is None else self.linear_rows(ua, ya)
+            yn_hat += rl @ self.linear[:-1] + self.linear[-1]
         out[self.max_lag :] = self.normalisation.y_inverse(yn_hat)
         return out
 
@@ -324,6 +361,7 @@ class Model:
             un,
             np.stack([self.normalisation.y(yi) for _, yi in parts]),
             None if self.linear is None else np.broadcast_to(self.linear, (C, self.linear.shape[0])),
+            linear_regressors=self.linear_regressors,
         )
         out = []
         for c, (ua, yi) in enumerate(parts):
@@ -335,8 +373,9 @@ class Model:
     # ------------------------------------------------------------------ file format
     def to_dict(self) -> dict[str, Any]:
         """The JSON document as a dict (see :meth:`to_json`)."""
+        fmt = MODEL_FORMAT if self.linear is None else MODEL_FORMAT_LINEAR
         doc: dict[str, Any] = {
-            "format": MODEL_FORMAT if self.linear is None else MODEL_FORMAT_LINEAR,
+            "format": MODEL_FORMAT_LONG_LINEAR if self.linear_regressors is not None else fmt,
             "kind": "gaussian-rbf-narx",
             "formula": (
                 "yn(t) = sum_m weights[m] * exp(-sum_j (r_j(t) - centres[m][j])^2 / (2 widths[m]^2)); "
@@ -362,6 +401,12 @@ class Model:
             doc["formula"] = str(doc["formula"]).replace(
                 "(2 widths[m]^2));", "(2 widths[m]^2)) + sum_j linear[j] r_j(t) + linear[k];")
             doc["linear"] = self.linear.tolist()
+        if self.linear_regressors is not None:
+            doc["formula"] = str(doc["formula"]).replace(
+                "sum_j linear[j] r_j(t) + linear[k];",
+                "sum_i linear[i] l_i(t) + linear[q]; l_i(t) = normalised signal_i(t - lag_i) of linear_regressors[i];")
+            doc["linear_regressors"] = [
+                {**r.to_dict(), "name": r.label(self.input_names, self.output_name)} for r in self.linear_regressors]
         return doc
 
     def to_json(self, indent: int | None = 1) -> str:
@@ -382,8 +427,13 @@ class Model:
             return EnsembleModel.from_dict(d)
         if fmt == MODEL_FORMAT_LINEAR and "linear" not in d:
             raise ModelFormatError(f"a {MODEL_FORMAT_LINEAR} model document needs the field 'linear' (k + 1 numbers)")
+        if fmt == MODEL_FORMAT_LONG_LINEAR and not ("linear" in d and isinstance(d.get("linear_regressors"), list)):
+            raise ModelFormatError(f"a {MODEL_FORMAT_LONG_LINEAR} model document needs the fields 'linear_regressors' "
+                                   "(a list of {signal, index, lag}) and 'linear' (one number each, then the constant)")
         try:
             regs = tuple(Regressor(str(r["signal"]), int(r["index"]), int(r["lag"])) for r in d["regressors"])
+            lregs = (tuple(Regressor(str(r["signal"]), int(r["index"]), int(r["lag"])) for r in d["linear_regressors"])
+                     if fmt == MODEL_FORMAT_LONG_LINEAR else None)
             widths = d["widths"]
             m = len(widths)
             return cls(
@@ -397,8 +447,9 @@ class Model:
                 metrics=dict(d.get("metrics", {})),
                 window=dict(d.get("window", {})),
                 config=dict(d.get("config", {})),
-                linear=(_finite_array("linear", d["linear"], (len(regs) + 1,))
-                        if fmt == MODEL_FORMAT_LINEAR else None),
+                linear=(_finite_array("linear", d["linear"], (len(regs if lregs is None else lregs) + 1,))
+                        if fmt in (MODEL_FORMAT_LINEAR, MODEL_FORMAT_LONG_LINEAR) else None),
+                linear_regressors=lregs,
             )
         except ModelFormatError:
             raise

@@ -175,6 +175,8 @@ def refine_weights(
     if iterations < 1:
         return model, {**ev, "reason": "off"}
     nets = members_of(model)
+    if any(m.linear_regressors is not None for m in nets):  # its hundreds of coefficients: fitted by least squares
+        return model, {**ev, "reason": "a long linear part (not refined)"}
     norm = model.normalisation
     un, yn = norm.u(u), norm.y(y)
     L = max(m.max_lag for m in nets)

@@ -42,11 +42,8 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
     un, yn = model.normalisation.u(ua), model.normalisation.y(ya)
-    L, n = model.max_lag, ya.shape[0]
-    r = np.empty((n - L, len(model.regressors)))
-    for j, reg in enumerate(model.regressors):
-        src = yn if reg.signal == "y" else un[:, reg.index]
-        r[:, j] = src[L - reg.lag : n - reg.lag]
+    L = model.max_lag
+    r, _ = model.regressor_rows(ua, ya)
     with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
         lin = None
@@ -54,8 +51,9 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
             w = fit_weights(phi, yn[L:], ridge, weight_decay)
             fit = phi @ w
         else:
-            w, lin = fit_linear_rbf(phi, r, yn[L:], ridge, weight_decay)
-            fit = phi @ w + r @ lin[:-1] + lin[-1]
+            rl = r if model.linear_regressors is None else model.linear_rows(ua, ya)
+            w, lin = fit_linear_rbf(phi, rl, yn[L:], ridge, weight_decay)
+            fit = phi @ w + rl @ lin[:-1] + lin[-1]
     if not np.all(np.isfinite(w)) or (lin is not None and not np.all(np.isfinite(lin))):
         raise DataError("refitted weights are not finite (numerically degenerate data)")
     mse = float(np.mean((fit - yn[L:]) ** 2)) * model.normalisation.y_half_range**2

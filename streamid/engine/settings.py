@@ -252,6 +252,10 @@ class CoEAConfig:
         and within the range guard (evidence in ``metrics.refinement``).
     refine_above : float
         The gate of ``refine_iterations`` (see :mod:`streamid.engine.refine` for why 0.8).
+    long_linear : int
+        0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
+        up to N (chosen by the ``complexity`` criterion) competes with it (:mod:`streamid.engine.longlinear`;
+        :func:`~streamid.engine.identify.identify`'s final choice only, never an online update's).
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.
     require_input : bool
@@ -311,6 +315,7 @@ class CoEAConfig:
     run_ensembles: bool = False
     refine_iterations: int = 0
     refine_above: float = 0.8
+    long_linear: int = 0
 
     def __post_init__(self) -> None:
         _int("neurons", self.neurons, 1, 1000)
@@ -366,6 +371,7 @@ class CoEAConfig:
         _float("more_below", self.more_below, 0.0, 1.0, open_low=True)
         _int("refine_iterations", self.refine_iterations, 0, 1000)
         _float("refine_above", self.refine_above, -1e9, 1.0)
+        _int("long_linear", self.long_linear, 0, 1000)
         if not isinstance(self.linear_terms, bool):
             raise ConfigError(f"CoEAConfig.linear_terms must be true or false; got {self.linear_terms!r}")
         if not isinstance(self.linear_alternation, bool):
@@ -517,6 +523,7 @@ class CoEAConfig:
             "refine_iterations": 10,
             "linear_terms": True,
             "linear_search": False,
+            "long_linear": 256,
         }
         return cls(**{**base, **changes})
 
