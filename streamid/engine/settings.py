@@ -523,7 +523,7 @@ class CoEAConfig:
             "refine_iterations": 10,
             "linear_terms": True,
             "linear_search": False,
-            "long_linear": 256,
+            "long_linear": 512,
         }
         return cls(**{**base, **changes})
 
