@@ -177,3 +177,17 @@ def test_identify_cli_reports_the_long_linear_part_saves_v4_and_obeys_the_flag(t
     assert Model.load(mod).linear_regressors is None and "long linear part" not in off.stdout
     bad = subprocess.run(args + ["--paper", "--long-linear", "64"], capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "--long-linear offers a dense linear ARX part; --paper keeps" in bad.stderr
+
+
+def test_a_part_that_leaves_the_range_on_a_second_pass_is_refused() -> None:
+    """The ball and beam (an unstable plant, DaISy): seed 3's order-3 part stays in range over the 500 estimation
+    samples and lowers the criterion, but goes out of range when the free run continues over the record again;
+    taken, it diverged on validation (R^2 -6e126; -83 without it)."""
+    from benchmarks.suite import targets
+
+    t = targets(("ball_and_beam",))[0]
+    res = identify(t.u_est, t.y_est, DEFAULT, 3)
+    ev = res.model.metrics["complexity"]["long_linear"]
+    assert not ev["taken"] and res.model.linear_regressors is None
+    refused = [o for o in ev["orders"] if o.get("second_pass_excursion") != 0.0 and "ar_radius" in o]
+    assert refused and all(o["criterion"] < ev["criterion_without"] for o in refused), ev["orders"]
