@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import solve_triangular
+from scipy.linalg import qr, solve_triangular
 
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.choice import path_score
@@ -123,7 +123,7 @@ def long_linear_choice(
         P = X.shape[1]  # the ridge as rows sqrt(ridge) I under the scaled columns: a prefix's fit is that prefix's
         aug = np.vstack([np.hstack([X / scale, target[:, None]]),  # the target as the last column: R's last
                          np.hstack([np.sqrt(max(ridge, 1e-12)) * np.eye(P), np.zeros((P, 1))])])  # column is Q'y
-        R = np.linalg.qr(aug, mode="r")  # Q never formed (half the work)
+        R = qr(aug, mode="r", overwrite_a=True, check_finite=False)[0]  # Q never formed (half the work)
         qy = R[:P, P]
     lo, hi = float(np.min(y)), float(np.max(y))
     best: tuple[float, Model | None] = (own, None)
