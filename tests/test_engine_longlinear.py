@@ -191,3 +191,17 @@ def test_a_part_that_leaves_the_range_on_a_second_pass_is_refused() -> None:
     assert not ev["taken"] and res.model.linear_regressors is None
     refused = [o for o in ev["orders"] if o.get("second_pass_excursion") != 0.0 and "ar_radius" in o]
     assert refused and all(o["criterion"] < ev["criterion_without"] for o in refused), ev["orders"]
+
+
+def test_the_rerun_model_text_names_the_long_linear_part() -> None:
+    from streamid.engine.validation import validate
+    from streamid.viz.identify_report import Clock, identify_update_report
+    from streamid.viz.reports import model_markdown
+
+    m = _model()
+    rng = np.random.default_rng(4)
+    u, y = rng.uniform(-1, 1, 300), rng.uniform(-3, 3, 300)
+    rep = validate(m, u[:150], y[:150], u[150:], y[150:])
+    up = identify_update_report("s", m, rep, u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
+                                fitness_history=[1.0], generations=1, seconds=0.1)
+    assert "a(t) = F[a(t-1) f(t-1)] + a linear ARX part of order 9 (its own lags 1..9)" in model_markdown(up)

@@ -9,6 +9,7 @@ in every client), the ordering rule and the display helpers.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import re
 from typing import Any
@@ -76,6 +77,12 @@ def _paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
 
 
 PATHS = _paths(REAL)
+#: A model with a long linear part (streamid.model/4): its own fields fuzzed too.
+REAL4 = _doc(model=dataclasses.replace(
+    _model(), linear=np.array([0.1, -0.2, 0.3, 0.05, 0.0]),
+    linear_regressors=(Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1)),
+).to_dict())
+DOC_PATHS = [(REAL, p) for p in PATHS] + [(REAL4, p) for p in _paths(REAL4) if p[:1] == ("model",)]
 
 
 def _only_model_format_error(payload: bytes | str) -> ModelUpdate | None:
@@ -99,10 +106,12 @@ def test_random_json_values_raise_only_model_format_error(value: Any) -> None:
 
 
 @FUZZ
-@given(st.sampled_from(PATHS), json_values | st.sampled_from(["1e400", "-1e400", "NaN", "Infinity", "1" * 5000]),
+@given(st.sampled_from(DOC_PATHS), json_values | st.sampled_from(["1e400", "-1e400", "NaN", "Infinity", "1" * 5000]),
        st.booleans())
-def test_real_documents_with_one_field_replaced_or_removed(path: tuple[Any, ...], value: Any, delete: bool) -> None:
-    doc = copy.deepcopy(REAL)
+def test_real_documents_with_one_field_replaced_or_removed(where: tuple[dict[str, Any], tuple[Any, ...]], value: Any,
+                                                           delete: bool) -> None:
+    real, path = where
+    doc = copy.deepcopy(real)
     parent = doc
     for p in path[:-1]:
         parent = parent[p]
@@ -216,6 +225,12 @@ def test_older_documents_are_accepted_models_of_their_models_output() -> None:
     assert set(old) >= {"stream", "version"} and not {"output", "accepted", "decision", "origin"} & set(old)
     up = parse_model_update(encode_json(old))
     assert (up.output, up.accepted, up.decision, up.origin) == ("um", True, None, None)
+
+
+def test_a_long_linear_model_arrives_whole() -> None:
+    up = parse_model_update(encode_json(REAL4))
+    assert up.model.linear_regressors == (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0),
+                                          Regressor("u", 0, 1)) and up.model.max_lag == 2
 
 
 def test_new_fields_round_trip_and_rejected_may_carry_version_0() -> None:

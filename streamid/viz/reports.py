@@ -177,6 +177,7 @@ class UpdateReport:
     champion_r2_fr: float | None = None  # a rejected challenger's champion, re-validated on the same held-out data
     networks: int = 1  # > 1: the model is the mean of this many networks (streamid.model/3); ``lags`` is their union
     linear_parts: int = 0  # how many of its networks have a direct linear part a'r + b (CoEAConfig.linear_terms)
+    long_linear_order: int = 0  # > 0: its linear part is a dense ARX part of this order (CoEAConfig.long_linear)
 
 
 def fmt_metric(v: float | None) -> str:
@@ -216,6 +217,8 @@ def _linear_text(r: UpdateReport) -> str:
     """What the model text adds for direct linear parts: nothing without one."""
     if not r.linear_parts:
         return ""
+    if r.long_linear_order:
+        return f" + a linear ARX part of order {r.long_linear_order} (its own lags 1..{r.long_linear_order})"
     if r.networks == 1:
         return " + a direct linear part a'r + b"
     return f"; {r.linear_parts} of the {r.networks} networks with a direct linear part a'r + b"
