@@ -171,7 +171,8 @@ def test_identify_cli_reports_the_long_linear_part_saves_v4_and_obeys_the_flag(t
                         r"-?\d+\.\d without\); orders \(FR R2 est\): 2: .+", line), line
     m = Model.load(mod)
     assert json.loads(mod.read_text())["format"] == MODEL_FORMAT_LONG_LINEAR and m.linear_regressors is not None
-    assert m.max_lag == int(re.match(r"long linear part of order (\d+)", line).group(1))  # type: ignore[union-attr]
+    order = int(re.match(r"long linear part of order (\d+)", line).group(1))  # type: ignore[union-attr]
+    assert m.max_lag == order and f"+ a linear ARX part of order {order}\n" in p.stdout
     off = subprocess.run(args + ["--long-linear", "0"], capture_output=True, text=True, timeout=120)
     assert off.returncode == 0, off.stderr
     assert Model.load(mod).linear_regressors is None and "long linear part" not in off.stdout

@@ -354,7 +354,9 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     kept = Model.from_json(b["model"])  # parsed once; its metrics hold the evidence below
     k = len(members_of(kept))
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
-      + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "") + "\n")
+      + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
+      + (f" + a linear ARX part of order {max(r.lag for r in kept.linear_regressors)}"
+         if kept.linear_regressors else "") + "\n")
     made = kept.metrics
     if made.get("more_restarts") or made.get("fallback_runs"):  # runs beyond --restarts (streamid.engine.restarts)
         first = len(made["run_scores"]) - made.get("more_restarts", 0) - len(made.get("fallback_runs", ()))
