@@ -10,6 +10,7 @@ is a queryable answering with crafted documents.  Readers are the real clients:
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import threading
@@ -266,3 +267,28 @@ def test_a_channel_name_with_a_bidi_override_is_counted_by_the_daemon_and_never_
     assert ups and all(up.output == "f" and up.model.input_names == ("v",) for up in ups)
     seen = b"".join(raw)  # everything the daemon published on the stream's keys: status, models
     assert "\u202e".encode() not in seen and json.dumps("\u202e").encode()[1:-1] not in seen.replace(b"\\\\", b"")
+
+
+def test_a_long_linear_model_arrives_whole_and_a_broken_one_is_counted() -> None:
+    """streamid.model/4 (a network with a long linear part, from an offline identification a user publishes, or a
+    forger): delivered with its own linear regressors; without them it is counted malformed and never delivered."""
+    ep = endpoint()
+    lregs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1))
+    good = _doc("g", 2)
+    good["model"] = dataclasses.replace(_model("y"), linear=np.array([0.5, -0.2, 0.1, 0.05, 0.0]),
+                                        linear_regressors=lregs).to_dict()
+    broken = json.loads(json.dumps(good))
+    broken["version"] = 3
+    del broken["model"]["linear_regressors"]
+    got: list[ModelUpdate] = []
+    with Bus(ZenohSettings(listen=(ep,))) as forger, ModelSubscriber(ep, "g", got.append) as sub:
+        pub = forger.publisher("streamid/g/model")
+        assert pub.wait_for_subscribers(DEADLINE_S)
+        pub.put(encode_json(broken))
+        pub.put(encode_json(good))
+        assert sub.wait_for_version(2, DEADLINE_S) is not None
+        _wait(lambda: sub.skipped.get("malformed") == 1, "the broken /4 document counted")
+    assert [u.version for u in got] == [2] and got[0].model.linear_regressors == lregs
+    u = np.linspace(-1, 1, 20)
+    sent = Model.from_dict(good["model"])
+    np.testing.assert_allclose(got[0].model.simulate(u, np.zeros(2)), sent.simulate(u, np.zeros(2)))
