@@ -41,22 +41,21 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
         L = ens.max_lag
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
-    un, yn = model.normalisation.u(ua), model.normalisation.y(ya)
     L = model.max_lag
-    r, _ = model.regressor_rows(ua, ya)
+    r, target = model.regressor_rows(ua, ya)  # target: the normalised outputs of rows t >= L
     with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
         lin = None
         if model.linear is None:
-            w = fit_weights(phi, yn[L:], ridge, weight_decay)
+            w = fit_weights(phi, target, ridge, weight_decay)
             fit = phi @ w
         else:
             rl = r if model.linear_regressors is None else model.linear_rows(ua, ya)
-            w, lin = fit_linear_rbf(phi, rl, yn[L:], ridge, weight_decay)
+            w, lin = fit_linear_rbf(phi, rl, target, ridge, weight_decay)
             fit = phi @ w + rl @ lin[:-1] + lin[-1]
     if not np.all(np.isfinite(w)) or (lin is not None and not np.all(np.isfinite(lin))):
         raise DataError("refitted weights are not finite (numerically degenerate data)")
-    mse = float(np.mean((fit - yn[L:]) ** 2)) * model.normalisation.y_half_range**2
+    mse = float(np.mean((fit - target) ** 2)) * model.normalisation.y_half_range**2
     return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": mse})
 
 
