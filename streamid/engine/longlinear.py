@@ -126,7 +126,7 @@ def long_linear_choice(
         R = qr(aug, mode="r", overwrite_a=True, check_finite=False)[0]  # Q never formed (half the work)
         qy = R[:P, P]
     lo, hi = float(np.min(y)), float(np.max(y))
-    best: tuple[float, Model | None] = (own, None)
+    best: tuple[float, Model | None, dict[str, Any]] = (own, None, {})
     per_lag = 1 + n_in
     for n in offered:
         q = n * per_lag + (n_in if direct else 0)
@@ -155,12 +155,11 @@ def long_linear_choice(
                      if np.all(np.isfinite(twice[Lm:])) else np.inf)
             row["second_pass_excursion"] = _finite(again)
             if again == 0.0:
-                best = (value, model)
-    if best[1] is None:
+                best = (value, model, row)
+    value, chosen, row = best
+    if chosen is None:
         return None, ev
-    chosen = best[1]
-    row = next(o for o in ev["orders"] if o["criterion"] == best[0])
-    ev.update(taken=True, order=row["order"], r2_fr_est=row["r2_fr_est"], criterion=float(best[0]))
+    ev.update(taken=True, order=row["order"], r2_fr_est=row["r2_fr_est"], criterion=float(value))
     Lc = chosen.max_lag
     fitness = float(np.mean((chosen.predict_osa(u, y)[Lc:] - y[Lc:]) ** 2))
     return chosen.with_metrics(fitness=fitness), ev
