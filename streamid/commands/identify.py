@@ -292,10 +292,14 @@ def _long_linear_line(ll: dict[str, Any] | None, gate: float) -> str:
     tried = ", ".join(f"{o['order']}: " + ("not admissible" if o["criterion"] is None else f"{o['r2_fr_est']:.4f}")
                       for o in ll["orders"])
     cw = "none" if ll["criterion_without"] is None else f"{ll['criterion_without']:.1f}"
+    nets = ll.get("networks") or []
     head = (f"long linear part of order {ll['order']} taken (FR R2 est {ll['r2_fr_est']:.5f}, criterion "
-            f"{ll['criterion']:.1f} against {cw} without)" if ll["taken"]
+            f"{ll['criterion']:.1f} against {cw} without; on restart {ll['run']}'s network"
+            + (f", the lowest criterion of the {len(nets)} restarts' networks offered)" if len(nets) > 1 else ")")
+            if ll["taken"]
             else "long linear part not taken" + (f" ({ll['reason']})" if "reason" in ll else
-                                                 " (no order lowered the criterion)"))
+                                                 " (no order lowered the criterion with a free run better than the "
+                                                 "mean and in range over a second pass)"))
     return head + (f"; orders (FR R2 est): {tried}\n" if tried else "\n")
 
 

@@ -415,10 +415,11 @@ def identify(
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     own = scores[chosen] if final is models[chosen] else score
     if cfg.long_linear and complexity is not None and own < cfg.more_below:  # a dense linear ARX part competes
+        offered = [(int(c["run"]), models[int(c["run"])]) for c in complexity["candidates"] if c["criterion"] is not None]
         ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.complexity, cfg.long_linear, ua, ya,
-                                                           cfg.range_margin, cfg.ridge)  # (streamid.engine.longlinear)
-        if ll is not None:
-            final, score = ll, float(complexity["long_linear"]["r2_fr_est"])
+                                                           cfg.range_margin, cfg.ridge, offered, chosen)
+        if ll is not None:  # the state and history are the run's whose network it keeps
+            final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     if n_hold:
         final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)

@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.freerun import free_run
-from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags
+from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
 from streamid.errors import DataError, ModelFormatError
 
 __all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_LINEAR", "MODEL_FORMAT_LONG_LINEAR",
@@ -73,16 +73,6 @@ def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.f
     if not np.all(np.isfinite(a)):
         raise ModelFormatError(f"model field {name!r} must contain only finite numbers (no NaN/inf); got {value!r}")
     return a
-
-
-def _rows(regs: Sequence[Regressor], un: NDArray[np.float64], yn: NDArray[np.float64], L: int) -> NDArray[np.float64]:
-    """The normalised lagged terms ``regs`` of rows ``t >= L`` (one column each)."""
-    n = yn.shape[0]
-    r = np.empty((max(0, n - L), len(regs)))
-    for j, reg in enumerate(regs):
-        src = yn if reg.signal == "y" else un[:, reg.index]
-        r[:, j] = src[L - reg.lag : n - reg.lag]
-    return r
 
 
 def initial_outputs(y_init: ArrayLike, max_lag: int) -> NDArray[np.float64]:
@@ -271,12 +261,12 @@ class Model:
         """
         n, L = y.shape[0], self.max_lag
         un, yn = self.normalisation.u(u), self.normalisation.y(y)
-        return _rows(self.regressors, un, yn, L), yn[L:]
+        return regressor_columns(self.regressors, un, yn, L), yn[L:]
 
     def linear_rows(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
         """The normalised regressors of the linear part for rows ``t >= max_lag`` (its own, or the network's)."""
         regs = self.regressors if self.linear_regressors is None else self.linear_regressors
-        return _rows(regs, self.normalisation.u(u), self.normalisation.y(y), self.max_lag)
+        return regressor_columns(regs, self.normalisation.u(u), self.normalisation.y(y), self.max_lag)
 
     def predict_osa(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
         """One-step-ahead prediction from measured inputs and outputs.

@@ -29,6 +29,7 @@ __all__ = [
     "as_data",
     "candidate_regressors",
     "lag_matrix",
+    "regressor_columns",
     "check_finite",
     "format_lags",
 ]
@@ -299,3 +300,14 @@ def lag_matrix(
             R[:, col] = un[s - k : n - k, i]
             col += 1
     return R
+
+
+def regressor_columns(regs: Sequence[Regressor], un: NDArray[np.float64], yn: NDArray[np.float64],
+                      start: int) -> NDArray[np.float64]:
+    """The normalised lagged terms ``regs`` of rows ``t >= start`` (one column each; ``start`` at least their lags)."""
+    n = yn.shape[0]
+    r = np.empty((max(0, n - start), len(regs)))
+    for j, reg in enumerate(regs):
+        src = yn if reg.signal == "y" else un[:, reg.index]
+        r[:, j] = src[start - reg.lag : n - reg.lag]
+    return r
