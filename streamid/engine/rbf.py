@@ -170,7 +170,8 @@ def fit_weights(
     else:
         rhs = y
     z: NDArray[np.float64] = np.linalg.lstsq(a, rhs, rcond=None)[0]
-    return z * s
+    w: NDArray[np.float64] = z * s
+    return w
 
 
 def fit_linear_rbf(
