@@ -225,7 +225,12 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
         assert got["config"].pop("long_linear") == 512 and "long_linear" not in got["metrics"]["complexity"]
         # the same model to rounding: the free runs that score the candidates are compiled since round 8
         # (streamid.engine._kernels, sums in another order than the numpy loop that recorded these)
-        _same(got, json.loads((DATA / f"{name}_seed{seed}.json").read_text()), name)
+        want = json.loads((DATA / f"{name}_seed{seed}.json").read_text())
+        # the search's best fitness is the batched evaluator's own sum (BLAS kernels: its rounding depends on the
+        # CPU; 1.9e-8 relative on an AMD EPYC without AVX-512 against the machine that recorded it), while the
+        # model's weights, refitted once, agree to 1e-9: that one figure to 1e-6
+        assert got["metrics"].pop("fitness_search") == pytest.approx(want["metrics"].pop("fitness_search"), rel=1e-6)
+        _same(got, want, name)
     with pytest.raises(ConfigError, match="run_ensembles must be true or false; got 1"):
         DEFAULT.replace(run_ensembles=1)
 
