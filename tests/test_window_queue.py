@@ -112,14 +112,23 @@ def test_an_endless_stream_never_taken_holds_at_most_the_bound() -> None:
     assert len(got) == 8 and int(check_window(got[-1])[-1]) == 3000 * 25 - 1
 
 
-def test_a_reset_discards_the_queue_of_the_old_epoch() -> None:
+def test_a_reset_keeps_the_closed_windows_of_the_old_epoch() -> None:
+    """A period change starts a new epoch; the windows that closed before it are complete data and are still
+    identified, oldest first, each with its own period and epoch (bad input loses nothing)."""
     wb = make(100, 50, max_pending_windows=4)
     for i in range(20):
         wb.append(batch(i, 10 * i, 10))
     assert wb.counters()["pending_windows"] == 3
     wb.append(SampleBatch("s", 99, T0 + 200 * P, 2 * P, None, {"u": np.ones(10)}, {"y": np.ones(10)}))  # new period
     c = wb.counters()
-    assert c["pending_windows"] == 0 and c["windows_discarded"] == 3 and c["pending_bytes"] == 0
+    assert c["pending_windows"] == 3 and c["resets"] == {"period": 1} and c["windows_coalesced"] == 0
+    old = _take_all(wb)
+    assert [w.period_ns for w in old] == [P] * 3 and len({w.epoch for w in old}) == 1
+    assert [w.number for w in old] == sorted(w.number for w in old)
+    for j in range(1, 12):  # the new epoch's windows follow, on the new period
+        wb.append(SampleBatch("s", 99 + j, T0 + 200 * P + 20 * j * P, 2 * P, None, {"u": np.ones(10)}, {"y": np.ones(10)}))
+    new = _take_all(wb)
+    assert new and all(w.period_ns == 2 * P and w.epoch > old[0].epoch for w in new)
 
 
 @pytest.mark.parametrize("bad", [0, 1001, -3, True, 2.0, "4"])

@@ -25,7 +25,9 @@ column holds it.  Faults are detected on that grid and never used across:
 * a jump back further than the ring holds is a *restart* of the publisher's
   clock: the stream restarts from it;
 * a different ``period_ns`` or a different set of signal names resets the
-  stream (a new *epoch*: warm starts across it are meaningless);
+  stream (a new *epoch*: warm starts across it are meaningless); windows that
+  closed before it stay queued and are identified in order (each carries its
+  own epoch and period; a warm start's signature includes the period);
 * non-finite values, values beyond ``max_abs_value``, bad periods and batches
   with non-increasing explicit timestamps are refused and counted;
 * a period that differs from the one another live source (u vs y) still sends
@@ -288,7 +290,7 @@ class WindowBuffer:
         self._src_expect.clear()
         self._src_seq.clear()
         self._src_recent.clear()
-        self._counts["windows_discarded"] += self._queue.clear()  # they belong to the old epoch
+        # (windows already closed stay queued: complete copies, each with its own epoch and period)
         self._closes.clear()
         if self._period is None:
             self._ring = np.empty((0, 0))
