@@ -45,7 +45,7 @@ def test_no_sample_is_lost_before_the_window_buffer(run: dict[str, Any]) -> None
     assert per["piezo"]["sent"] == int(SECONDS * 20_000) // 200 * 200  # ... and so did the replay
     for name, s in per.items():
         assert s["ingested"] == s["sent"], name  # ... and every one of them reached the window buffer
-        assert s["bad_total"] == 0 and s["degraded"] is False, name
+        assert s["bad_total"] == 0 and s["degraded"] is False, (name, s.get("degraded_reason"))
 
 
 def test_backlog_stays_bounded(run: dict[str, Any]) -> None:

@@ -181,11 +181,21 @@ def test_two_daemons_share_fail_over_warm_and_take_their_share_back(tmp_path: Pa
             assert _wait(lambda: all(last_from(s, d, 0) for d in mine for s in mine[d]), 40), got[-10:]
             t_split = time.monotonic()
             assert _wait(lambda: all(last_from(s, d, t_split) for d in mine for s in mine[d]), 10)
-            shown = subprocess.run([*STREAMID, "status", "--connect", ep], capture_output=True, text=True, timeout=30)
-            assert shown.returncode == 0, shown.stderr
-            rows = {ln.split()[0]: ln.split()[1] for ln in shown.stdout.splitlines()[1:]}
-            assert rows == {s: d for d in mine for s in mine[d]}, shown.stdout  # who serves which stream
-            assert all(" 2  " in ln and ln.endswith("ok") for ln in shown.stdout.splitlines()[1:]), shown.stdout
+            # Health is per window: a window across the looped log's seam can fail the floors (the state says
+            # DEGRADED with the reason) until the next model is accepted; every stream must be shown healthy at
+            # one reading within 20 s (seen on a slower machine: one stream degraded at the first reading).
+            shown_last: list[subprocess.CompletedProcess[str]] = []
+
+            def all_served_and_healthy() -> bool:
+                shown = subprocess.run([*STREAMID, "status", "--connect", ep], capture_output=True, text=True,
+                                       timeout=30)
+                shown_last[:] = [shown]
+                assert shown.returncode == 0, shown.stderr
+                rows = {ln.split()[0]: ln.split()[1] for ln in shown.stdout.splitlines()[1:]}
+                assert rows == {s: d for d in mine for s in mine[d]}, shown.stdout  # who serves which stream
+                return all(" 2  " in ln and ln.endswith("ok") for ln in shown.stdout.splitlines()[1:])
+
+            assert _wait(all_served_and_healthy, 20), shown_last[0].stdout
             # 2. SIGKILL beta: its streams resume on alpha, warm
             procs["beta"].send_signal(signal.SIGKILL)
             procs["beta"].wait(10)
