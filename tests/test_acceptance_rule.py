@@ -61,3 +61,25 @@ def test_margin_minus_one_accepts_every_valid_challenger_however_much_worse(cham
     # and just above -1 the margin rule applies again
     near = StreamConfig(challenger_margin=-0.999, min_r2_fr=-1e9, min_r2_osa=-1e9)
     assert decide(_outcome(-0.9, 0.1, {"r2_fr_val": 0.99, "r2_osa_val": 0.9}), near, 4).code == "not_better"
+
+
+def test_a_stream_is_degraded_by_its_champion_on_current_data_not_by_one_failing_challenger() -> None:
+    from streamid.online.acceptance import degraded_after
+
+    valid, poor = {"r2_fr_val": 0.90, "r2_osa_val": 0.95}, {"r2_fr_val": 0.14, "r2_osa_val": 0.95}
+    # a challenger below the floor while a valid champion serves: healthy (the refusal is counted, not a state)
+    d = decide(_outcome(0.4992, 0.95, valid), CFG, 6)
+    assert (d.accepted, d.code) == (False, "validation") and degraded_after(d, CFG) == ""
+    # ... and with a champion that fails on the same data: degraded, saying both
+    d = decide(_outcome(-3.06, 0.95, poor), CFG, 6)
+    why = degraded_after(d, CFG)
+    assert why is not None and "min_r2_fr 0.5" in why and "champion v6 is not valid on the same data" in why
+    assert "R² FR 0.1400" in why
+    d = decide(_outcome(0.4, 0.9, {"r2_fr_val": float("nan"), "r2_osa_val": 0.95}), CFG, 2)
+    assert "FR not finite" in (degraded_after(d, CFG) or "")
+    # a champion kept against a valid challenger: healthy
+    d = decide(_outcome(0.903, 0.95, valid), CFG, 3)
+    assert d.code == "not_better" and degraded_after(d, CFG) == ""
+    # no champion to judge, or an accepted model: the rule says nothing (the identifier keeps its own reason)
+    assert degraded_after(decide(_outcome(0.4, 0.95, None), CFG, 0), CFG) is None
+    assert degraded_after(decide(_outcome(0.95, 0.99, valid), CFG, 3), CFG) is None

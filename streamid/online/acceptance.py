@@ -35,7 +35,7 @@ from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome
 from streamid.online.window_types import Event, Window
 
-__all__ = ["Decision", "Update", "decide", "judge"]
+__all__ = ["Decision", "Update", "decide", "degraded_after", "judge"]
 
 
 @dataclass(frozen=True)
@@ -171,3 +171,32 @@ def decide(outcome: Outcome, cfg: StreamConfig, champion_version: int) -> Decisi
                         f"challenger FR R² {fr:.4f}{describe(outcome.model)}", margin, champ_doc)
     return Decision(False, "not_better", f"FR R² {fr:.4f} not better than champion v{champion_version}'s {c_fr:.4f} "
                     f"on the same held-out data by margin {margin:g}", margin, champ_doc)
+
+
+def degraded_after(decision: Decision, cfg: StreamConfig) -> str | None:
+    """The stream's degraded reason after a rejected challenger whose champion ran on the same data
+    (``""``: healthy), or None when the decision says nothing of the champion (no champion, another code).
+
+    A stream is degraded when the model it serves is not valid on current data, not when one challenger fails
+    the floors while a valid champion serves: that is counted (``decisions.validation``) and evented. (Before,
+    every challenger refused for ``validation`` marked the stream degraded until the next acceptance: one
+    poor window made healthy streams read DEGRADED.)
+    """
+    champ = decision.champion
+    if decision.accepted or champ is None or decision.code not in ("validation", "not_better"):
+        return None
+    fr, osa = champ.get("r2_fr_val"), champ.get("r2_osa_val")
+    if isinstance(fr, (int, float)) and isinstance(osa, (int, float)) and _finite(fr) and _finite(osa) \
+            and fr >= cfg.min_r2_fr and osa >= cfg.min_r2_osa:
+        return ""
+    lead = f"{decision.reason}; " if decision.code == "validation" else ""
+    return (f"{lead}champion v{champ.get('version')} is not valid on the same data either (R² FR {_text(fr)}, "
+            f"OSA {_text(osa)}; floors min_r2_fr {cfg.min_r2_fr}, min_r2_osa {cfg.min_r2_osa})")[:500]
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def _text(v: Any) -> str:
+    return f"{v:.4f}" if _finite(v) else "not finite"

@@ -54,7 +54,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine import CoEAState, EvalHelper, Model
 from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidError
-from streamid.online.acceptance import Decision, Update, decide
+from streamid.online.acceptance import Decision, Update, decide, degraded_after
 from streamid.online.drift import DriftSettings, reference_monitor
 from streamid.online.head import OutputHead
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
@@ -520,9 +520,13 @@ class OnlineIdentifier(StreamIntake):
     def _refuse(self, job: UpdateJob, outcome: Outcome, kind: str, reason: str, code: str, now_ns: int, *,
                 decision: Decision | None = None, document: dict[str, Any] | None = None,
                 payload: bytes | None = None) -> Update:
-        if code != "not_better":
+        health = degraded_after(decision, self.config) if decision is not None else None
+        if health is not None:  # the champion ran on the same data: the stream's health is its validity there
+            self._degraded_reason = health
+        elif code != "not_better":
             self._degraded_reason = reason[:500] or kind
         w, output = job.window, job.output or ""
         ev = self._event(f"update.{kind}", f"window {w.number} {output} {kind}: {reason}", w.t_end_ns, now_ns)
         version = self._heads[output].version if output in self._heads else 0
         return Update(kind, reason, code, version, w, outcome, document, payload, ev, output, decision)
+
