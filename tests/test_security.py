@@ -24,6 +24,7 @@ in ``test_security_static.py``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -172,6 +173,12 @@ def _client(name: str, daemon: DaemonLike, **kw: object) -> Bus:
     return Bus(_settings(name, connect=(daemon.endpoint,), **kw))  # type: ignore[arg-type]
 
 
+def _refused(settings: ZenohSettings) -> Bus:
+    """Open a session that must be refused: a client retries a refused open for ``connect_wait_s`` (10 s by
+    default, for a daemon still starting); 1 s here, since the listener is up. The refusal is the same."""
+    return Bus(dataclasses.replace(settings, connect_wait_s=1.0))
+
+
 def _credentials() -> dict[str, str]:
     pairs = [line.split(":", 1) for line in CREDENTIALS.read_text().splitlines() if line.strip()]
     return {u: p for u, p in pairs}
@@ -292,7 +299,8 @@ def test_wrong_credentials_receive_nothing_and_reach_nothing(daemon: DaemonLike,
 
 def test_client_with_wrong_password_cannot_even_open(daemon: DaemonLike) -> None:
     with pytest.raises(TransportError, match="cannot open zenoh session"):
-        _client("sensor.json5", daemon, extra=(("transport/auth/usrpwd/password", _j("wrong")),))
+        _refused(_settings("sensor.json5", connect=(daemon.endpoint,),
+                           extra=(("transport/auth/usrpwd/password", _j("wrong")),)))
 
 
 # --------------------------------------------------------------------------- access control
@@ -522,11 +530,11 @@ def test_tls_daemon_serves_authenticated_tls_clients_only(certs: tuple[Path, Pat
             assert sensor_seen.items() == []
         # a client trusting another CA refuses the daemon's certificate
         with pytest.raises(TransportError, match="cannot open zenoh session"):
-            Bus(_tls("tls/sensor.json5", other_ca, connect=(tls_ep,)))
+            _refused(_tls("tls/sensor.json5", other_ca, connect=(tls_ep,)))
         # plain TCP with the right password cannot talk to the TLS listener
         with pytest.raises(TransportError, match="cannot open zenoh session"):
-            Bus(_settings("sensor.json5", connect=(tcp_ep,)))
+            _refused(_settings("sensor.json5", connect=(tcp_ep,)))
         # right certificate chain, wrong password: refused as well
         with pytest.raises(TransportError, match="cannot open zenoh session"):
-            Bus(_tls("tls/sensor.json5", good_ca, connect=(tls_ep,),
-                     more=(("transport/auth/usrpwd/password", _j("wrong")),)))
+            _refused(_tls("tls/sensor.json5", good_ca, connect=(tls_ep,),
+                          more=(("transport/auth/usrpwd/password", _j("wrong")),)))
