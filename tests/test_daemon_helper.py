@@ -80,8 +80,16 @@ def test_a_sigkilled_daemon_leaves_no_helper_behind(tmp_path) -> None:
         wait_version(ep, 1)
         mine = _helper_folders() - before
         assert mine, "the daemon started no evaluation helper"
-        pids = [int(np.fromfile(os.path.join(f, "control"), dtype=np.int64, count=2)[1]) for f in mine]
-        assert all(p > 0 for p in pids)  # the helpers wrote their pids (control word 1)
+        def pids_written() -> list[int]:
+            return [int(np.fromfile(os.path.join(f, "control"), dtype=np.int64, count=2)[1]) for f in mine]
+
+        # the helpers write their pids (control word 1) once their process has started: a helper made for a
+        # later run can still be starting (seen once on a slower machine: a pid of 0 read too early)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not all(p > 0 for p in pids_written()):
+            time.sleep(0.05)
+        pids = pids_written()
+        assert all(p > 0 for p in pids), pids
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
         deadline = time.monotonic() + 10
