@@ -224,7 +224,7 @@ def _solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64
 _LOG2E = 1.4426950408889634  # exp(x) = exp2(x log2 e); exp2 is ~15 % faster here
 
 #: numpy's float64 ``exp2`` is vectorised only on CPUs with AVX-512 (about 1 ns an element); elsewhere (AVX2: an AMD
-#: EPYC, 5.5-8.5 ns) the compiled :func:`~streamid.engine._kernels.exp2_rows` (1.3 ns there, within 1 ulp) computes
+#: EPYC, 5.5-8.5 ns) the compiled :func:`~streamid.engine._kernels.exp2_rows` (1.8 ns there, within 1 ulp) computes
 #: the activations. Decided by the CPU's features, never by a timing, so one machine always takes the same path.
 NUMPY_EXP2 = bool(getattr(importlib.import_module("numpy._core._multiarray_umath"), "__cpu_features__", {}).get("AVX512F"))
 

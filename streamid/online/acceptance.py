@@ -25,7 +25,7 @@ run; the one-step-ahead figure only has to pass its floor.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -186,15 +186,14 @@ def degraded_after(decision: Decision, cfg: StreamConfig) -> str | None:
     if decision.accepted or champ is None or decision.code not in ("validation", "not_better"):
         return None
     fr, osa = champ.get("r2_fr_val"), champ.get("r2_osa_val")
-    if isinstance(fr, (int, float)) and isinstance(osa, (int, float)) and _finite(fr) and _finite(osa) \
-            and fr >= cfg.min_r2_fr and osa >= cfg.min_r2_osa:
+    if _finite(fr) and _finite(osa) and fr >= cfg.min_r2_fr and osa >= cfg.min_r2_osa:
         return ""
     lead = f"{decision.reason}; " if decision.code == "validation" else ""
     return (f"{lead}champion v{champ.get('version')} is not valid on the same data either (R² FR {_text(fr)}, "
             f"OSA {_text(osa)}; floors min_r2_fr {cfg.min_r2_fr}, min_r2_osa {cfg.min_r2_osa})")[:500]
 
 
-def _finite(v: Any) -> bool:
+def _finite(v: Any) -> TypeGuard[float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 

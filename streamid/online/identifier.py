@@ -529,4 +529,3 @@ class OnlineIdentifier(StreamIntake):
         ev = self._event(f"update.{kind}", f"window {w.number} {output} {kind}: {reason}", w.t_end_ns, now_ns)
         version = self._heads[output].version if output in self._heads else 0
         return Update(kind, reason, code, version, w, outcome, document, payload, ev, output, decision)
-
