@@ -174,3 +174,50 @@ def test_compiled_exp2_is_numpys_to_one_ulp_and_keeps_its_special_values() -> No
     assert row[0] == 1.0 and row[1] == 0.5 and row[4] == 8.0  # powers of two exactly
     assert row[7] == 0.0 and row[8] == 0.0 and np.isnan(row[9]) and row[10] == np.inf and row[11] == np.inf
     assert np.all(got[~normal & np.isfinite(before[:, 1:4, :]) & (before[:, 1:4, :] < -1022)] == 0.0)
+
+
+def test_compiled_gram_is_numpys_product_for_every_block_shape() -> None:
+    """The search's Gram off AVX-512 (streamid.engine._kernels.gram_rows): ``ext[:p, :R] @ ext[:p, 1:R].T`` to
+    rounding, for every row count (the 2 x 4 blocks' edges), sample counts off the chunk size, and only the first
+    ``p`` members written."""
+    from streamid.engine._kernels import gram_rows
+
+    rng = np.random.default_rng(11)
+    for R in range(2, 12):
+        for n in (1, 7, 256, 700):
+            ext = rng.standard_normal((4, R + 2, n))
+            gb = np.full((4, R, R - 1), -7.0)
+            gram_rows(ext, 3, R, gb)
+            want = ext[:3, :R] @ ext[:3, 1:R].transpose(0, 2, 1)
+            np.testing.assert_allclose(gb[:3], want, rtol=1e-12, atol=1e-12 * n)
+            np.testing.assert_array_equal(gb[3], -7.0)
+            np.testing.assert_array_equal(gb[:3, 1:], gb[:3, 1:].transpose(0, 2, 1))  # the Gram is symmetric
+
+
+def test_both_paths_of_the_evaluator_give_the_same_fitness(monkeypatch: pytest.MonkeyPatch) -> None:
+    """numpy's path (AVX-512 machines) and the compiled kernels' agree on a batch's fitness and weights, with and
+    without the linear part and with per-member and shared masks."""
+    import streamid.engine.rbf as rbf
+
+    rng = np.random.default_rng(5)
+    n, D, M, P = 900, 6, 9, 5
+    R = rng.standard_normal((n, D))
+    y = np.tanh(R[:, 0]) + 0.3 * R[:, 1] * R[:, 2]
+    masks = rng.random((P, D)) < 0.6
+    masks[:, 0] = True
+    centres = rng.standard_normal((P, M, D))
+    widths = 0.5 + rng.random((P, M))
+    out = {}
+    for numpy_path in (True, False):
+        monkeypatch.setattr(rbf, "NUMPY_PATH", numpy_path)
+        for linear in (False, True):
+            ev = rbf.BatchEvaluator(R, y, M, P, linear=linear)
+            for shared in (False, True):
+                mk = np.repeat(masks[:1], P, axis=0) if shared else masks
+                out[numpy_path, linear, shared] = ev.evaluate(mk, centres, widths, return_weights=True, shared=shared)
+    for linear in (False, True):
+        for shared in (False, True):
+            (m0, w0), (m1, w1) = out[True, linear, shared], out[False, linear, shared]
+            assert np.all(m0 > 0)
+            np.testing.assert_allclose(m1, m0, rtol=1e-9)
+            np.testing.assert_allclose(w1, w0, rtol=1e-6, atol=1e-9)

@@ -4,8 +4,8 @@ Usage: ``python examples/measure/engine_timing.py SYSTEM SEEDS [both|numpy|kerne
 
 ``SYSTEM`` a name of ``benchmarks.suite.SYSTEMS`` (e.g. ``bouc_wen``: 10,000 estimation samples), ``SEEDS``
 comma-separated. ``both`` (default): both cores, the evaluation helper as ``streamid identify`` uses it.
-``numpy`` / ``kernel``: one core, the activations' ``exp2`` by numpy or by the compiled kernel
-(``streamid.engine.rbf.NUMPY_EXP2``, set in this process only): an A/B of the two on this machine.
+``numpy`` / ``kernel``: one core, the activations' ``exp2`` and the search's Gram by numpy (its BLAS) or by the
+compiled kernels (``streamid.engine.rbf.NUMPY_PATH``, set in this process only): an A/B of the two on this machine.
 Prints one line per seed and the median seconds (docs/benchmarks.md quotes it).
 """
 
@@ -25,7 +25,7 @@ def main(system: str, seeds: list[int], mode: str = "both") -> float:
     if mode not in ("both", "numpy", "kernel"):
         raise SystemExit(f"mode must be one of both, numpy, kernel; got {mode!r}")
     if mode != "both":
-        rbf.NUMPY_EXP2 = mode == "numpy"
+        rbf.NUMPY_PATH = mode == "numpy"
     target = SYSTEMS[system]()[0]
     secs = []
     with EvalHelper() if mode == "both" and EvalHelper.supported() else contextlib.nullcontext() as helper:

@@ -59,10 +59,9 @@ def free_run(
 
     Notes
     -----
-    The recursion is inherently sequential, so its cost is the per-step
-    overhead of numpy calls: the input terms of every step are computed at
-    once beforehand, and each step then takes a fixed handful of calls on
-    preallocated buffers, whatever ``C`` (all networks advance together).
+    The recursion is inherently sequential: it is one compiled loop over the steps
+    (:func:`~streamid.engine._kernels.recursion`), all networks advancing together, which
+    computes each neuron's input and output terms at the step (no whole-record temporaries).
     """
     C, M, _ = centres.shape
     if threads > 1 and C > 1:
@@ -80,8 +79,34 @@ def free_run(
     L = max((r.lag for r in (*regressors, *lregs)), default=0)
     a = 1.0 / (2.0 * widths**2)  # (C, M)
     yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
-    lags = np.array([regressors[j].lag for j in yj], dtype=np.intp)
-    # Scaled squared distances contributed by the input regressors, every step at once, time-major.
+    uj = [j for j, r in enumerate(regressors) if r.signal == "u"]
+    lags = np.array([regressors[j].lag for j in yj], dtype=np.int64)
+    y = np.empty((n, C))
+    y[:L] = yn_init[:, :L].T
+    lin_u = None if linear is None else _linear_inputs(lregs, linear, un, n)
+    lyj = [j for j, r in enumerate(lregs) if r.signal == "y"]
+    if lags.size == 0 and (linear is None or not lyj):  # no output terms: nothing recursive
+        ndu = _input_exponents(regressors, centres, a, un, n)
+        np.exp(ndu[L:], out=ndu[L:])
+        y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
+        if lin_u is not None:
+            y[L:] += lin_u[L:]
+        return np.ascontiguousarray(y.T)
+    llags = np.array([lregs[j].lag for j in lyj], dtype=np.int64)
+    lin_y = np.zeros((C, llags.size)) if linear is None else np.ascontiguousarray(linear[:, lyj])
+    recursion(np.ascontiguousarray(un, dtype=np.float64), np.array([regressors[j].lag for j in uj], dtype=np.int64),
+              np.array([regressors[j].index for j in uj], dtype=np.int64), np.ascontiguousarray(centres[:, :, uj]),
+              np.ascontiguousarray(centres[:, :, yj]), a, lags, np.array(weights, dtype=np.float64, order="C"), llags,
+              lin_y, np.zeros((n, C)) if lin_u is None else lin_u, y, L)
+    return np.ascontiguousarray(y.T)
+
+
+def _input_exponents(
+    regressors: tuple[Regressor, ...], centres: NDArray[np.float64], a: NDArray[np.float64], un: NDArray[np.float64],
+    n: int,
+) -> NDArray[np.float64]:
+    """Minus the scaled squared distances the input regressors contribute, every step at once, time-major (n, C*M)."""
+    C, M, _ = centres.shape
     du = np.zeros((n, C, M))
     tmp: NDArray[np.float64] | None = None  # one (n, C, M) temporary for all input terms (fresh ones page-fault)
     for j, reg in enumerate(regressors):
@@ -92,23 +117,7 @@ def free_run(
             np.multiply(tmp, tmp, out=tmp)
             du += tmp
     du *= a[None]
-    ndu = np.negative(du, out=du).reshape(n, C * M)
-    y = np.empty((n, C))
-    y[:L] = yn_init[:, :L].T
-    lin_u = None if linear is None else _linear_inputs(lregs, linear, un, n)
-    lyj = [j for j, r in enumerate(lregs) if r.signal == "y"]
-    if lags.size == 0 and (linear is None or not lyj):  # no output terms: nothing recursive
-        np.exp(ndu[L:], out=ndu[L:])
-        y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
-        if lin_u is not None:
-            y[L:] += lin_u[L:]
-        return np.ascontiguousarray(y.T)
-    llags = np.array([lregs[j].lag for j in lyj], dtype=np.int64)
-    lin_y = np.zeros((C, llags.size)) if linear is None else np.ascontiguousarray(linear[:, lyj])
-    recursion(np.ascontiguousarray(ndu.reshape(n, C, M)), np.ascontiguousarray(centres[:, :, yj]), a, lags.astype(np.int64),
-              np.array(weights, dtype=np.float64, order="C"), llags, lin_y,
-              np.zeros((n, C)) if lin_u is None else lin_u, y, L)
-    return np.ascontiguousarray(y.T)
+    return np.negative(du, out=du).reshape(n, C * M)
 
 
 def _linear_inputs(

@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine._kernels import exp2_rows
+from streamid.engine._kernels import exp2_rows, gram_rows
 
 __all__ = ["BatchEvaluator", "MIN_NORM", "activations", "activations_batch", "fit_linear_rbf", "fit_weights", "rbf_output"]
 
@@ -223,19 +223,33 @@ def _solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64
 
 _LOG2E = 1.4426950408889634  # exp(x) = exp2(x log2 e); exp2 is ~15 % faster here
 
-#: numpy's float64 ``exp2`` is vectorised only on CPUs with AVX-512 (about 1 ns an element); elsewhere (AVX2: an AMD
-#: EPYC, 5.5-8.5 ns) the compiled :func:`~streamid.engine._kernels.exp2_rows` (1.8 ns there, within 1 ulp) computes
-#: the activations. Decided by the CPU's features, never by a timing, so one machine always takes the same path.
-NUMPY_EXP2 = bool(getattr(importlib.import_module("numpy._core._multiarray_umath"), "__cpu_features__", {}).get("AVX512F"))
+#: numpy's float64 ``exp2`` is vectorised only on CPUs with AVX-512 (about 1 ns an element), and its BLAS products of
+#: the search's short, wide blocks run there near the machine's speed; elsewhere (AVX2: an AMD EPYC, exp2 5.5-8.5 ns,
+#: the Gram at 20 GFLOP/s) the compiled :func:`~streamid.engine._kernels.exp2_rows` (1.8 ns there, within 1 ulp) and
+#: :func:`~streamid.engine._kernels.gram_rows` (about twice as fast, to rounding) do that work. Decided by the CPU's
+#: features, never by a timing, so one machine always takes the same path (same seed, same result).
+NUMPY_PATH = bool(getattr(importlib.import_module("numpy._core._multiarray_umath"), "__cpu_features__", {}).get("AVX512F"))
 
 
 def exp2_block(buf: NDArray[np.float64], r0: int, r1: int) -> None:
     """``buf[:, r0:r1, :] = 2 ** buf[:, r0:r1, :]`` in place (``buf`` C-contiguous, 3-D), by the faster path here."""
-    if NUMPY_EXP2:
+    if NUMPY_PATH:
         view = buf[:, r0:r1, :]
         np.exp2(view, out=view)
     else:
         exp2_rows(buf, r0, r1)
+
+
+def gram_block(buf: NDArray[np.float64], p: int, rows: int, out: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``out[:p] = buf[:p, :rows] @ buf[:p, 1:rows].T`` (``buf`` C-contiguous, 3-D; ``out`` (>= p, rows, rows - 1),
+    C-contiguous) by the faster path here; returns ``out[:p]``: row 0 the design's products with the target
+    (row 0 of each block), rows 1.. the design's Gram."""
+    gb = out[:p]
+    if NUMPY_PATH:
+        np.matmul(buf[:p, :rows], buf[:p, 1:rows].transpose(0, 2, 1), out=gb)
+    else:
+        gram_rows(buf, p, rows, gb)
+    return gb
 
 
 class BatchEvaluator:
@@ -444,7 +458,7 @@ class BatchEvaluator:
         p = masks.shape[0]
         phi = self.activations_into(masks, centres, widths, shared)
         ext, gb, gbt, sb, sb3, s, dg, active, gs, dgs, v, w, res, r0, s_col, s_row = self._views(p)[:16]
-        np.matmul(ext, phi.transpose(0, 2, 1), out=gb)  # row 0: b = Phi y; rows 1..M: G = Phi Phi^T
+        gram_block(self._ext, p, self.M + 1, self._gb)  # gb: row 0 b = Phi y; rows 1..M G = Phi Phi^T
         np.add(dg, _TINY, out=s)  # diag(G) = ||phi_m||^2
         np.sqrt(s, out=s)
         np.greater(dg, MIN_NORM**2, out=active)
@@ -499,8 +513,7 @@ class BatchEvaluator:
             self._lin_key = None
         nz = M + 1 + k  # design rows: activations, ones, regressors
         ext = self._ext[:p, : nz + 1, :]
-        z_rows = ext[:, 1:, :]
-        gb = np.matmul(ext, z_rows.transpose(0, 2, 1))  # row 0: Z y; rows 1..: Z Z^T
+        gb = gram_block(self._ext, p, nz + 1, np.empty((p, nz + 1, nz)))  # row 0: Z y; rows 1..: Z Z^T
         g = gb[:, 1:, :]
         dg = np.diagonal(g, axis1=1, axis2=2)
         active = dg > MIN_NORM**2
