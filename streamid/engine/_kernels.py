@@ -166,8 +166,9 @@ def recursion(un: F64, ulags: NDArray[np.int64], uidx: NDArray[np.int64], cu: F6
     """Free runs of C networks sharing their regressors, in place: ``y`` (n, C) from row ``L`` on.
 
     ``un`` (1 or C, n', inputs): the normalised inputs, shared or one sequence per network (n' >= n);
-    ``ulags``, ``uidx`` (ku,): the input regressors' lags and input indices, ``cu`` (C, M, ku) the
-    centres' input coordinates; ``cy`` (C, M, ky): the centres' output coordinates; ``a`` (C, M):
+    ``ulags``, ``uidx`` (ku,): the input regressors' lags and input indices, ``cu`` (C, ku, M) the
+    centres' input coordinates; ``cy`` (C, ky, M): the centres' output coordinates (coordinate-major, so
+    that the loops over the neurons are vectorised); ``a`` (C, M):
     ``1 / (2 sigma^2)``; ``lags`` (ky,) the network's output lags; ``W`` (C, M); ``llags`` (ly,) the
     linear part's output lags (the network's, or its own: a long linear part); ``lin_y`` (C, ly) and
     ``lin_u`` (n, C): a linear part's output coefficients and its input terms plus constant (zeros
@@ -182,22 +183,30 @@ def recursion(un: F64, ulags: NDArray[np.int64], uidx: NDArray[np.int64], cu: F6
     ky = lags.shape[0]
     ly = llags.shape[0]
     shared = un.shape[0] == 1
+    su = np.empty(M)
+    sy = np.empty(M)
     for t in range(L, n):
         for c in range(C):
             uc = 0 if shared else c
+            # each neuron's squared distances, coordinate by coordinate (loops over the neurons: vectorised)
+            for m in range(M):
+                su[m] = 0.0
+                sy[m] = 0.0
+            for k in range(ku):
+                v = un[uc, t - ulags[k], uidx[k]]
+                for m in range(M):
+                    d = v - cu[c, k, m]
+                    su[m] += d * d
+            for k in range(ky):
+                v = y[t - lags[k], c]
+                for m in range(M):
+                    d = v - cy[c, k, m]
+                    sy[m] += d * d
             acc = lin_u[t, c]
             for k in range(ly):
                 acc += lin_y[c, k] * y[t - llags[k], c]
             for m in range(M):
-                su = 0.0
-                for k in range(ku):
-                    d = un[uc, t - ulags[k], uidx[k]] - cu[c, m, k]
-                    su += d * d
-                s = 0.0
-                for k in range(ky):
-                    d = y[t - lags[k], c] - cy[c, m, k]
-                    s += d * d
-                acc += W[c, m] * np.exp(-(su * a[c, m]) - a[c, m] * s)
+                acc += W[c, m] * np.exp(-(su[m] * a[c, m]) - a[c, m] * sy[m])
             y[t, c] = acc
 
 
@@ -205,6 +214,9 @@ def recursion(un: F64, ulags: NDArray[np.int64], uidx: NDArray[np.int64], cu: F6
 def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w: F64, lin_y: F64, lin_u: F64, y0: F64,
                            L: int, xu: F64, ny: int) -> tuple[F64, F64]:
     """The network's free run (n,) with weights ``w`` (M,) from ``y0`` (L,), and its derivatives along it.
+
+    ``du`` (n, M): the input regressors' scaled squared distances; ``cy`` (ky, M): the centres' output
+    coordinates (coordinate-major); ``a`` (M,): ``1 / (2 sigma^2)``.
 
     The derivatives ``S`` (n, M + ny + q) are by the weights ``w``, then (``ny`` = ky) by the linear
     part's output coefficients ``lin_y``, then by the coefficients of the columns ``xu`` (n, q) of which
@@ -222,6 +234,9 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
     S = np.zeros((n, P))
     x = np.empty(P)
     g = np.empty(ky)
+    sy = np.empty(M)
+    f = np.empty(M)
+    v = np.empty(P)
     for t in range(L):
         Y[t] = y0[t]
     for t in range(L, n):
@@ -229,26 +244,39 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
         for k in range(ky):
             g[k] = lin_y[k]
             acc += lin_y[k] * Y[t - lags[k]]
+        # the loops over the neurons (and over the parameters, below) are vectorised; each sum keeps its order
         for m in range(M):
-            s = 0.0
-            for k in range(ky):
-                d = Y[t - lags[k]] - cy[m, k]
-                s += d * d
-            x[m] = np.exp(-(du[t, m] + a[m] * s))
+            sy[m] = 0.0
+        for k in range(ky):
+            yk = Y[t - lags[k]]
+            for m in range(M):
+                d = yk - cy[k, m]
+                sy[m] += d * d
+        for m in range(M):
+            x[m] = np.exp(-(du[t, m] + a[m] * sy[m]))
+        for m in range(M):
             acc += w[m] * x[m]
-            f = 2.0 * a[m] * w[m] * x[m]
-            for k in range(ky):
-                g[k] -= f * (Y[t - lags[k]] - cy[m, k])
+            f[m] = 2.0 * a[m] * w[m] * x[m]
+        for k in range(ky):
+            yk = Y[t - lags[k]]
+            gk = g[k]
+            for m in range(M):
+                gk -= f[m] * (yk - cy[k, m])
+            g[k] = gk
         Y[t] = acc
         for k in range(ny):
             x[M + k] = Y[t - lags[k]]
         for j in range(q):
             x[M + ny + j] = xu[t, j]
         for m in range(P):
-            v = x[m]
-            for k in range(ky):  # rows before L are zero
-                v += g[k] * S[t - lags[k], m]
-            S[t, m] = v
+            v[m] = x[m]
+        for k in range(ky):  # rows before L are zero
+            gk = g[k]
+            row = t - lags[k]
+            for m in range(P):
+                v[m] += gk * S[row, m]
+        for m in range(P):
+            S[t, m] = v[m]
     return Y, S
 
 

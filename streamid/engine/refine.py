@@ -103,7 +103,7 @@ def parts(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[Any], ...]:
         lin_u += model.linear[-1]
     lin_y = np.zeros(len(yj)) if model.linear is None else np.ascontiguousarray(model.linear[yj])
     lags = np.array([model.regressors[j].lag for j in yj], dtype=np.int64)
-    return du, np.ascontiguousarray(model.centres[:, yj]), a, lags, lin_y, lin_u
+    return du, np.ascontiguousarray(model.centres[:, yj].T), a, lags, lin_y, lin_u  # cy: (ky, M)
 
 
 def _linear_columns(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[int], list[int]]:
