@@ -1,17 +1,21 @@
-"""The engine's compiled loops (numba): the free run's recursion, and with it its sensitivities.
+"""The engine's compiled loops (numba): the free run's recursion and its sensitivities, and where numpy is slow
+(no AVX-512) the search's ``exp2`` and Gram.
 
 A free run is sequential: step ``t`` needs the outputs of steps ``t - lag``. With numpy every step
 pays a dozen calls' overhead (about 3 us) whatever the network's size; these loops do the same
 arithmetic compiled. Measured on the 10,000-sample Bouc-Wen record (docs/engine-results.md,
 round 8): one 30-neuron network's free run 27 ms with the numpy step loop, about 2.5 ms here.
-Compiled once per machine (``cache=True``: about 0.5 s the first time; later processes load
-them from ``__pycache__``).
+Compiled once per install (``cache=True``): on a fresh install the first identification compiles the four
+kernels below, 1.2-1.6 s each on a 2-core AMD EPYC VM (about 5 s once: README journey 1 took 10.0 s wall the
+first time, then 5.6-6.1 s); later processes load them from ``__pycache__`` in about 0.2 s.
 
 * :func:`recursion`: the free runs of :func:`streamid.engine.freerun.free_run` (C networks sharing
-  their regressors), after numpy has computed every step's input terms at once.
+  their regressors), each neuron's input and output distances computed at the step.
 * :func:`free_run_sensitivities`: one network's free run and its derivatives by the output weights (and a
   linear part's coefficients) along it, for the output-error refinement (:mod:`streamid.engine.refine`,
   which prepares its arguments).
+* :func:`exp2_rows` and :func:`gram_rows`: the population's activations' ``exp2`` and the batched Gram of
+  :class:`~streamid.engine.rbf.BatchEvaluator`, used where ``rbf.NUMPY_PATH`` is false.
 
 The arithmetic is the free run's: ``yhat(t) = lin_u(t) + sum_k lin_y_k yhat(t - lag_k) +
 sum_m w_m exp(-(du(t, m) + a_m sum_k (yhat(t - lag_k) - cy_mk)^2))``, ``du`` the input regressors'
