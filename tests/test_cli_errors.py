@@ -36,6 +36,19 @@ def test_help_shows_no_restructuredtext_markup() -> None:
     assert "Examples:" in cmds["identify"].format_help()
 
 
+def test_a_command_alone_gets_the_parser_it_gets_among_all() -> None:
+    """``streamid NAME ...`` imports NAME's module only (build_parser(NAME)); its parser must be the one the full
+    parser has (every command's name is its module's or its entry point's), and the rest still list them all."""
+    full = _subparsers()
+    for name, p in full.items():
+        sub = next(a for a in build_parser(name)._actions if a.dest == "command")
+        assert list(sub.choices) == [name], name  # type: ignore[arg-type]
+        assert sub.choices[name].format_help() == p.format_help(), name  # type: ignore[index]
+    for other in (None, "nope", "--version"):
+        sub = next(a for a in build_parser(other)._actions if a.dest == "command")
+        assert set(sub.choices) == set(full), other  # type: ignore[arg-type]
+
+
 def test_json_means_one_json_line_on_stdout_everywhere_and_files_use_report() -> None:
     for name, p in _subparsers().items():
         for a in p._actions:
