@@ -129,21 +129,23 @@ def _gram_upper(E: F64, R: int, acc: F64) -> None:
                     s11 += x1 * y1
                     s12 += x1 * y2
                     s13 += x1 * y3
-                acc[i, j] += s00
-                if j1 > j:
-                    acc[i, j1] += s01
-                if j2 > j1:
-                    acc[i, j2] += s02
-                if j3 > j2:
-                    acc[i, j3] += s03
+                _add_distinct(acc, i, j, j1, j2, j3, s00, s01, s02, s03)
                 if i1 > i:
-                    acc[i1, j] += s10
-                    if j1 > j:
-                        acc[i1, j1] += s11
-                    if j2 > j1:
-                        acc[i1, j2] += s12
-                    if j3 > j2:
-                        acc[i1, j3] += s13
+                    _add_distinct(acc, i1, j, j1, j2, j3, s10, s11, s12, s13)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_distinct(acc: F64, i: int, j: int, j1: int, j2: int, j3: int, s0: float, s1: float, s2: float,
+                  s3: float) -> None:
+    """``acc[i, j..j3] += s0..s3`` for the columns that differ from the one before (a block at the last row
+    repeats it)."""
+    acc[i, j] += s0
+    if j1 > j:
+        acc[i, j1] += s1
+    if j2 > j1:
+        acc[i, j2] += s2
+    if j3 > j2:
+        acc[i, j3] += s3
 
 
 @njit(cache=True, nogil=True)
