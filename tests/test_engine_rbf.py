@@ -85,6 +85,12 @@ def test_fit_weights_matches_lstsq() -> None:
     a = np.vstack([phi * s, np.sqrt(ridge) * np.eye(5)])
     z = np.linalg.lstsq(a, np.concatenate([y, np.zeros(5)]), rcond=None)[0]
     np.testing.assert_allclose(fit_weights(phi, y, ridge), z * s, rtol=1e-10)
+    # nearly collinear columns and the search's ridge: the QR (every column regularised) is the SVD's solution
+    near = np.hstack([phi, phi[:, :2] + 1e-7 * rng.normal(size=(100, 2))])
+    s = 1 / np.sqrt((near**2).sum(axis=0))
+    a = np.vstack([near * s, np.sqrt(1e-10) * np.eye(7)])
+    z = np.linalg.lstsq(a, np.concatenate([y, np.zeros(7)]), rcond=None)[0]
+    np.testing.assert_allclose(fit_weights(near, y, 1e-10), z * s, rtol=1e-6)
 
 
 def test_dead_neuron_gets_zero_weight_and_finite_fitness() -> None:
