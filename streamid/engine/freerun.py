@@ -94,10 +94,13 @@ def free_run(
         return np.ascontiguousarray(y.T)
     llags = np.array([lregs[j].lag for j in lyj], dtype=np.int64)
     lin_y = np.zeros((C, llags.size)) if linear is None else np.ascontiguousarray(linear[:, lyj])
-    recursion(np.ascontiguousarray(un, dtype=np.float64), np.array([regressors[j].lag for j in uj], dtype=np.int64),
-              np.array([regressors[j].index for j in uj], dtype=np.int64),
-              np.ascontiguousarray(centres[:, :, uj].transpose(0, 2, 1)), np.ascontiguousarray(centres[:, :, yj].transpose(0, 2, 1)), a, lags, np.array(weights, dtype=np.float64, order="C"), llags,
-              lin_y, np.zeros((n, C)) if lin_u is None else lin_u, y, L)
+    ulags = np.array([regressors[j].lag for j in uj], dtype=np.int64)
+    uidx = np.array([regressors[j].index for j in uj], dtype=np.int64)
+    cu = np.ascontiguousarray(centres[:, :, uj].transpose(0, 2, 1))  # (C, ku, M): coordinate-major
+    cy = np.ascontiguousarray(centres[:, :, yj].transpose(0, 2, 1))  # (C, ky, M)
+    recursion(np.ascontiguousarray(un, dtype=np.float64), ulags, uidx, cu, cy, a, lags,
+              np.array(weights, dtype=np.float64, order="C"), llags, lin_y,
+              np.zeros((n, C)) if lin_u is None else lin_u, y, L)
     return np.ascontiguousarray(y.T)
 
 

@@ -472,9 +472,9 @@ class BatchEvaluator:
         if self.linear:
             return self._evaluate_linear(masks, centres, widths, return_weights, shared)
         p = masks.shape[0]
-        phi = self.activations_into(masks, centres, widths, shared)
-        ext, gb, gbt, sb, sb3, s, dg, active, gs, dgs, v, w, res, r0, s_col, s_row = self._views(p)[:16]
-        gram_block(self._ext, p, self.M + 1, self._gb)  # gb: row 0 b = Phi y; rows 1..M G = Phi Phi^T
+        self.activations_into(masks, centres, widths, shared)  # rows 1..M of each member's block of self._ext
+        ext, _, gbt, sb, sb3, s, dg, active, gs, dgs, v, w, res, r0, s_col, s_row = self._views(p)[:16]
+        gram_block(self._ext, p, self.M + 1, self._gb)  # row 0: b = Phi y (sb); rows 1..M: G = Phi Phi^T (gbt)
         np.add(dg, _TINY, out=s)  # diag(G) = ||phi_m||^2
         np.sqrt(s, out=s)
         np.greater(dg, MIN_NORM**2, out=active)
