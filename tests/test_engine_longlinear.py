@@ -18,7 +18,7 @@ from streamid.engine.choice import free_run_scores, group_free_run
 from streamid.engine.complexity import parameter_count
 from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.longlinear import dense_regressors, long_linear_choice, orders
-from streamid.engine.model import MODEL_FORMAT_LONG_LINEAR
+from streamid.engine.model import MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_LONG_LINEAR
 from streamid.engine.refine import refine_weights
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.engine.selection import refit_weights
@@ -91,8 +91,65 @@ def test_malformed_documents_name_the_field() -> None:
         Model.from_dict({**doc, "linear_regressors": [{"signal": "y", "index": 0, "lag": 0}] * 19})
     with pytest.raises(ModelFormatError, match="need a linear part"):
         replace(_model(), linear=None)
-    with pytest.raises(ModelFormatError, match="long linear part"):
-        EnsembleModel.of([_model(), _model()])
+    # an ensemble with such a member is a streamid.model/5 document; a /3 document refuses the field
+    ens = json.loads(EnsembleModel.of([_model(), _model(5)]).to_json())
+    with pytest.raises(ModelFormatError, match=r"members\[0\].linear_regressors.*only in a streamid.model/5"):
+        Model.from_dict({**ens, "format": "streamid.model/3"})
+    with pytest.raises(ModelFormatError, match=r"members\[0\].linear' is missing"):
+        Model.from_dict({**ens, "members": [{k: v for k, v in ens["members"][0].items() if k != "linear"}, ens["members"][1]]})
+    with pytest.raises(ModelFormatError, match=r"members\[1\].linear' must have shape \(12,\)"):
+        Model.from_dict({**ens, "members": [ens["members"][0], {**ens["members"][1], "linear": ens["members"][1]["linear"][:-1]}]})
+    plain = json.loads(EnsembleModel.of([replace(_model(), linear=None, linear_regressors=None)] * 2).to_json())
+    with pytest.raises(ModelFormatError, match="has at least one member with 'linear_regressors'"):
+        Model.from_dict({**plain, "format": "streamid.model/5"})
+
+
+def test_a_mean_of_long_linear_members_is_a_model5_document_and_the_mean_of_their_runs() -> None:
+    a, b = _model(), replace(_model(5), weights=_model(5).weights * -0.5)
+    ens = EnsembleModel.of([a, b])
+    doc = json.loads(ens.to_json())
+    assert doc["format"] == MODEL_FORMAT_ENSEMBLE_LONG_LINEAR and "linear_regressors" in doc["formula"]
+    assert [len(m["linear_regressors"]) for m in doc["members"]] == [19, 11]
+    u = np.random.default_rng(1).normal(size=300)
+    y = np.cumsum(np.random.default_rng(2).normal(size=300)) * 0.05
+    back = Model.from_json(ens.to_json())
+    assert isinstance(back, EnsembleModel) and back.max_lag == 9
+    mean = (a.simulate(u, y) + b.simulate(u, y)) / 2
+    np.testing.assert_allclose(back.simulate(u, y)[9:], mean[9:], rtol=1e-12)
+    np.testing.assert_allclose(back.simulate(u, y)[9:], (_by_hand(a, u, y, True) + _by_hand(b, u, y, True))[9:] / 2,
+                               rtol=1e-9)
+    text = back.summary()
+    assert "mean of 2 networks" in text and "a linear part of 19 terms of its own" in text and "(member 0's)" in text
+
+
+def test_the_mean_of_the_best_offers_is_taken_only_when_its_criterion_is_lower() -> None:
+    """Step 6: members' errors that cancel make the mean's criterion lower (taken, p the members' mean);
+    members that agree make the mean no better (the best offer stands)."""
+    from streamid.engine.complexity import criterion
+    from streamid.engine.longlinear import _means, _Offer
+
+    n = 2000
+    t = np.arange(n)
+    y = np.sin(0.01 * t)
+    u = np.zeros((n, 1))
+    e = 0.05 * np.sin(0.13 * t)
+    m1, m2 = _model(), replace(_model(), weights=_model().weights * 2.0)
+
+    def offer(model: Model, path: np.ndarray, run: int) -> _Offer:
+        L = model.max_lag
+        score = r2(y[L:], path[L:])
+        return _Offer(criterion("aic", score, n - L, parameter_count(model)), model, {"r2_fr_est": score}, run, 9, path)
+
+    cancel = sorted([offer(m1, y + e, 0), offer(m2, y - 1.2 * e, 1)], key=lambda o: o.value)
+    ev: dict = {}
+    chosen, taken = _means(cancel, "aic", u, y, -1.0, 1.0, 0.1, ev)
+    assert isinstance(chosen, EnsembleModel) and len(chosen.members) == 2 and taken.run == cancel[0].run
+    assert ev["means"][0]["taken"] and ev["means"][0]["params"] == parameter_count(m1)  # the members' mean
+    assert taken.value < cancel[0].value and taken.score > max(o.score for o in cancel)
+    alike = sorted([offer(m1, y + e, 0), offer(m2, y + e, 1)], key=lambda o: o.value)
+    ev = {}
+    chosen, taken = _means(alike, "aic", u, y, -1.0, 1.0, 0.1, ev)
+    assert chosen is alike[0].model and taken is alike[0] and ev["means"][0]["taken"] is False
 
 
 def test_orders_and_dense_terms() -> None:

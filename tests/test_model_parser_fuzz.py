@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from streamid.commands.watch import decision_text, format_update
-from streamid.engine import Model
+from streamid.engine import EnsembleModel, Model
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.errors import CodecError, ModelFormatError
 from streamid.transport.updates import ModelUpdate, is_newer, parse_model_update, recency
@@ -82,7 +82,12 @@ REAL4 = _doc(model=dataclasses.replace(
     _model(), linear=np.array([0.1, -0.2, 0.3, 0.05, 0.0]),
     linear_regressors=(Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1)),
 ).to_dict())
-DOC_PATHS = [(REAL, p) for p in PATHS] + [(REAL4, p) for p in _paths(REAL4) if p[:1] == ("model",)]
+#: A mean of networks with long linear parts (streamid.model/5): its members' fields fuzzed too.
+REAL5 = _doc(model=EnsembleModel.of([Model.from_dict(REAL4["model"]), dataclasses.replace(
+    _model(), weights=np.array([0.3, -0.1]), linear=np.array([0.2, 0.1, 0.0]),
+    linear_regressors=(Regressor("y", 0, 3), Regressor("u", 0, 2)))]).to_dict())
+DOC_PATHS = ([(REAL, p) for p in PATHS] + [(REAL4, p) for p in _paths(REAL4) if p[:1] == ("model",)]
+             + [(REAL5, p) for p in _paths(REAL5) if p[:2] == ("model", "members")])
 
 
 def _only_model_format_error(payload: bytes | str) -> ModelUpdate | None:

@@ -117,7 +117,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--long-linear", type=int, metavar="N", dest="long_linear",
                    help="where the networks explain the estimation record in part (free-run R2 below "
                         f"{DEFAULT.more_below}), offer the kept network with a dense linear ARX part of order up to N, "
-                        f"the order chosen by the same criterion (default {DEFAULT.long_linear}; 0: off; never with --paper)")
+                        f"the order chosen by the same criterion, and the means of the best 2 and 3 such candidates compete "
+                        f"(default {DEFAULT.long_linear}; 0: off; never with --paper)")
     p.add_argument("--refine", type=int, metavar="N",
                    help="at most N iterations fitting the kept model's weights to its free run on the estimation data, "
                         f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}; "
@@ -296,6 +297,8 @@ def _long_linear_line(ll: dict[str, Any] | None, gate: float) -> str:
     head = (f"long linear part of order {ll['order']} taken (FR R2 est {ll['r2_fr_est']:.5f}, criterion "
             f"{ll['criterion']:.1f} against {cw} without; on restart {ll['run']}'s network"
             + (f", the lowest criterion of the {len(nets)} restarts' networks offered)" if len(nets) > 1 else ")")
+            + "".join(f"; the mean of the best {len(m['members'])} (restarts {', '.join(str(r) for r in m['members'])}) "
+                      f"taken (its criterion lower)" for m in ll.get("means", []) if m["taken"])
             if ll["taken"]
             else "long linear part not taken" + (f" ({ll['reason']})" if "reason" in ll else
                                                  " (no order lowered the criterion with a free run better than the "
@@ -359,7 +362,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     k = len(members_of(kept))
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
-      + (f" + a linear ARX part of order {max(r.lag for r in kept.linear_regressors)}"
+      + (f" + {'each its own' if k > 1 else 'a'} linear ARX part of order {max(r.lag for r in kept.linear_regressors)}"
          if kept.linear_regressors else "") + "\n")
     made = kept.metrics
     if made.get("more_restarts") or made.get("fallback_runs"):  # runs beyond --restarts (streamid.engine.restarts)

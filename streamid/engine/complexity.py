@@ -72,7 +72,7 @@ def parameter_count(model: Model) -> int:
     return sum(m.neurons + (0 if m.linear is None else int(m.linear.shape[0])) for m in members_of(model))
 
 
-def criterion(rule: str, r2_fr: float, n_scored: int, params: int) -> float:
+def criterion(rule: str, r2_fr: float, n_scored: int, params: float) -> float:
     """The rule's value (lower is better) for a candidate of free-run R^2 ``r2_fr`` over ``n_scored`` samples."""
     err = max(1.0 - r2_fr, 1e-12)  # relative free-run error (an R^2 of 1 to rounding: bounded)
     if rule == "score":

@@ -1,4 +1,5 @@
-r"""A model made of several RBF networks: the mean of its members (``streamid.model/3``).
+r"""A model made of several RBF networks: the mean of its members (``streamid.model/3``; ``/5`` when a member
+has a long linear part).
 
 Prediction formula (all a reader needs to reproduce predictions from the file)
 -------------------------------------------------------------------------------
@@ -26,7 +27,7 @@ is the members' neurons summed.
 
 An :class:`EnsembleModel` is a :class:`~streamid.engine.model.Model` (every consumer of a
 model predicts, simulates, saves and loads it the same way). Its single-network fields
-(``regressors``, ``centres``, ``widths``, ``weights``, ``linear``) are its FIRST member's
+(``regressors``, ``centres``, ``widths``, ``weights``, ``linear``, ``linear_regressors``) are its FIRST member's
 (the best ranked); the operations that work on one network's internals --
 :meth:`regressor_rows`, :func:`~streamid.engine.complexity.pruned` /
 :func:`~streamid.engine.complexity.padded`, :func:`~streamid.engine.choice.group_free_run`
@@ -43,7 +44,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine.model import MODEL_FORMAT_ENSEMBLE, Model, _finite_array, initial_outputs
+from streamid.engine.model import (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, Model, _finite_array,
+                                   initial_outputs)
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.errors import ModelFormatError
 
@@ -53,7 +55,8 @@ __all__ = ["EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of
 #: by this and by the wire's document size). The engine's "all admissible runs" ensemble takes the top ones.
 MAX_MEMBERS = 32
 
-_MEMBER_FORM = "an object with regressors, centres (M x k), widths (M), weights (M) and optionally linear (k + 1)"
+_MEMBER_FORM = ("an object with regressors, centres (M x k), widths (M), weights (M) and optionally linear (k + 1; "
+                "in a streamid.model/5 document, with linear_regressors, one number per linear regressor, then the constant)")
 
 
 def members_of(model: Model) -> tuple[Model, ...]:
@@ -97,7 +100,7 @@ class EnsembleModel(Model):
             raise ModelFormatError(f"model field 'members' must be a list of 2 to {MAX_MEMBERS} networks ({_MEMBER_FORM}); got none")
         m0 = members[0]
         base = {"regressors": m0.regressors, "centres": m0.centres, "widths": m0.widths, "weights": m0.weights,
-                "linear": m0.linear, "normalisation": m0.normalisation, "input_names": m0.input_names,
+                "linear": m0.linear, "linear_regressors": m0.linear_regressors, "normalisation": m0.normalisation, "input_names": m0.input_names,
                 "output_name": m0.output_name}
         return cls(**{**base, **fields, "members": tuple(members)})
 
@@ -110,9 +113,6 @@ class EnsembleModel(Model):
         for i, m in enumerate(ms):
             if not isinstance(m, Model) or isinstance(m, EnsembleModel):
                 raise ModelFormatError(f"model field 'members[{i}]' must be a single network ({_MEMBER_FORM}); got {type(m).__name__}")
-            if m.linear_regressors is not None:
-                raise ModelFormatError(f"model field 'members[{i}]' has a long linear part (linear_regressors); "
-                                       f"an ensemble's members are networks {_MEMBER_FORM}")
             if m.normalisation.n_inputs != self.normalisation.n_inputs:
                 raise ModelFormatError(f"model field 'members[{i}]' has {m.normalisation.n_inputs} input(s); "
                                        f"the ensemble has {self.normalisation.n_inputs} (one normalisation for all members)")
@@ -125,7 +125,7 @@ class EnsembleModel(Model):
                        for m in ms)
         object.__setattr__(self, "members", synced)
         m0 = synced[0]  # the single-network fields are always the first member's
-        for name in ("regressors", "centres", "widths", "weights", "linear"):
+        for name in ("regressors", "centres", "widths", "weights", "linear", "linear_regressors"):
             object.__setattr__(self, name, getattr(m0, name))
         super().__post_init__()
 
@@ -159,11 +159,14 @@ class EnsembleModel(Model):
         """Like :meth:`Model.summary`, saying it is a mean of N networks, with each member's lags and size."""
         lines = Model.summary(self).splitlines()
         sizes = ", ".join(f"{m.neurons}" + (" + linear" if m.linear is not None else "") for m in self.members)
+        if any(m.linear_regressors is not None for m in self.members):  # Model.summary's "linear part" line: member 0's
+            lines = [ln.replace("  linear part ", "  linear part (member 0's) ") for ln in lines]
         lines[0] = f"RBF-NARX ensemble (mean of {len(self.members)} networks) {', '.join(self.input_names)} -> {self.output_name}"
         lines[1] = f"  regressors  {self.lags_text()}  (union of the members', max lag {self.max_lag})"
         lines[2] = f"  network     mean of {len(self.members)} networks of {sizes} Gaussian neurons ({self.neurons} in all)"
         for i, m in enumerate(self.members):
-            lines.insert(3 + i, f"  member {i}    {m.lags_text()}, {m.neurons} neurons")
+            own = f" and a linear part of {len(m.linear_regressors)} terms of its own" if m.linear_regressors is not None else ""
+            lines.insert(3 + i, f"  member {i}    {m.lags_text()}, {m.neurons} neurons{own}")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
@@ -210,16 +213,20 @@ class EnsembleModel(Model):
 
     # ------------------------------------------------------------------ file format
     def to_dict(self) -> dict[str, Any]:
-        """The ``streamid.model/3`` JSON document as a dict (docs/wire-format.md)."""
+        """The ``streamid.model/3`` JSON document as a dict (``/5`` when a member has a long linear part, its
+        ``linear_regressors`` then in the member; docs/wire-format.md)."""
         members = []
         for m in self.members:
             d = m.to_dict()
             member = {k: d[k] for k in ("regressors", "lags", "max_lag", "centres", "widths", "weights")}
             if m.linear is not None:
                 member["linear"] = d["linear"]
+            if m.linear_regressors is not None:
+                member["linear_regressors"] = d["linear_regressors"]
             members.append(member)
+        long_linear = any(m.linear_regressors is not None for m in self.members)
         return {
-            "format": MODEL_FORMAT_ENSEMBLE,
+            "format": MODEL_FORMAT_ENSEMBLE_LONG_LINEAR if long_linear else MODEL_FORMAT_ENSEMBLE,
             "kind": "gaussian-rbf-narx-ensemble",
             "formula": (
                 "yn_i(t) = sum_m members[i].weights[m] * exp(-sum_j (r_ij(t) - members[i].centres[m][j])^2 / "
@@ -227,6 +234,9 @@ class EnsembleModel(Model):
                 "r_ij(t) = normalised members[i].signal_j(t - lag_j): measured past outputs one step ahead, "
                 "member i's own past yn_i in free run; yn = mean_i yn_i; x_n = 2 (x - low)/(high - low) - 1; "
                 "y = (yn + 1) (y_high - y_low)/2 + y_low"
+                + ("; a member with linear_regressors has the linear part sum_q members[i].linear[q] l_iq(t) + "
+                   "members[i].linear[-1] instead, l_iq(t) = normalised signal_q(t - lag_q) of members[i].linear_regressors[q]"
+                   if long_linear else "")
             ),
             "inputs": list(self.input_names),
             "output": self.output_name,
@@ -244,8 +254,10 @@ class EnsembleModel(Model):
         """Inverse of :meth:`to_dict`; raises :class:`ModelFormatError` naming the field on anything invalid."""
         if not isinstance(d, Mapping):
             raise ModelFormatError(f"a model document must be a JSON object; got {type(d).__name__}")
-        if d.get("format") != MODEL_FORMAT_ENSEMBLE:
-            raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT_ENSEMBLE!r} for an ensemble; got {d.get('format')!r}")
+        fmt = d.get("format")
+        if fmt not in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR):
+            raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT_ENSEMBLE!r} or {MODEL_FORMAT_ENSEMBLE_LONG_LINEAR!r} "
+                                   f"for an ensemble; got {fmt!r}")
         raw = d.get("members")
         if not isinstance(raw, list) or not 2 <= len(raw) <= MAX_MEMBERS:
             got = f"{len(raw)} member(s)" if isinstance(raw, list) else repr(raw)[:200]
@@ -256,7 +268,11 @@ class EnsembleModel(Model):
             raise ModelFormatError("model field 'normalisation' is missing (one normalisation shared by the members)") from None
         names = tuple(str(s) for s in d.get("inputs", ()))
         output = str(d.get("output", "y"))
-        members = [_member(i, e, norm, names, output) for i, e in enumerate(raw)]
+        members = [_member(i, e, norm, names, output, fmt == MODEL_FORMAT_ENSEMBLE_LONG_LINEAR) for i, e in enumerate(raw)]
+        if fmt == MODEL_FORMAT_ENSEMBLE_LONG_LINEAR and all(m.linear_regressors is None for m in members):
+            raise ModelFormatError(f"a {MODEL_FORMAT_ENSEMBLE_LONG_LINEAR} document has at least one member with "
+                                   f"'linear_regressors' (a long linear part); got none (an ensemble of networks is "
+                                   f"{MODEL_FORMAT_ENSEMBLE})")
         try:
             return cls.of(members, normalisation=norm, input_names=names or members[0].input_names, output_name=output,
                           metrics=dict(d.get("metrics", {})), window=dict(d.get("window", {})),
@@ -267,16 +283,22 @@ class EnsembleModel(Model):
             raise ModelFormatError(f"model fields 'metrics', 'window', 'config' must be JSON objects ({exc})") from None
 
 
-def _member(i: int, e: Any, norm: Normalisation, names: tuple[str, ...], output: str) -> Model:
-    """Member ``i`` of a ``streamid.model/3`` document (errors name ``members[i].<field>``)."""
+def _member(i: int, e: Any, norm: Normalisation, names: tuple[str, ...], output: str, long_linear: bool) -> Model:
+    """Member ``i`` of a ``streamid.model/3`` (``long_linear`` False) or ``/5`` document (errors name
+    ``members[i].<field>``)."""
     where = f"members[{i}]"
     if not isinstance(e, Mapping):
         raise ModelFormatError(f"model field {where!r} must be {_MEMBER_FORM}; got {type(e).__name__}")
-    try:
-        regs = tuple(Regressor(str(r["signal"]), int(r["index"]), int(r["lag"])) for r in e["regressors"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ModelFormatError(f"model field '{where}.regressors' must be a list of {{signal, index, lag}}; "
-                               f"({type(exc).__name__}: {exc})") from None
+    lregs: tuple[Regressor, ...] | None = None
+    if "linear_regressors" in e:
+        if not long_linear:
+            raise ModelFormatError(f"model field '{where}.linear_regressors' (a long linear part) is allowed only in a "
+                                   f"{MODEL_FORMAT_ENSEMBLE_LONG_LINEAR} document; this one is {MODEL_FORMAT_ENSEMBLE}")
+        lregs = _regressor_list(e, where, "linear_regressors")
+        if "linear" not in e:
+            raise ModelFormatError(f"model field '{where}.linear' is missing: a member with linear_regressors needs "
+                                   f"one coefficient per linear regressor, then the constant ({len(lregs) + 1} numbers)")
+    regs = _regressor_list(e, where, "regressors")
     try:
         widths = e["widths"]
         m = len(widths)
@@ -287,7 +309,8 @@ def _member(i: int, e: Any, norm: Normalisation, names: tuple[str, ...], output:
             widths=_finite_array(f"{where}.widths", widths, (m,)),
             weights=_finite_array(f"{where}.weights", e["weights"], (m,)),
             normalisation=norm, input_names=names, output_name=output,
-            linear=None if lin is None else _finite_array(f"{where}.linear", lin, (len(regs) + 1,)),
+            linear=None if lin is None else _finite_array(f"{where}.linear", lin, (len(regs if lregs is None else lregs) + 1,)),
+            linear_regressors=lregs,
         )
     except ModelFormatError as exc:
         msg = str(exc)
@@ -296,3 +319,12 @@ def _member(i: int, e: Any, norm: Normalisation, names: tuple[str, ...], output:
         raise ModelFormatError(f"model field {where!r} is missing or has a malformed field ({type(exc).__name__}: {exc}); "
                                f"expected {_MEMBER_FORM}") from None
 
+
+
+def _regressor_list(e: Mapping[str, Any], where: str, field: str) -> tuple[Regressor, ...]:
+    """Member field ``field`` (a list of ``{signal, index, lag}``) of member ``where``."""
+    try:
+        return tuple(Regressor(str(r["signal"]), int(r["index"]), int(r["lag"])) for r in e[field])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelFormatError(f"model field '{where}.{field}' must be a list of {{signal, index, lag}}; "
+                               f"({type(exc).__name__}: {exc})") from None

@@ -50,7 +50,8 @@ from streamid.engine.freerun import free_run
 from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_LINEAR", "MODEL_FORMAT_LONG_LINEAR",
+__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_ENSEMBLE_LONG_LINEAR", "MODEL_FORMAT_LINEAR",
+           "MODEL_FORMAT_LONG_LINEAR",
            "MODEL_FORMATS", "free_run", "format_lags"]
 
 MODEL_FORMAT = "streamid.model/1"
@@ -60,7 +61,11 @@ MODEL_FORMAT_LINEAR = "streamid.model/2"
 MODEL_FORMAT_ENSEMBLE = "streamid.model/3"
 #: The format of a model whose linear part has regressors of its own (``linear_regressors``: a long linear part).
 MODEL_FORMAT_LONG_LINEAR = "streamid.model/4"
-MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_LONG_LINEAR)
+#: The format of the mean of several networks of which at least one has a long linear part (``/3``'s layout, a member
+#: then also holding ``linear_regressors``); loads as an ``EnsembleModel``. A ``/3`` reader refuses it by its format.
+MODEL_FORMAT_ENSEMBLE_LONG_LINEAR = "streamid.model/5"
+MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_LONG_LINEAR,
+                 MODEL_FORMAT_ENSEMBLE_LONG_LINEAR)
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -411,7 +416,7 @@ class Model:
         fmt = d.get("format")
         if fmt not in MODEL_FORMATS:
             raise ModelFormatError(f"model 'format' must be one of {list(MODEL_FORMATS)}; got {fmt!r}")
-        if fmt == MODEL_FORMAT_ENSEMBLE:  # the mean of several networks (a Model too)
+        if fmt in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR):  # the mean of several networks (a Model too)
             from streamid.engine.ensemble import EnsembleModel
 
             return EnsembleModel.from_dict(d)

@@ -254,7 +254,8 @@ class CoEAConfig:
         The gate of ``refine_iterations`` (see :mod:`streamid.engine.refine` for why 0.8).
     long_linear : int
         0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
-        up to N (chosen by the ``complexity`` criterion) competes with it (:mod:`streamid.engine.longlinear`;
+        up to N (chosen by the ``complexity`` criterion) competes with it, and so do the means of the two and
+        three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.longlinear`;
         :func:`~streamid.engine.identify.identify`'s final choice only, never an online update's).
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.
@@ -496,7 +497,9 @@ class CoEAConfig:
         0.960 / 0.942, CSTR Ca / T medians 0.999848 / 0.999914 -> 0.999889 / 0.999919, F-16 medians up, accel3 worst
         seed 0.280 -> 0.335; cost: accel2 worst seed 0.323 -> 0.196, Bouc-Wen 0.9938 / 0.9921 -> 0.9940 / 0.9867;
         searched with the linear part, ``linear_search``, the F-16 accel3 median fell to 0.30 and the ball and
-        beam's free runs diverged). Measured and not defaults: ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
+        beam's free runs diverged); the long linear part where the networks explain the record in part (rounds
+        12-13: the F-16, medians 0.77 / 0.42 / 0.43 -> 0.94 / 0.91 / 0.90) and the means of its best candidates
+        (round 14: the F-16's accel3 worst seed 0.876 -> 0.885, median 0.898 -> 0.897). Measured and not defaults: ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
         (Bouc-Wen's worst seed 0.982 -> 0.958, +50 % time).
         """
         base = {
