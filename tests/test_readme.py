@@ -143,6 +143,7 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
         assert f"`{name}`" in section, name
     kept = next(ln for ln in p.stdout.splitlines() if ln.startswith("kept: "))
     assert re.fullmatch(r"kept: run 0 \(marked \*; chosen by fr_est on the estimation data\): force_N\(t\) = F\[.+\]", kept)
+    assert "caveat" in explained and "caveat:" not in p.stdout  # explained, and the damper's model raises none
     refined = next(ln for ln in p.stdout.splitlines() if ln.startswith("weights refined to the free run: "))
     assert re.fullmatch(r"weights refined to the free run: \d+ iterations, FR R2 est 0\.\d{5} -> 0\.\d{5}", refined)
     assert "weights refined to the free run" in explained  # the README says what that line means

@@ -39,6 +39,7 @@ import numpy as np
 from streamid.commands.identify_io import Bar, check_rrd_target, data_help, draw_rrd, load, read_summary
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
+from streamid.engine.caveats import model_caveats
 from streamid.engine.ensemble import members_of
 from streamid.engine.fanout import fan_out
 from streamid.engine.identify import identify
@@ -323,7 +324,8 @@ def _ensemble_lines(cx: dict[str, Any]) -> list[str]:
     return [f"ensembles of the restarts' networks by {cx['rule']} (mean of the members' free runs): {rows}; {verdict}\n"]
 
 
-def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str, Any]], best: int, wall: float) -> None:
+def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str, Any]], best: int, wall: float,
+                  caveats: list[str]) -> None:
     w = out.write
     w(f"streamid identify: {ds.path}\n")
     w(f"  model     {', '.join(ds.input_names)} -> {ds.output_name}\n")
@@ -364,6 +366,8 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
       + (f" + {'each its own' if k > 1 else 'a'} linear ARX part of order {max(r.lag for r in kept.linear_regressors)}"
          if kept.linear_regressors else "") + "\n")
+    for c in caveats:  # what to know before trusting it (streamid.engine.caveats)
+        w(f"caveat: {c}\n")
     made = kept.metrics
     if made.get("more_restarts") or made.get("fallback_runs"):  # runs beyond --restarts (streamid.engine.restarts)
         first = len(made["run_scores"]) - made.get("more_restarts", 0) - len(made.get("fallback_runs", ()))
@@ -453,8 +457,9 @@ def run(args: argparse.Namespace) -> int:
     best = _best_index(runs, cfg)
     wall = time.perf_counter() - t0
     rrd_files = draw_rrd(args.rrd, ds, runs, best, cfg.generations) if args.rrd is not None else []
+    caveats = model_caveats(runs[best]["r2"], ds.u_est, ds.y_est, ds.u_val, ds.y_val, ds.input_names, ds.output_name)
     if not args.json:
-        _print_report(sys.stdout, ds, cfg, runs, best, wall)
+        _print_report(sys.stdout, ds, cfg, runs, best, wall, caveats)
         if rrd_files:
             print(f"rrd: {', '.join(rrd_files)} (streamid view {args.rrd}; --screenshot PNG renders it)")
     if args.model:
@@ -477,6 +482,7 @@ def run(args: argparse.Namespace) -> int:
             "config": cfg.to_dict(),
             "runs": [{k: v for k, v in r.items() if k not in ("model", "history")} for r in runs],
             "best": best,
+            "caveats": caveats,
             "rrd": rrd_files,
             "summary": {
                 "fitness": _stats([r["fitness"] for r in runs]),
