@@ -67,6 +67,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from itertools import islice
 from typing import Any
 
 import numpy as np
@@ -193,7 +194,7 @@ def long_linear_choice(
             for run, net in nets[1:]:
                 ev["networks"].append({"run": run, "neurons": net.neurons, "r2_fr_est": None, "criterion": None})
                 offer(run, net, first.order, ev["networks"][-1])
-            best = [o for o in ranked(first.order) if o.value < own and second_pass(o)][:MAX_MEAN_OF]
+            best = list(islice((o for o in ranked(first.order) if o.value < own and second_pass(o)), MAX_MEAN_OF))
             chosen, taken = _means(best, rule, u, y, lo, hi, range_margin, ev)
     if first is None:
         return None, ev
