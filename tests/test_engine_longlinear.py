@@ -321,3 +321,9 @@ def test_the_rerun_model_text_names_the_long_linear_part() -> None:
     up = identify_update_report("s", m, rep, u_val=u[150:], y_val=y[150:], n_est=150, clock=Clock.of(None, 1_000_000),
                                 fitness_history=[1.0], generations=1, seconds=0.1)
     assert "a(t) = F[a(t-1) f(t-1)] + a linear ARX part of order 9 (its own lags 1..9)" in model_markdown(up)
+    ens = EnsembleModel.of([m, replace(m, weights=m.weights * 0.5)])
+    rep = validate(ens, u[:150], y[:150], u[150:], y[150:])
+    up = identify_update_report("s", ens, rep, u_val=u[150:], y_val=y[150:], n_est=150,
+                                clock=Clock.of(None, 1_000_000), fitness_history=[1.0], generations=1, seconds=0.1)
+    assert ("a(t) = mean of 2 networks on F[a(t-1) f(t-1)] (the union of their lags) + each network with its own "
+            "linear ARX part of order 9 (its own lags 1..9)") in model_markdown(up)

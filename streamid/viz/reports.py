@@ -218,7 +218,8 @@ def _linear_text(r: UpdateReport) -> str:
     if not r.linear_parts:
         return ""
     if r.long_linear_order:
-        return f" + a linear ARX part of order {r.long_linear_order} (its own lags 1..{r.long_linear_order})"
+        each = "each network with its own" if r.networks > 1 else "a"
+        return f" + {each} linear ARX part of order {r.long_linear_order} (its own lags 1..{r.long_linear_order})"
     if r.networks == 1:
         return " + a direct linear part a'r + b"
     return f"; {r.linear_parts} of the {r.networks} networks with a direct linear part a'r + b"
