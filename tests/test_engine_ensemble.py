@@ -136,12 +136,13 @@ def test_the_choice_takes_an_ensemble_only_when_its_criterion_is_lower() -> None
     ens, members, ev, cx = run([y + e[0], y + e[1], y + 3 * e[2]])  # two independent errors: their mean halves it
     assert isinstance(ens, EnsembleModel) and len(ens.members) == 2 and members == ev[0]["members"]
     mean = (2 * y + e[0] + e[1]) / 2
-    assert ev[0]["criterion"] == pytest.approx(criterion("aic", r2(y[1:], mean[1:]), n - 1, 4), abs=1e-9)
+    # p: the mean of the members' weights (2 each), the degrees of freedom of a mean of least-squares fits
+    assert ev[0]["criterion"] == pytest.approx(criterion("aic", r2(y[1:], mean[1:]), n - 1, 2), abs=1e-9)
     single = cx["candidates"][cx["chosen_run"]]["criterion"]
     assert ev[0]["taken"] and ev[0]["criterion"] < single and ev[1]["criterion"] > ev[0]["criterion"]
-    assert ens.metrics["ensemble"]["name"] == "top2" and ens.metrics["ensemble"]["params"] == parameter_count(ens) == 4
+    assert ens.metrics["ensemble"]["name"] == "top2" and ens.metrics["ensemble"]["params"] == parameter_count(ens) == 2
     assert ens.metrics["free_run_choice"]["run_ensemble"] == 2 and ens.metrics["free_run_choice"]["score"] == ev[0]["r2_fr_est"]
-    # the same error twice: the mean is no better, p doubles -> the single network stays
+    # the same error twice: the mean is no better (and its p the same) -> the single network stays
     ens, _, ev, _ = run([y + e[0], y + e[0], y + e[0] + 1e-9])
     assert ens is None and not any(r["taken"] for r in ev) and ev[0]["criterion"] is not None
     # a much worse second network: its mean is worse than the best alone
@@ -158,7 +159,7 @@ def test_consumers_of_one_network_refuse_or_handle_an_ensemble() -> None:
     ms = _members()
     ens = ensemble_of(ms)
     assert isinstance(ens, EnsembleModel)
-    assert parameter_count(ens) == 4 + 5 + 3 + 4 and members_of(ens) == ens.members and members_of(ms[0]) == (ms[0],)
+    assert parameter_count(ens) == (4 + 5 + (3 + 4)) / 3 and members_of(ens) == ens.members and members_of(ms[0]) == (ms[0],)
     ua = u[:, None]
     for call in (lambda: pruned(ens, ua, y, (2,), 1e-10), lambda: padded(ens, 40), lambda: ens.regressor_rows(ua, y),
                  lambda: group_free_run([ens], ua, y[:3])):

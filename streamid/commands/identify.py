@@ -315,7 +315,7 @@ def _ensemble_lines(cx: dict[str, Any]) -> list[str]:
     if not ens:
         return ["ensembles of the restarts' networks: none (fewer than 2 admissible restarts)\n"]
     rows = "; ".join(
-        f"{e['name']} (restarts {', '.join(str(i) for i in e['members'])}, p {e['params']}, "
+        f"{e['name']} (restarts {', '.join(str(i) for i in e['members'])}, p {e['params']:g}, "
         + ("not admissible" if e["criterion"] is None else f"FR R2 est {e['r2_fr_est']:.5f}, {e['criterion']:.1f}")
         + (", taken" if e["taken"] else "") + ")" for e in ens)
     taken = [e for e in ens if e["taken"]]

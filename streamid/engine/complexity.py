@@ -66,10 +66,14 @@ COMPLEXITY_RULES = ("aic", "bic", "score")
 _ADMISSIBLE = -1e9  # a run's score at or below this has no admissible candidate (streamid.engine.selection)
 
 
-def parameter_count(model: Model) -> int:
-    """Parameters fitted by least squares on the estimation record: ``M`` weights (+ ``k + 1`` linear);
-    of an ensemble, its members' summed."""
-    return sum(m.neurons + (0 if m.linear is None else int(m.linear.shape[0])) for m in members_of(model))
+def parameter_count(model: Model) -> float:
+    """Parameters fitted by least squares on the estimation record: ``M`` weights (+ the linear part's
+    coefficients); of an ensemble, the mean of its members' counts: each member's weights are a least squares on
+    the same record, and the mean of least-squares fits has the mean of their degrees of freedom (the trace of
+    the mean of their hat matrices). (Summed until round 14 of docs/engine-results.md: the same choices on every
+    suite system but the heat exchanger's seed 4.)"""
+    counts = [m.neurons + (0 if m.linear is None else int(m.linear.shape[0])) for m in members_of(model)]
+    return counts[0] if len(counts) == 1 else sum(counts) / len(counts)
 
 
 def criterion(rule: str, r2_fr: float, n_scored: int, params: float) -> float:

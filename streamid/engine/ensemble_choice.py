@@ -13,7 +13,7 @@ single network on the estimation record:
   members' free runs made by the choice are reused (no new simulation) when at hand;
 * the range guard of :mod:`streamid.engine.choice` is applied to that mean, scored from the
   largest member lag ``L`` (``n - L`` samples);
-* ``p`` is the members' fitted weights summed (:func:`~streamid.engine.complexity.parameter_count`),
+* ``p`` is the mean of the members' fitted weights (:func:`~streamid.engine.complexity.parameter_count` says why),
   and the criterion is the complexity rule's, ``n log(1 - R2_fr) + 2 p`` for AIC.
 
 An ensemble is taken when its criterion is strictly below the single choice's (the lowest
@@ -81,7 +81,7 @@ def choose_ensemble(
                 runs[i] = paths[i] if paths[i] is not None else _simulate(models[i], u, y)
         row: dict[str, Any] = {"name": "all" if size == 0 else f"top{size}", "members": members,
                                "neurons": [models[i].neurons for i in members], "r2_fr_est": None,
-                               "params": sum(parameter_count(models[i]) for i in members), "criterion": None,
+                               "params": sum(parameter_count(models[i]) for i in members) / k, "criterion": None,
                                "taken": False}
         evidence.append(row)
         got = [runs[i] for i in members]
@@ -96,7 +96,7 @@ def choose_ensemble(
         if excursion > 0.0:
             row["excursion_spans"] = excursion
             continue
-        value = criterion(rule, score, len(y) - L, int(row["params"]))
+        value = criterion(rule, score, len(y) - L, float(row["params"]))
         row.update(r2_fr_est=float(score), criterion=float(value))
         if value < best[0]:
             best = (value, None, members)

@@ -242,7 +242,7 @@ class CoEAConfig:
         True, after that choice the means of the top 2, the top 3 and all admissible runs' networks
         (ranked by ``complexity``) compete too (:mod:`streamid.engine.ensemble_choice`): each scored
         on the estimation free run of the mean (every member on its own past outputs), range guard
-        included, ``p`` the members' weights summed; one is taken when its criterion is below the
+        included, ``p`` the mean of the members' weights; one is taken when its criterion is below the
         single network's (a ``streamid.model/3`` model; evidence in ``metrics.complexity.ensembles``).
     refine_iterations : int
         0 (the paper): the final model's weights are the search's one-step least squares. N > 0:
@@ -499,7 +499,8 @@ class CoEAConfig:
         searched with the linear part, ``linear_search``, the F-16 accel3 median fell to 0.30 and the ball and
         beam's free runs diverged); the long linear part where the networks explain the record in part (rounds
         12-13: the F-16, medians 0.77 / 0.42 / 0.43 -> 0.94 / 0.91 / 0.90) and the means of its best candidates
-        (round 14: the F-16's accel3 worst seed 0.876 -> 0.885, median 0.898 -> 0.897). Measured and not defaults: ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
+        (round 14: the F-16's accel3 worst seed 0.876 -> 0.885, median 0.898 -> 0.897), every mean's ``p`` its members'
+        mean (round 14: the heat exchanger's worst seed 0.942 -> 0.951). Measured and not defaults: ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
         (Bouc-Wen's worst seed 0.982 -> 0.958, +50 % time).
         """
         base = {
