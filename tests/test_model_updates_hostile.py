@@ -292,3 +292,33 @@ def test_a_long_linear_model_arrives_whole_and_a_broken_one_is_counted() -> None
     u = np.linspace(-1, 1, 20)
     sent = Model.from_dict(good["model"])
     np.testing.assert_allclose(got[0].model.simulate(u, np.zeros(2)), sent.simulate(u, np.zeros(2)))
+
+
+def test_a_mean_with_long_linear_parts_arrives_whole_and_a_broken_one_is_counted() -> None:
+    """streamid.model/5 (a mean of networks with long linear parts, as an offline identification of the F-16 saves it,
+    published by a user or a forger): delivered with every member's linear regressors; a member whose ``linear``
+    does not match them is counted malformed and never delivered."""
+    from streamid.engine import EnsembleModel
+
+    ep = endpoint()
+    lregs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1))
+    a = dataclasses.replace(_model("y"), linear=np.array([0.5, -0.2, 0.1, 0.05, 0.0]), linear_regressors=lregs)
+    b = dataclasses.replace(a, weights=a.weights * -0.5, linear_regressors=lregs[:2], linear=np.array([0.3, 0.1, 0.0]))
+    good = _doc("g", 2)
+    good["model"] = EnsembleModel.of([a, b]).to_dict()
+    assert good["model"]["format"] == "streamid.model/5"
+    broken = json.loads(json.dumps(good))
+    broken["version"] = 3
+    broken["model"]["members"][1]["linear"] = [0.3, 0.1]  # two linear regressors need three numbers
+    got: list[ModelUpdate] = []
+    with Bus(ZenohSettings(listen=(ep,))) as forger, ModelSubscriber(ep, "g", got.append) as sub:
+        pub = forger.publisher("streamid/g/model")
+        assert pub.wait_for_subscribers(DEADLINE_S)
+        pub.put(encode_json(broken))
+        pub.put(encode_json(good))
+        assert sub.wait_for_version(2, DEADLINE_S) is not None
+        _wait(lambda: sub.skipped.get("malformed") == 1, "the broken /5 document counted")
+    assert [u.version for u in got] == [2] and isinstance(got[0].model, EnsembleModel)
+    assert [m.linear_regressors for m in got[0].model.members] == [lregs, lregs[:2]]
+    u = np.linspace(-1, 1, 20)
+    np.testing.assert_allclose(got[0].model.simulate(u, np.zeros(2)), (a.simulate(u, np.zeros(2)) + b.simulate(u, np.zeros(2))) / 2)

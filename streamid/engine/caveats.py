@@ -22,6 +22,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine.longlinear import dense_regressors
+from streamid.engine.regressors import regressor_columns
+
 __all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "model_caveats"]
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -42,11 +45,11 @@ def arx_pole_radius(u: NDArray[np.float64], y: NDArray[np.float64], order: int =
     rows = y1.shape[0] - n
     if rows < 4 * (n * (1 + u2.shape[1]) + 1):
         return float("nan")
-    cols = [y1[n - k : n - k + rows] for k in range(1, n + 1)]
-    cols += [u2[n - k : n - k + rows, j] for j in range(u2.shape[1]) for k in range(1, n + 1)]
-    X = np.column_stack([*cols, np.ones(rows)])
+    regs = dense_regressors(n, u2.shape[1], direct=False)  # y(t-k) and every input's u(t-k), k = 1..n
+    X = np.column_stack([regressor_columns(regs, u2, y1, n), np.ones(rows)])
     coef = np.linalg.lstsq(X, y1[n:], rcond=None)[0]
-    return float(np.max(np.abs(np.roots(np.concatenate([[1.0], -coef[:n]])))))
+    a = [c for c, r in zip(coef, regs) if r.signal == "y"]
+    return float(np.max(np.abs(np.roots(np.concatenate([[1.0], -np.asarray(a)])))))
 
 
 def _beyond(name: str, est: NDArray[np.float64], val: NDArray[np.float64]) -> str | None:
