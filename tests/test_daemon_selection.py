@@ -1,4 +1,5 @@
-"""The daemon honours ``engine.selection``: "fitness" (the run's best pair) or "fr_est" (best free run on estimation)."""
+"""The daemon honours ``engine.selection``: "fr_est" (best free run on estimation, the default) or "fitness" (the
+run's best pair, the paper's)."""
 
 from __future__ import annotations
 
@@ -34,8 +35,10 @@ def _windows(cfg: StreamConfig) -> list:
 
 
 def test_fr_est_publishes_the_candidate_with_the_best_free_run_on_estimation() -> None:
-    cfg_fit = BASE
-    cfg_fr = dataclasses.replace(BASE, engine=(("selection", "fr_est"),))
+    cfg_fit = dataclasses.replace(BASE, engine=(("selection", "fitness"),))
+    cfg_fr = BASE  # the online default
+    assert BASE.coea_config(cold=False).selection == "fr_est"
+    assert dataclasses.replace(BASE, engine=(("de_f", 0.5),)).coea_config(cold=True).selection == "fr_est"
     wins = _windows(BASE)
     assert len(wins) >= 2
     w = wins[0]

@@ -73,13 +73,17 @@ side was zero (Montgomery's ``N+``/``N-`` counters).  ``tests/test_drift.py``
 checks the implementation against the published in-control and shifted average
 run lengths.  The clip keeps one outlying block (the loop point of a replayed
 log, a glitch) from raising an alarm alone: with the defaults at least
-``ceil(h / (clip - k))`` = 3 blocks are needed.  With ``k`` 1 and ``h`` 6 the in-control
-average run length is about 840,000 blocks a side for independent normal values (Siegmund's
-approximation; ~58 h of 0.5 s blocks for the two sides): real residuals are neither independent nor
+``ceil(h / (clip - k))`` = 3 blocks are needed.  With ``k`` 1 and ``h`` 5.5 the in-control
+average run length is about 310,000 blocks a side for independent normal values (Siegmund's
+approximation; ~21 h of 0.5 s blocks for the two sides): real residuals are neither independent nor
 normal, and this margin is what kept every stationary record of docs/benchmarks.md free of alarms.
-A shift of two spreads is signalled after about 6.7 blocks, of three after about 3.5.  ``k`` 0.5
+A shift of two spreads is signalled after about 6.2 blocks, of three after about 3.2.  ``k`` 0.5
 (1,290 blocks at ``h`` 6: an alarm every ~11 minutes) gave one false alarm in 600 s on two of three
-stationary simulated dampers.  When the champion changes, a new monitor starts with the new
+stationary simulated dampers.  ``h`` was 6 (840,000 blocks, a shift of two spreads after 6.7) until the
+champions were chosen by their free run (``"fr_est"``, :mod:`streamid.online.stream_config`): the sixth
+block after a 20 % change of the simulated damper ends 3.1 s after it, and at 6 three of 32 changes were
+signalled there; at 5.5 none of the 32 was later than 2.6 s.  On the stationary records (the simulated
+damper 5 x 600 s, the looped real MR damper and piezo logs) the largest value either side reached was 4.0.  When the champion changes, a new monitor starts with the new
 champion's reference, and the replaced champion's goes on for one window
 (:class:`~streamid.online.head.OutputHead`): a signal from either is a drift.  After a signal every
 monitor of the output is *spent* (:meth:`DriftMonitor.spend`): one change raises one event.
@@ -166,7 +170,7 @@ class DriftSettings:
     #: the spread used is also never below that of the last this many judged blocks (about their own median)
     spread_blocks: int = 40
     k: float = 1.0
-    h: float = 6.0
+    h: float = 5.5
     clip: float = 3.0
 
     def block_samples(self, period_ns: int, window_samples: int) -> int:
@@ -244,7 +248,7 @@ class DriftMonitor:
         Its threshold rises by ``log(watches) / (2 k)``: by Siegmund's approximation the in-control
         run length of a CUSUM grows as ``exp(2 k h)``, so each replaced champion's watch raises
         alarms ``watches`` times less often than the champion's, and the output's together at most
-        twice as often as one watch.  (With the defaults: h 6 -> 6.55, one block more at most.)
+        twice as often as one watch.  (With the defaults: h 5.5 -> 6.05, one block more at most.)
         """
         self._test.h = self.settings.h + math.log(max(1, watches)) / (2 * self.settings.k)
 
