@@ -83,10 +83,11 @@ stationary simulated dampers.  ``h`` was 6 (840,000 blocks, a shift of two sprea
 champions were chosen by their free run (``"fr_est"``, :mod:`streamid.online.stream_config`): the sixth
 block after a 20 % change of the simulated damper ends 3.1 s after it, and at 6 three of 32 changes were
 signalled there; at 5.5 none of the 32 was later than 2.6 s.  On the stationary records (the simulated
-damper 5 x 600 s, the looped real MR damper and piezo logs) the largest value either side reached was 4.0.  When the champion changes, a new monitor starts with the new
-champion's reference, and the replaced champion's goes on for one window
-(:class:`~streamid.online.head.OutputHead`): a signal from either is a drift.  After a signal every
-monitor of the output is *spent* (:meth:`DriftMonitor.spend`): one change raises one event.
+damper 5 x 600 s, the looped real MR damper and piezo logs) the largest value either side reached was 4.0.
+When the champion changes, a new monitor starts with the new champion's reference, and the replaced
+champion's goes on for one window (:class:`~streamid.online.head.OutputHead`): a signal from either is a
+drift.  After a signal every monitor of the output is *spent* (:meth:`DriftMonitor.spend`): one change
+raises one event.
 """
 
 from __future__ import annotations
