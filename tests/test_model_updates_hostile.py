@@ -269,17 +269,11 @@ def test_a_channel_name_with_a_bidi_override_is_counted_by_the_daemon_and_never_
     assert "\u202e".encode() not in seen and json.dumps("\u202e").encode()[1:-1] not in seen.replace(b"\\\\", b"")
 
 
-def test_a_long_linear_model_arrives_whole_and_a_broken_one_is_counted() -> None:
-    """streamid.model/4 (a network with a long linear part, from an offline identification a user publishes, or a
-    forger): delivered with its own linear regressors; without them it is counted malformed and never delivered."""
+def _broken_then_good(broken: dict[str, Any], good: dict[str, Any], fmt: str) -> list[ModelUpdate]:
+    """A forger on its own loopback endpoint publishes ``broken`` (version 3), then ``good`` (version 2) on stream
+    ``g``'s model key; returns what a real ``ModelSubscriber`` delivered once ``good`` arrived and ``broken`` was
+    counted malformed."""
     ep = endpoint()
-    lregs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1))
-    good = _doc("g", 2)
-    good["model"] = dataclasses.replace(_model("y"), linear=np.array([0.5, -0.2, 0.1, 0.05, 0.0]),
-                                        linear_regressors=lregs).to_dict()
-    broken = json.loads(json.dumps(good))
-    broken["version"] = 3
-    del broken["model"]["linear_regressors"]
     got: list[ModelUpdate] = []
     with Bus(ZenohSettings(listen=(ep,))) as forger, ModelSubscriber(ep, "g", got.append) as sub:
         pub = forger.publisher("streamid/g/model")
@@ -287,7 +281,21 @@ def test_a_long_linear_model_arrives_whole_and_a_broken_one_is_counted() -> None
         pub.put(encode_json(broken))
         pub.put(encode_json(good))
         assert sub.wait_for_version(2, DEADLINE_S) is not None
-        _wait(lambda: sub.skipped.get("malformed") == 1, "the broken /4 document counted")
+        _wait(lambda: sub.skipped.get("malformed") == 1, f"the broken {fmt} document counted")
+    return got
+
+
+def test_a_long_linear_model_arrives_whole_and_a_broken_one_is_counted() -> None:
+    """streamid.model/4 (a network with a long linear part, from an offline identification a user publishes, or a
+    forger): delivered with its own linear regressors; without them it is counted malformed and never delivered."""
+    lregs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1))
+    good = _doc("g", 2)
+    good["model"] = dataclasses.replace(_model("y"), linear=np.array([0.5, -0.2, 0.1, 0.05, 0.0]),
+                                        linear_regressors=lregs).to_dict()
+    broken = json.loads(json.dumps(good))
+    broken["version"] = 3
+    del broken["model"]["linear_regressors"]
+    got = _broken_then_good(broken, good, "/4")
     assert [u.version for u in got] == [2] and got[0].model.linear_regressors == lregs
     u = np.linspace(-1, 1, 20)
     sent = Model.from_dict(good["model"])
@@ -300,7 +308,6 @@ def test_a_mean_with_long_linear_parts_arrives_whole_and_a_broken_one_is_counted
     does not match them is counted malformed and never delivered."""
     from streamid.engine import EnsembleModel
 
-    ep = endpoint()
     lregs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1))
     a = dataclasses.replace(_model("y"), linear=np.array([0.5, -0.2, 0.1, 0.05, 0.0]), linear_regressors=lregs)
     b = dataclasses.replace(a, weights=a.weights * -0.5, linear_regressors=lregs[:2], linear=np.array([0.3, 0.1, 0.0]))
@@ -310,14 +317,7 @@ def test_a_mean_with_long_linear_parts_arrives_whole_and_a_broken_one_is_counted
     broken = json.loads(json.dumps(good))
     broken["version"] = 3
     broken["model"]["members"][1]["linear"] = [0.3, 0.1]  # two linear regressors need three numbers
-    got: list[ModelUpdate] = []
-    with Bus(ZenohSettings(listen=(ep,))) as forger, ModelSubscriber(ep, "g", got.append) as sub:
-        pub = forger.publisher("streamid/g/model")
-        assert pub.wait_for_subscribers(DEADLINE_S)
-        pub.put(encode_json(broken))
-        pub.put(encode_json(good))
-        assert sub.wait_for_version(2, DEADLINE_S) is not None
-        _wait(lambda: sub.skipped.get("malformed") == 1, "the broken /5 document counted")
+    got = _broken_then_good(broken, good, "/5")
     assert [u.version for u in got] == [2] and isinstance(got[0].model, EnsembleModel)
     assert [m.linear_regressors for m in got[0].model.members] == [lregs, lregs[:2]]
     u = np.linspace(-1, 1, 20)
