@@ -372,14 +372,19 @@ def simulate_drift(
 
 
 def output_change(
-    device: str, seconds: float, drift_at_s: float, change: float, seed: int, *, noise: bool = False
+    device: str, seconds: float, drift_at_s: float, change: float, seed: int, *, noise: bool = False,
+    block_s: float = 0.5, within_s: float = 3.0,
 ) -> dict[str, float]:
     """How much the change moves the output after ``drift_at_s`` (noise-free by default).
 
     Returns ``rms_ratio`` (RMS of the drifted output about its mean over RMS of the
     undrifted one, after the change), ``rms_diff_rel`` (RMS of the difference over
-    the undrifted output's RMS about its mean) and ``max_abs_diff_before`` (0.0 when
-    the record before the change is identical).
+    the undrifted output's RMS about its mean), ``max_abs_diff_before`` (0.0 when
+    the record before the change is identical), and ``block_level_min`` /
+    ``block_level_max``: the smallest and largest ``log`` of that RMS ratio over the
+    whole blocks of ``block_s`` that start at the change and end within ``within_s``
+    of it (the drift monitor's level, :mod:`streamid.online.drift`, measured on the
+    device itself: how much of the change the excitation shows, block by block).
     """
     spec = _spec(device)
     n = _drift_sample(spec, drift_at_s)
@@ -394,22 +399,34 @@ def output_change(
     drifted = spec.simulate(total, seed, drift_at_sample=n, change=change, **kw).y
     b, d = base[n:], drifted[n:]
     sd_b = float(np.sqrt(np.mean((b - b.mean()) ** 2)))
+    per_s = total / seconds
+    block = max(2, round(block_s * per_s))
+    blocks = min(b.size, round(within_s * per_s)) // block
+    if blocks < 1:
+        raise ConfigError(f"within_s must hold at least one block of block_s = {block_s!r} s after the change "
+                          f"(and the record must reach that far); got within_s = {within_s!r}")
+    sb = (b[: blocks * block].reshape(blocks, block), d[: blocks * block].reshape(blocks, block))
+    rb, rd = (np.sqrt(np.mean((x - x.mean(axis=1, keepdims=True)) ** 2, axis=1)) for x in sb)
+    levels = np.log(rd / rb)
     return {
         "rms_ratio": float(np.sqrt(np.mean((d - d.mean()) ** 2))) / sd_b,
         "rms_diff_rel": float(np.sqrt(np.mean((d - b) ** 2))) / sd_b,
         "max_abs_diff_before": float(np.max(np.abs(drifted[:n] - base[:n]))) if n else 0.0,
+        "block_level_min": float(levels.min()),
+        "block_level_max": float(levels.max()),
     }
 
 
 def _main(argv: list[str]) -> int:
     """``python -m streamid.sim.drift [CHANGE ...]``: print :func:`output_change` for both devices."""
     changes = [float(a) for a in argv] or [0.2, -0.2]
-    for device, seconds, at in (("mr_damper", 60.0, 30.0), ("piezo", 2.0, 1.0)):
+    for device, seconds, at, block_s in (("mr_damper", 60.0, 30.0, 0.5), ("piezo", 2.0, 1.0, 0.05)):
         for change in changes:
             for seed in range(3):
-                r = output_change(device, seconds, at, change, seed)
+                r = output_change(device, seconds, at, change, seed, block_s=block_s, within_s=min(3.0, seconds - at))
                 print(f"{device:<10} change {change:+.2f} seed {seed}: rms_ratio {r['rms_ratio']:.4f} "
-                      f"rms_diff_rel {r['rms_diff_rel']:.4f} before {r['max_abs_diff_before']:g}")
+                      f"rms_diff_rel {r['rms_diff_rel']:.4f} before {r['max_abs_diff_before']:g} "
+                      f"level per {block_s:g} s block {r['block_level_min']:+.3f}..{r['block_level_max']:+.3f}")
     return 0
 
 
