@@ -117,14 +117,16 @@ def dense_regressors(order: int, n_inputs: int, direct: bool) -> tuple[Regressor
 def long_linear_choice(
     final: Model, final_score: float, rule: str, max_order: int,
     u: NDArray[np.float64], y: NDArray[np.float64], range_margin: float, ridge: float,
-    runs: Sequence[tuple[int, Model]] = (), base_run: int | None = None,
+    runs: Sequence[tuple[int, Model]] = (), base_run: int | None = None, min_order: int = 2,
 ) -> tuple[Model | None, dict[str, Any]]:
     """The model with a long linear part that replaces ``final`` (None: ``final`` stands) and the evidence.
 
     ``final_score``: ``final``'s estimation free-run R^2 (the selection score); ``u`` (N, n_inputs), ``y``
     (N,): the estimation record in output units; ``ridge``: as :func:`~streamid.engine.rbf.fit_weights`'s
     (on columns scaled to unit norm); ``runs``: the other runs' networks offered the order chosen (step 5),
-    as ``(run, model)``; ``base_run``: the run of ``final``'s best network. See the module docstring.
+    as ``(run, model)``; ``base_run``: the run of ``final``'s best network; ``min_order``: the lowest order
+    offered (an online update offers only orders above its lag search's, :mod:`streamid.online.update`).
+    See the module docstring.
     """
     base = members_of(final)[0]
     n_in, N, M = base.n_inputs, len(y), base.neurons
@@ -135,9 +137,9 @@ def long_linear_choice(
     own = criterion(rule, final_score, N - final.max_lag, parameter_count(final)) if np.isfinite(final_score) else np.inf
     ev: dict[str, Any] = {"max_order": int(max_order), "orders": [], "criterion_without": _finite(own),
                           "taken": False}
-    offered = orders(n_max)
+    offered = [n for n in orders(n_max) if n >= min_order]
     if not offered:
-        return None, {**ev, "reason": f"too few samples ({N}) for an order >= 2"}
+        return None, {**ev, "reason": f"too few samples ({N}) for an order >= {max(2, min_order)}"}
     direct = any(r.signal == "u" and r.lag == 0 for r in base.regressors)
     lregs = dense_regressors(offered[-1], n_in, direct)
     L = max([m.max_lag for _, m in nets] + [max(r.lag for r in lregs)])  # the rows every fit shares: t >= L

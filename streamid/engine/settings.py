@@ -256,7 +256,8 @@ class CoEAConfig:
         0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
         up to N (chosen by the ``complexity`` criterion) competes with it, and so do the means of the two and
         three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.longlinear`;
-        :func:`~streamid.engine.identify.identify`'s final choice only, never an online update's).
+        :func:`~streamid.engine.identify.identify`'s final choice; an online update's model gets a single
+        network's part, of an order above its lag search's only: :func:`streamid.online.update.long_linear_part`).
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.
     require_input : bool

@@ -16,7 +16,7 @@ from streamid.engine.settings import CoEAConfig
 from streamid.errors import ConfigError
 from streamid.online.window_types import MAX_PENDING_WINDOWS, WindowParams
 
-__all__ = ["StreamConfig", "ONLINE_SELECTION", "ONLINE_SELECTIONS", "ENGINE_RESERVED"]
+__all__ = ["StreamConfig", "ONLINE_LONG_LINEAR", "ONLINE_SELECTION", "ONLINE_SELECTIONS", "ENGINE_RESERVED"]
 
 #: How an update may choose the model of its run (``engine.selection``).
 ONLINE_SELECTIONS = ("fitness", "fr_est")
@@ -27,6 +27,13 @@ ONLINE_SELECTIONS = ("fitness", "fr_est")
 #: took 3.6 s (11.6 s), with no false alarm before a change nor on the stationary records; the champions' free runs
 #: are better, so their level's spread is smaller and a 20 % change stands out sooner.
 ONLINE_SELECTION = "fr_est"
+#: The online default of ``engine.long_linear``: the largest order of the dense linear ARX part an update's model may
+#: get (:func:`streamid.online.update.long_linear_part`: only orders above the lag search's, and only where the network
+#: explains less than 95 % of the window's estimation part in free run); as offline (``CoEAConfig.recommended``).
+#: Measured (docs/benchmarks.md, issue 12): the F-16 log x2, every challenger's held-out free-run R^2, medians
+#: 0.571 / 0.042 / 0.154 -> 0.882 / 0.893 / 0.900; the simulated damper's drift sweep unchanged (32 of 32 within 3 s).
+#: 0: off.
+ONLINE_LONG_LINEAR = 512
 # Fields of CoEAConfig the daemon sets itself (generations: cold/warm; restarts: warm starts need one run).
 ENGINE_RESERVED = ("generations", "restarts", "workers", "neurons", "max_lag_y", "max_lag_u", "population")
 
@@ -94,6 +101,8 @@ class StreamConfig:
     engine
         Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs. ``selection`` is
         ``"fr_est"`` online unless set here (:data:`ONLINE_SELECTION`; ``"fitness"``: the paper's best pair).
+        ``long_linear`` is 512 online unless set here (:data:`ONLINE_LONG_LINEAR`; 0: off): where the network's
+        free run explains less than 95 % of a window, a dense linear ARX part longer than its lags competes.
         ``run_ensembles`` has no
         effect online: an update is one run (warm starts need one), never a mean of runs (K x its time: piezo 0.5 s).
         ``refine_iterations`` (0 online unless set here) fits each update's weights to its free run
@@ -183,7 +192,7 @@ class StreamConfig:
             max_lag_u=self.max_lag_u,
             population=self.population,
             generations=generations or (self.cold_generations if cold else self.warm_generations),
-            **{"selection": ONLINE_SELECTION, **dict(self.engine)},
+            **{"selection": ONLINE_SELECTION, "long_linear": ONLINE_LONG_LINEAR, **dict(self.engine)},
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -14,8 +14,9 @@ the coevolution generation by generation -- cold, or warm-started from the
 previous final populations, which the engine re-evaluates on the new data --
 chooses the model with the engine's one selection rule
 (:func:`~streamid.engine.identify.select_model`: ``"fitness"``, the paper's,
-or ``"fr_est"``; validation data are never looked at) and computes its
-validation figures (:mod:`streamid.online.summary`).  It never raises for bad
+or ``"fr_est"``; validation data are never looked at), lets a dense linear ARX
+part longer than the lag search's compete with it (:func:`long_linear_part`),
+and computes its validation figures (:mod:`streamid.online.summary`).  It never raises for bad
 data or a failed identification: those are outcomes (``dropped``,
 ``failed``).  It stops between two generations when ``stop`` is set, raising
 :class:`Stopped`.  ``on_generation(stream, progress)``, when given, is called
@@ -37,6 +38,7 @@ import numpy as np
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine.feedthrough import direct_terms
 from streamid.engine.identify import select_model
+from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.refine import refine_weights
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import StreamidError
@@ -45,7 +47,8 @@ from streamid.online.stream_config import StreamConfig
 from streamid.online.summary import ValidationSummary, r2_or_nan, summarise
 from streamid.online.window_types import Window
 
-__all__ = ["Outcome", "Stopped", "UpdateJob", "identify_window", "signature_of", "rng_for", "MIN_SPAN"]
+__all__ = ["Outcome", "Stopped", "UpdateJob", "identify_window", "long_linear_part", "signature_of", "rng_for",
+           "MIN_SPAN"]
 
 
 #: Smallest range (max - min) of a signal over a window part: the correlation tests use fourth powers of
@@ -307,6 +310,7 @@ def identify_window(
             if on_generation is not None:
                 on_generation(window.stream, progress)
         model, score = select_model(co, u_est, y_est, engine_cfg.selection)
+        model, score = long_linear_part(model, score, engine_cfg, u_est, y_est)
         if engine_cfg.selection != "fitness":
             model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
         if engine_cfg.refine_iterations:  # opt-in online (engine.refine_iterations): the weights fitted to the free run
@@ -348,6 +352,31 @@ def identify_window(
         t_val_ns=int(window.t0_ns + n_est * window.period_ns),
         **common,
     )
+
+
+def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray, y: np.ndarray) -> tuple[Model, float]:
+    """The run's model, or the same network with a dense linear ARX part longer than the lag search's, and its score.
+
+    ``engine.long_linear`` (:data:`~streamid.online.stream_config.ONLINE_LONG_LINEAR` online) > 0 and
+    ``"fr_est"``: the rule of :mod:`streamid.engine.longlinear` on the window's estimation part, tried when
+    the network's free run explains less than ``more_below`` (0.95) of it, offering only orders above the lag
+    search's largest lag (``max(max_lag_y, max_lag_u)``, 10 online). Why only those: the online lag search
+    stops at lag 10 so that updates keep up (the 20 kHz piezo's decisions within 0.5 s), and a lightly damped
+    structure sampled fast needs a memory of 100 samples or more (the F-16: modes of a few Hz at 400 Hz); a
+    shorter linear part adds no memory the lag search could not have found, and when it was offered too the
+    simulated MR damper's champions took orders 2-8 in 14 of 36 updates and its drift detection slowed (29 of 32
+    changes within 3 s against 32; docs/benchmarks.md). ``score`` is the chosen model's estimation free-run R^2.
+    """
+    if not cfg.long_linear or cfg.selection != "fr_est" or not score < cfg.more_below:
+        return model, score
+    ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, cfg.range_margin, cfg.ridge,
+                                min_order=max(cfg.max_lag_y, cfg.max_lag_u) + 1)
+    if ll is None:
+        return model, score
+    taken = float(ev["r2_fr_est"])
+    brief = {"order": int(ev["order"]), "r2_fr_est": taken, "r2_fr_est_without": float(score),
+             "criterion": float(ev["criterion"]), "criterion_without": ev["criterion_without"]}
+    return ll.with_metrics(long_linear=brief), taken
 
 
 class _WarmMismatch(Exception):
