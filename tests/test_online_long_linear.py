@@ -9,10 +9,11 @@ import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
 from streamid.engine import Model
+from streamid.engine.identify import free_run_r2
 from streamid.engine.longlinear import long_linear_choice
 from streamid.logs import bundled_log, read_log_arrays
 from streamid.online.stream_config import ONLINE_LONG_LINEAR
-from streamid.online.update import long_linear_part
+from streamid.online.update import LONG_LINEAR_DESIGN_BYTES, long_linear_part
 
 N = 4000  # the first 10 s window of the F-16 log (level 3), 400 Hz
 
@@ -20,9 +21,9 @@ N = 4000  # the first 10 s window of the F-16 log (level 3), 400 Hz
 @pytest.fixture(scope="module")
 def f16() -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], list[str]]:
     log = read_log_arrays(bundled_log("f16_gvt"))
-    u = np.column_stack(list(log.inputs.values()))[: N + 1]
-    y = np.column_stack(list(log.outputs.values()))[: N + 1]
-    return log.t_ns[: N + 1] - log.t_ns[0], u, y, list(log.inputs), list(log.outputs)
+    u = np.column_stack(list(log.inputs.values()))[:8192]  # the level-3 half
+    y = np.column_stack(list(log.outputs.values()))[:8192]
+    return log.t_ns[:8192] - log.t_ns[0], u, y, list(log.inputs), list(log.outputs)
 
 
 def _first_update(f16: tuple, output: int, long_linear: int) -> tuple[Model, float]:
@@ -30,7 +31,7 @@ def _first_update(f16: tuple, output: int, long_linear: int) -> tuple[Model, flo
     cfg = StreamConfig(window_s=10.0, update_every_s=10.0, outputs=(outs[output],),
                        engine=(("long_linear", long_linear),))
     ident = OnlineIdentifier(cfg, stream="f16")
-    ident.learn_many(t, u, y[:, output : output + 1], inputs=ins, outputs=[outs[output]])
+    ident.learn_many(t[: N + 1], u[: N + 1], y[: N + 1, output : output + 1], inputs=ins, outputs=[outs[output]])
     (up,) = ident.update_all()  # the challenger, published or not (a network alone may fall below the FR floor)
     assert up.model is not None, up
     return up.model, float(up.metrics["r2_fr_val"])
@@ -56,7 +57,8 @@ def test_a_lightly_damped_structure_gets_a_memory_longer_than_the_lag_search(f16
     # what a subscriber receives is the same model (a streamid.model/4 document)
     again = Model.from_json(with_ll.to_json())
     _, u, y, _, _ = f16
-    np.testing.assert_array_equal(again.simulate(u, y[: again.max_lag, 2]), with_ll.simulate(u, y[: with_ll.max_lag, 2]))
+    np.testing.assert_array_equal(again.simulate(u[:N], y[: again.max_lag, 2]),
+                                  with_ll.simulate(u[:N], y[: with_ll.max_lag, 2]))
 
 
 def test_only_orders_above_the_lag_search_are_offered(f16: tuple) -> None:
@@ -73,6 +75,12 @@ def test_only_orders_above_the_lag_search_are_offered(f16: tuple) -> None:
     assert min(r["order"] for r in ev2["orders"]) == 2
     got, s = long_linear_part(without, score, cfg, ue, ye)
     assert got.metrics["long_linear"]["order"] >= 12 and s == got.metrics["long_linear"]["r2_fr_est"]
+    # a long window: the design's bound, not its rows, caps the order (and the cost: the QR is most of it)
+    cap = (LONG_LINEAR_DESIGN_BYTES // (8 * 8000) - without.neurons - 1) // 2
+    assert 12 <= cap < 8000 // 10 // 2
+    (score_big,) = free_run_r2([without], u[:8000], y[:8000, 2])
+    big, _ = long_linear_part(without, float(score_big), cfg, u[:8000], y[:8000, 2])
+    assert 12 <= big.metrics["long_linear"]["order"] <= cap, (big.metrics["long_linear"], cap)
     # not tried where the network explains the window, nor with "fitness" (its score is not an R^2), nor when off
     for c, sc in ((cfg, cfg.more_below), (replace(cfg, selection="fitness"), score), (replace(cfg, long_linear=0), score)):
         same, s2 = long_linear_part(without, sc, c, ue, ye)

@@ -118,6 +118,7 @@ def long_linear_choice(
     final: Model, final_score: float, rule: str, max_order: int,
     u: NDArray[np.float64], y: NDArray[np.float64], range_margin: float, ridge: float,
     runs: Sequence[tuple[int, Model]] = (), base_run: int | None = None, min_order: int = 2,
+    max_design_bytes: int = MAX_DESIGN_BYTES,
 ) -> tuple[Model | None, dict[str, Any]]:
     """The model with a long linear part that replaces ``final`` (None: ``final`` stands) and the evidence.
 
@@ -125,7 +126,8 @@ def long_linear_choice(
     (N,): the estimation record in output units; ``ridge``: as :func:`~streamid.engine.rbf.fit_weights`'s
     (on columns scaled to unit norm); ``runs``: the other runs' networks offered the order chosen (step 5),
     as ``(run, model)``; ``base_run``: the run of ``final``'s best network; ``min_order``: the lowest order
-    offered (an online update offers only orders above its lag search's, :mod:`streamid.online.update`).
+    offered (an online update offers only orders above its lag search's, :mod:`streamid.online.update`);
+    ``max_design_bytes``: the largest design the QR takes (:data:`MAX_DESIGN_BYTES`; an online update's is smaller).
     See the module docstring.
     """
     base = members_of(final)[0]
@@ -133,7 +135,7 @@ def long_linear_choice(
     nets = [(base_run, base)] + [(i, m) for i, m in runs if i != base_run and m is not base and _shares_rows(m, base)]
     M_most = max(m.neurons for _, m in nets)
     n_max = min(int(max_order), (N // ROWS_PER_PARAMETER - M_most - 1) // (1 + n_in),
-                (MAX_DESIGN_BYTES // (8 * N) - M_most - 1) // (1 + n_in))
+                (int(max_design_bytes) // (8 * N) - M_most - 1) // (1 + n_in))
     own = criterion(rule, final_score, N - final.max_lag, parameter_count(final)) if np.isfinite(final_score) else np.inf
     ev: dict[str, Any] = {"max_order": int(max_order), "orders": [], "criterion_without": _finite(own),
                           "taken": False}

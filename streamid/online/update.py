@@ -354,13 +354,21 @@ def identify_window(
     )
 
 
+#: The largest design (rows x columns x 8 bytes) of an online update's long linear part: its QR is most of its cost,
+#: and it bounds that cost on a long window. The F-16's 10 s windows (2,800 estimation rows) are bound by their rows
+#: (order 134, a 6 MB design); a 20 kHz piezo window (7,000 rows) offers orders up to 64 (with the offline 256 MiB: 256, and
+#: 1.4-1.9 s of the 0.5 s its decisions have, measured on this 2-core VM; with this bound 0.1-0.2 s).
+LONG_LINEAR_DESIGN_BYTES = 8 * 2**20
+
+
 def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray, y: np.ndarray) -> tuple[Model, float]:
     """The run's model, or the same network with a dense linear ARX part longer than the lag search's, and its score.
 
     ``engine.long_linear`` (:data:`~streamid.online.stream_config.ONLINE_LONG_LINEAR` online) > 0 and
     ``"fr_est"``: the rule of :mod:`streamid.engine.longlinear` on the window's estimation part, tried when
     the network's free run explains less than ``more_below`` (0.95) of it, offering only orders above the lag
-    search's largest lag (``max(max_lag_y, max_lag_u)``, 10 online). Why only those: the online lag search
+    search's largest lag (``max(max_lag_y, max_lag_u)``, 10 online), with a design of at most
+    :data:`LONG_LINEAR_DESIGN_BYTES`. Why only those orders: the online lag search
     stops at lag 10 so that updates keep up (the 20 kHz piezo's decisions within 0.5 s), and a lightly damped
     structure sampled fast needs a memory of 100 samples or more (the F-16: modes of a few Hz at 400 Hz); a
     shorter linear part adds no memory the lag search could not have found, and when it was offered too the
@@ -370,7 +378,7 @@ def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray,
     if not cfg.long_linear or cfg.selection != "fr_est" or not score < cfg.more_below:
         return model, score
     ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, cfg.range_margin, cfg.ridge,
-                                min_order=max(cfg.max_lag_y, cfg.max_lag_u) + 1)
+                                min_order=max(cfg.max_lag_y, cfg.max_lag_u) + 1, max_design_bytes=LONG_LINEAR_DESIGN_BYTES)
     if ll is None:
         return model, score
     taken = float(ev["r2_fr_est"])
