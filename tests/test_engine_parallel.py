@@ -207,6 +207,26 @@ def test_the_helper_goes_away_with_a_killed_owner():
             owner.kill()
 
 
+def test_the_helper_goes_away_with_an_owner_killed_while_it_starts():
+    """The owner gone before the helper has even imported: it must not take init for its owner (a helper left this
+    way spun on its pipe's end-of-file for 38 minutes: a daemon killed during its start, 2026-11-26)."""
+    code = (
+        "import os\n"
+        "from streamid.engine import EvalHelper\n"
+        "h = EvalHelper(wait=False)\n"
+        "print(h.pid, os.path.dirname(h._ctl_path), flush=True)\n"
+        "os._exit(0)  # no close(): as a SIGKILL\n"
+    )
+    owner = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, timeout=60, check=True)
+    pid_s, folder = owner.stdout.split()
+    pid = int(pid_s)
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and (_alive(pid) or os.path.exists(folder)):
+        time.sleep(0.05)
+    assert not _alive(pid), "the helper outlived its owner"
+    assert not os.path.exists(folder), "the helper left its shared files behind"
+
+
 def _alive(pid: int) -> bool:
     try:
         with open(f"/proc/{pid}/stat") as fh:

@@ -1,11 +1,13 @@
-"""The evaluation helper process: ``python -m streamid.engine._evalhelper CONTROL FD SPIN_S``.
+"""The evaluation helper process: ``python -m streamid.engine._evalhelper CONTROL FD SPIN_S OWNER_PID``.
 
 Started by :class:`streamid.engine.parallel.EvalHelper` (whose module notes
 describe the handshake); not meant to be run by hand. It maps the control file,
 then loops: take a new run's data (bind), evaluate a posted batch, draw a block
 of uniforms ahead in chunks, spin ``SPIN_S`` after the last work, then sleep on
-the wake-up pipe. It exits on the quit word or when its parent is gone (then
-removing the shared files the parent left).
+the wake-up pipe. It exits on the quit word or when its owner is gone (then
+removing the shared files the owner left): its parent is no longer ``OWNER_PID``
+(also at its start: an owner killed while the helper imported), or the wake-up
+pipe reads end-of-file (every write end closed).
 """
 
 from __future__ import annotations
@@ -74,15 +76,21 @@ def _lowest_priority() -> None:
         pass
 
 
-def serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
+def serve(ctl_path: str, wake_fd: int, spin_s: float, owner_pid: int | None = None) -> int:
     from streamid.engine._blas import one_blas_thread
+
+    # The owner's pid comes from the owner: one read here after the imports would miss an owner killed during them
+    # (the helper then took init for its parent and never saw it go; found spinning on the pipe's EOF 38 min later).
+    parent = os.getppid() if owner_pid is None else owner_pid
+    if os.getppid() != parent:  # the owner is gone already: remove what it left
+        _remove_folder(os.path.dirname(ctl_path))
+        return 0
 
     with open(ctl_path, "r+b") as f:
         cmm = mmap.mmap(f.fileno(), _CONTROL_BYTES)
     ctl = np.frombuffer(cmm, dtype=np.int64, count=_FLOATS_AT // 8)
     fctl = np.frombuffer(cmm, dtype=np.float64, count=16, offset=_FLOATS_AT)
     _lowest_priority()
-    parent = os.getppid()
     bound, last = 0, int(ctl[_JOB_SEQ])
     ev: BatchEvaluator | None = None
     v: dict[str, NDArray[Any]] = {}
@@ -155,7 +163,9 @@ def serve(ctl_path: str, wake_fd: int, spin_s: float) -> int:
                 ready, _, _ = select.select([wake_fd], [], [], 0.25)
                 if ready:
                     try:
-                        os.read(wake_fd, 4096)
+                        if not os.read(wake_fd, 4096):  # end of file: every write end is closed, the owner is gone
+                            _remove_folder(os.path.dirname(ctl_path))
+                            return 0
                     except BlockingIOError:
                         pass
             ctl[_SLEEPING] = 0
@@ -169,4 +179,4 @@ if __name__ == "__main__":
     # Ctrl-C in a terminal reaches the whole process group; the owner decides when this process ends (it closes
     # it, or this loop sees the owner gone), so the helper neither dies early nor prints a traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    sys.exit(serve(sys.argv[1], int(sys.argv[2]), float(sys.argv[3])))
+    sys.exit(serve(sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4]) if len(sys.argv) > 4 else None))

@@ -178,7 +178,8 @@ class EvalHelper:
             env[var] = "1"
         try:
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "streamid.engine._evalhelper", self._ctl_path, str(rfd), repr(self.spin_s)],
+                [sys.executable, "-m", "streamid.engine._evalhelper", self._ctl_path, str(rfd), repr(self.spin_s),
+                 str(os.getpid())],
                 pass_fds=(rfd,),
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
