@@ -12,6 +12,7 @@ import copy
 import dataclasses
 import json
 import re
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -319,3 +320,10 @@ def test_watch_lines_say_why_and_escape_what_came_from_the_network() -> None:
     line = format_update(parse_model_update(encode_json(doc)))
     assert "v\\u202e(t-" in line and "accepted (odd): line\\x0abreak \\u202eevil" in line
     assert unsafe_char(line) is None and "\n" not in line
+    # a model with a long linear part (online, where its network explains less than 95 %) says so
+    from streamid.engine.longlinear import dense_regressors
+    net = _model("force_N")
+    lregs = dense_regressors(24, net.n_inputs, direct=False)
+    ll = replace(net, linear=np.zeros(len(lregs) + 1), linear_regressors=lregs)
+    line = format_update(parse_model_update(encode_json(_doc(14, model=ll.to_dict()))))
+    assert f"force_N(t) = F[{net.lags_text()}] + linear ARX part of order 24 R2 val" in line, line
