@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,7 +14,9 @@ from streamid.engine.identify import free_run_r2
 from streamid.engine.longlinear import long_linear_choice
 from streamid.logs import bundled_log, read_log_arrays
 from streamid.online.stream_config import ONLINE_LONG_LINEAR
+from streamid.daemon.report import update_report
 from streamid.online.update import LONG_LINEAR_DESIGN_BYTES, long_linear_part
+from streamid.viz.reports import model_markdown
 
 N = 4000  # the first 10 s window of the F-16 log (level 3), 400 Hz
 
@@ -26,7 +29,7 @@ def f16() -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], list[str]]:
     return log.t_ns[:8192] - log.t_ns[0], u, y, list(log.inputs), list(log.outputs)
 
 
-def _first_update(f16: tuple, output: int, long_linear: int) -> tuple[Model, float]:
+def _first_update(f16: tuple, output: int, long_linear: int) -> tuple[Model, float, Any]:
     t, u, y, ins, outs = f16
     cfg = StreamConfig(window_s=10.0, update_every_s=10.0, outputs=(outs[output],),
                        engine=(("long_linear", long_linear),))
@@ -34,7 +37,7 @@ def _first_update(f16: tuple, output: int, long_linear: int) -> tuple[Model, flo
     ident.learn_many(t[: N + 1], u[: N + 1], y[: N + 1, output : output + 1], inputs=ins, outputs=[outs[output]])
     (up,) = ident.update_all()  # the challenger, published or not (a network alone may fall below the FR floor)
     assert up.model is not None, up
-    return up.model, float(up.metrics["r2_fr_val"])
+    return up.model, float(up.metrics["r2_fr_val"]), up
 
 
 def test_the_online_default_offers_it_and_a_setting_turns_it_off() -> None:
@@ -45,8 +48,8 @@ def test_the_online_default_offers_it_and_a_setting_turns_it_off() -> None:
 
 def test_a_lightly_damped_structure_gets_a_memory_longer_than_the_lag_search(f16: tuple) -> None:
     """The F-16's payload acceleration: the network alone free-runs at 0.55 on held-out data, with the part 0.98."""
-    with_ll, val = _first_update(f16, 2, ONLINE_LONG_LINEAR)
-    without, val0 = _first_update(f16, 2, 0)
+    with_ll, val, up = _first_update(f16, 2, ONLINE_LONG_LINEAR)
+    without, val0, _ = _first_update(f16, 2, 0)
     ev = with_ll.metrics["long_linear"]
     assert ev["order"] > 10 and with_ll.max_lag == ev["order"] and with_ll.linear_regressors is not None, ev
     assert ev["r2_fr_est"] > ev["r2_fr_est_without"], ev
@@ -54,7 +57,10 @@ def test_a_lightly_damped_structure_gets_a_memory_longer_than_the_lag_search(f16
     assert without.linear_regressors is None and without.max_lag <= 10 and "long_linear" not in without.metrics
     # measured: 0.975 with it, 0.403 without; streams named a-d (other seeds): 0.975-0.977 and 0.394-0.625
     assert val > 0.9 and val > val0 + 0.2, (val, val0)
-    # what a subscriber receives is the same model (a streamid.model/4 document)
+    # what Rerun and `streamid watch` show name it ...
+    order = ev["order"]
+    assert f" + a linear ARX part of order {order} (its own lags 1..{order})" in model_markdown(update_report("f16", up, None))
+    # ... and what a subscriber receives is the same model (a streamid.model/4 document)
     again = Model.from_json(with_ll.to_json())
     _, u, y, _, _ = f16
     np.testing.assert_array_equal(again.simulate(u[:N], y[: again.max_lag, 2]),
@@ -64,7 +70,7 @@ def test_a_lightly_damped_structure_gets_a_memory_longer_than_the_lag_search(f16
 def test_only_orders_above_the_lag_search_are_offered(f16: tuple) -> None:
     """A linear part no longer than the searched lags adds no memory: online it is not offered (the damper took
     orders 2-8 and its drift detection slowed, docs/benchmarks.md)."""
-    without, _ = _first_update(f16, 2, 0)
+    without, _, _ = _first_update(f16, 2, 0)
     _, u, y, _, _ = f16
     ue, ye = u[:2800], y[:2800, 2]
     score = float(without.metrics["selection_score"])
