@@ -167,6 +167,24 @@ def test_blueprint_shows_each_streams_newest_update_wherever_the_cursor_is(tmp_p
         assert bp[f"{path}/VisualBounds2D"]["VisualBounds2D:range"] is not None
 
 
+def test_a_stream_with_several_outputs_opens_on_its_first_outputs_tab(tmp_path: Path) -> None:
+    """A configured MIMO stream has its own tab from the start (events only) and a tab per output: the viewer opens on
+    the first output's, not on the empty one (seen in an F-16 daemon's .rrd, 2026-11-26)."""
+    rrd = tmp_path / "mimo.rrd"
+    viz = Viz(VizSettings(rrd=str(rrd)))
+    viz.add_stream("f16")  # configured: declared at the daemon's start
+    for out in ("a1", "a2"):
+        viz.add_stream(f"f16/{out}")
+        viz.log_update(report(1, stream=f"f16/{out}"))
+    viz.close()
+    bp = _blueprint_rows(rrd)
+    tabs = next(row for row in bp.values() if "ContainerBlueprint:active_tab" in row)
+    names = [bp[f"/{c}"]["ContainerBlueprint:display_name"] for c in tabs["ContainerBlueprint:contents"]]
+    assert names == ["f16", "f16/a1", "f16/a2"]
+    active = tabs["ContainerBlueprint:active_tab"]
+    assert bp[f"/{active}"]["ContainerBlueprint:display_name"] == "f16/a1", active
+
+
 @pytest.mark.needs("vulkan")
 def test_screenshot_by_the_real_viewer_shows_the_first_tabs_newest_update(tmp_path: Path) -> None:
     """The real viewer, headless: the recording ends 100 s after the first tab's stream; its figures are drawn."""

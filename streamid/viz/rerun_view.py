@@ -230,7 +230,12 @@ class Viz:
         tabs: list[rrb.Container | rrb.View] = [self._stream_layout(s) for s in self._streams]
         if not tabs:
             tabs = [rrb.TextLogView(origin="events", name="events")]
-        root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs, active_tab=0)
+        # A stream with several outputs draws each in a tab "<stream>/<output>"; its own tab (configured streams get
+        # one at start) then holds only its events, so the first tab shown is the first one that is not such a parent.
+        names = list(self._streams)
+        parents = {n.rsplit("/", 1)[0] for n in names if "/" in n}
+        active = next((i for i, n in enumerate(names) if n not in parents), 0)
+        root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs, active_tab=active)
         return rrb.Blueprint(
             root,
             rrb.TimePanel(state="collapsed", timeline=_TIMELINE, play_state="following"),
