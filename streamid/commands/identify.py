@@ -364,7 +364,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     k = len(members_of(kept))
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
-      + (f" + {'each its own' if k > 1 else 'a'} linear ARX part of order {max(r.lag for r in kept.linear_regressors)}"
+      + (f" + {'each its own' if k > 1 else 'a'} linear ARX part of order {kept.linear_order}"
          if kept.linear_regressors else "") + "\n")
     for c in caveats:  # what to know before trusting it (streamid.engine.caveats)
         w(f"caveat: {c}\n")

@@ -89,8 +89,8 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
     head = f"{up.stream} v{up.version}" if getattr(up, "accepted", True) else \
         f"{up.stream} challenger rejected (serving v{up.version})"
     why = decision_text(up)
-    linear = getattr(up.model, "linear_regressors", None)  # a dense linear ARX part (the online long linear part)
-    ll = f" + linear ARX part of order {max(r.lag for r in linear)}" if linear else ""
+    order = up.model.linear_order  # a dense linear ARX part (the online long linear part)
+    ll = f" + linear ARX part of order {order}" if order else ""
     return printable(
         f"{head} {'warm' if up.warm else 'cold'} G={up.generations} "
         f"{output}(t) = F[{up.model.lags_text()}]{ll} R2 val OSA {_r2(m.get('r2_osa_val'))} FR {_r2(m.get('r2_fr_val'))} "

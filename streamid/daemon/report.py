@@ -48,6 +48,6 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         champion_r2_fr=(out.champion_metrics or {}).get("r2_fr_val") if not up.accepted else None,
         networks=len(nets) or 1,
         linear_parts=sum(m.linear is not None for m in nets),
-        long_linear_order=max((r.lag for m in nets for r in (m.linear_regressors or ())), default=0),
+        long_linear_order=max((m.linear_order for m in nets), default=0),
     )
 

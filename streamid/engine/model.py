@@ -185,6 +185,11 @@ class Model:
         return max((r.lag for r in (*self.regressors, *(self.linear_regressors or ()))), default=0)
 
     @property
+    def linear_order(self) -> int:
+        """Order of a dense linear ARX part (the largest lag of ``linear_regressors``); 0 without one."""
+        return max((r.lag for r in self.linear_regressors or ()), default=0)
+
+    @property
     def lags(self) -> dict[str, Any]:
         """Selected lags ``{"y": [...], "u": [[...] per input]}``."""
         return {

@@ -94,7 +94,7 @@ def identify_update_report(
         input_names=tuple(model.input_names),
         networks=len(members_of(model)),
         linear_parts=sum(m.linear is not None for m in members_of(model)),
-        long_linear_order=max((r.lag for r in model.linear_regressors or ()), default=0),
+        long_linear_order=model.linear_order,
     )
 
 
