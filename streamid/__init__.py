@@ -18,10 +18,10 @@ Zenoh, Rerun or MCAP) for the command line and the daemon's start.
 
 from __future__ import annotations
 
-import importlib
 from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING
 
+from streamid._lazy import lazy_exports
 from streamid.errors import StreamidError
 
 if TYPE_CHECKING:
@@ -87,21 +87,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> object:
-    """The exported names, imported on first use (and then kept as attributes of the package)."""
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'streamid' has no attribute {name!r}")
-    try:
-        value = getattr(importlib.import_module(module), name)
-    except ModuleNotFoundError as exc:
-        if exc.name != module:
-            raise
-        raise AttributeError(f"streamid.{name} lives in {module}, which this installation does not have") from exc
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    """The public names (what ``from streamid import *`` gives), not the module's own imports."""
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals(), __all__)
