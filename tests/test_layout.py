@@ -22,8 +22,8 @@ sim-is-numerics         streamid/sim/ imports only the stdlib, numpy, scipy, str
 wire-stands-alone       streamid/wire/ imports only the stdlib, numpy, streamid.errors and
                         streamid.wire.*
 online-core             streamid/online/ imports of streamid are only streamid.online.*,
-                        streamid.engine.*, streamid.wire.* and streamid.errors (never transport,
-                        daemon, viz, logs, commands, sim)
+                        streamid.engine.*, streamid.wire.*, streamid.errors and streamid._lazy
+                        (never transport, daemon, viz, logs, commands, sim)
 product-not-tooling     no module of streamid/ imports recorders, replay or benchmarks (they are
                         reached through entry points)
 benchmarks-apart        no product package (streamid/, recorders/, replay/) imports benchmarks/:
@@ -179,9 +179,10 @@ def _allow_only(scope: str, third_party: tuple[str, ...], internal: tuple[str, .
 
 
 def _online(imp: Import) -> str | None:
-    allowed = ("streamid.online", "streamid.engine", "streamid.wire", "streamid.errors")
+    allowed = ("streamid.online", "streamid.engine", "streamid.wire", "streamid.errors", "streamid._lazy")
     if within(imp.importer, "streamid.online") and within(imp.target, "streamid") and not within(imp.target, *allowed):
-        return "streamid.online may import only streamid.online, streamid.engine, streamid.wire, streamid.errors of streamid"
+        return ("streamid.online may import only streamid.online, streamid.engine, streamid.wire, streamid.errors "
+                "and streamid._lazy of streamid")
     return None
 
 
