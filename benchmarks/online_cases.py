@@ -45,6 +45,8 @@ def looped_log(name: str, loops: int, part: int | None = None) -> tuple[np.ndarr
     t, period = log.t_ns - log.t_ns[0], int(np.median(np.diff(log.t_ns)))
     u, y = np.column_stack(list(log.inputs.values())), np.column_stack(list(log.outputs.values()))
     if part is not None:
+        if part not in (0, 1):
+            raise ValueError(f"looped_log part must be 0 (before estimation_samples), 1 (from it) or None; got {part!r}")
         split = int(str(log.metadata["streamid"]["estimation_samples"]).split()[0])
         rows = slice(0, split) if part == 0 else slice(split, t.size)
         t, u, y = t[rows] - t[rows][0], u[rows], y[rows]
