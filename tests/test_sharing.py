@@ -216,6 +216,9 @@ def test_two_daemons_share_fail_over_warm_and_take_their_share_back(tmp_path: Pa
             assert _wait(lambda: all(last_from(s, "beta", t_back) for s in mine["beta"]), 30)
             t_end = time.monotonic()
             assert _wait(lambda: all(last_from(s, d, t_end) for d in mine for s in mine[d]), 10)
+            stop.set()  # the players end while their bus is open (else a put meets an undeclared publisher)
+            for p in players:
+                p.join(10)
     finally:
         stop.set()
         for p in procs.values():
