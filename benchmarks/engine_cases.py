@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
-from streamid.engine.identify import identify
+from streamid.engine.identification import identify
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.validation import prediction_r2
 

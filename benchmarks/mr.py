@@ -6,7 +6,7 @@ back to back (it arrives in milliseconds).  The daemon's stream has
 (4 s every 0.5 s: 27 windows) is identified, in order: the first cold
 (G = 400), the others warm-started (G = 30) from the previous one.
 
-For each window, offline :func:`streamid.engine.identify.identify` (what
+For each window, offline :func:`streamid.engine.identification.identify` (what
 ``streamid identify`` runs) is run cold with the same engine settings on the
 same estimation samples, with ``seeds`` seeds, and validated on the same
 validation part.  The offline free-run validation R^2 of a window varies with
@@ -97,7 +97,7 @@ def online_models(scfg: StreamConfig, timeout_s: float = 120.0) -> tuple[list[An
 
 def offline_r2(u: np.ndarray, y: np.ndarray, n_est: int, scfg: StreamConfig, seeds: list[int]) -> list[float]:
     """Free-run validation R^2 of cold offline ``identify`` runs (one per seed) on one window."""
-    from streamid.engine.identify import identify
+    from streamid.engine.identification import identify
     from streamid.engine.validation import validate
 
     out = []

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from streamid.engine.ensemble import members_of
-from streamid.engine.identify import identify
+from streamid.engine.identification import identify
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from streamid.online.stream_config import StreamConfig
     from streamid.daemon.service import Daemon
     from streamid.engine.coevolution import CoEAState, Coevolution
-    from streamid.engine.identify import Result, identify
+    from streamid.engine.identification import Result, identify
     from streamid.engine.model import Model
     from streamid.engine.parallel import EvalHelper
     from streamid.engine.settings import CoEAConfig
@@ -51,8 +51,8 @@ _EXPORTS = {
     "Coevolution": "streamid.engine.coevolution",
     "EvalHelper": "streamid.engine.parallel",
     "Model": "streamid.engine.model",
-    "Result": "streamid.engine.identify",
-    "identify": "streamid.engine.identify",
+    "Result": "streamid.engine.identification",
+    "identify": "streamid.engine.identification",
     "validate": "streamid.engine.validation",
     # streaming
     "OnlineIdentifier": "streamid.online.identifier",

@@ -12,7 +12,7 @@ from streamid.wire.codec import SampleBatch
 from streamid.daemon.config import StreamConfig, config_from_mapping
 from streamid.online.window import WindowBuffer
 from streamid.online.update import identify_window
-from streamid.engine.identify import free_run_r2
+from streamid.engine.identification import free_run_r2
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError
 from streamid.logs import bundled_log, read_log_arrays

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import CoEAConfig, CoEAState, Coevolution
-from streamid.engine.identify import identify
+from streamid.engine.identification import identify
 from streamid.engine.validation import prediction_r2
 from streamid.errors import ConfigError, ModelFormatError
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import CoEAConfig, Coevolution
-from streamid.engine.identify import identify
+from streamid.engine.identification import identify
 from streamid.errors import ConfigError, DataError
 
 CFG = CoEAConfig(neurons=4, max_lag_y=3, max_lag_u=3, generations=2)

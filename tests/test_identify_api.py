@@ -9,7 +9,7 @@ import pytest
 
 from streamid.logs.datafile import load_dataset, load_table, split_index
 from streamid.engine import CoEAConfig
-from streamid.engine.identify import free_run_r2, identify, refit_weights
+from streamid.engine.identification import free_run_r2, identify, refit_weights
 from streamid.errors import DataError
 
 DATA = Path(__file__).parent / "data"

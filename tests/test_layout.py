@@ -15,8 +15,8 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
-                        streamid.errors and streamid.engine.* (so never online, daemon, wire, logs,
-                        viz, transport, commands, bench, zenoh, rerun, mcap)
+                        streamid.errors, streamid._lazy and streamid.engine.* (so never online, daemon,
+                        wire, logs, viz, transport, commands, bench, zenoh, rerun, mcap)
 sim-is-numerics         streamid/sim/ imports only the stdlib, numpy, scipy, streamid.errors,
                         streamid.sim.* and streamid.engine.*
 wire-stands-alone       streamid/wire/ imports only the stdlib, numpy, streamid.errors and
@@ -213,7 +213,8 @@ def _replay_not_recorders(imp: Import) -> str | None:
 RULES: dict[str, Callable[[Import], str | None]] = {
     **{name: _adapter_rule(families, owner) for name, (families, owner) in ADAPTERS.items()},
     "engine-is-numerics": _allow_only(
-        "streamid.engine", ("numpy", "scipy", "threadpoolctl", "numba"), ("streamid.errors", "streamid.engine")
+        "streamid.engine", ("numpy", "scipy", "threadpoolctl", "numba"),
+        ("streamid.errors", "streamid._lazy", "streamid.engine"),
     ),
     "sim-is-numerics": _allow_only(
         "streamid.sim", ("numpy", "scipy"), ("streamid.errors", "streamid.sim", "streamid.engine")

@@ -10,7 +10,7 @@ import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
 from streamid.engine import Model
-from streamid.engine.identify import free_run_r2
+from streamid.engine.identification import free_run_r2
 from streamid.engine.longlinear import long_linear_choice
 from streamid.logs import bundled_log, read_log_arrays
 from streamid.online.stream_config import ONLINE_LONG_LINEAR

@@ -9,13 +9,15 @@ import argparse
 import os
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
-from streamid.engine.coevolution import Progress
 from streamid.errors import ConfigError, DataError
 from streamid.logs.bundled import bundled_logs, data_file
 from streamid.logs.csv_table import parse_delimiter
 from streamid.logs.datafile import Dataset, load_dataset, load_table
+
+if TYPE_CHECKING:
+    from streamid.engine.coevolution import Progress
 
 __all__ = ["Bar", "load", "read_summary", "check_rrd_target", "draw_rrd"]
 

@@ -5,18 +5,49 @@ steppable run with exportable ``CoEAState`` for warm starts), ``Model`` (predict
 free run, ``streamid.model/1`` JSON; ``EnsembleModel``: the mean of several networks, ``/3``), ``validate`` / ``r2`` / ``correlation_tests``,
 ``EvalHelper`` (a helper process evaluating half of every population batch: the second core),
 ``warm_up_kernels`` (compile or load the compiled free-run loops before time-bound work).
+
+Every name is imported on first use: ``streamid.engine.settings`` (what a command's parser needs) loads
+without numba, scipy and the kernels.
 """
 
 from __future__ import annotations
 
-from streamid.engine.coevolution import CoEAState, Coevolution, Progress
-from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
-from streamid.engine.identify import Result, RunSummary, identify
-from streamid.engine.model import MODEL_FORMAT, Model
-from streamid.engine.ensemble import EnsembleModel
-from streamid.engine.parallel import EvalHelper
-from streamid.engine._kernels import warm_up as warm_up_kernels
-from streamid.engine.validation import CorrelationReport, ValidationReport, correlation_tests, r2, validate
+from typing import TYPE_CHECKING
+
+from streamid._lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from streamid.engine._kernels import warm_up_kernels
+    from streamid.engine.coevolution import CoEAState, Coevolution, Progress
+    from streamid.engine.ensemble import EnsembleModel
+    from streamid.engine.identification import Result, RunSummary, identify
+    from streamid.engine.model import MODEL_FORMAT, Model
+    from streamid.engine.parallel import EvalHelper
+    from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
+    from streamid.engine.validation import CorrelationReport, ValidationReport, correlation_tests, r2, validate
+
+#: Where each exported name lives.
+_EXPORTS = {
+    "CoEAConfig": "streamid.engine.settings",
+    "CoEAState": "streamid.engine.coevolution",
+    "Coevolution": "streamid.engine.coevolution",
+    "CorrelationReport": "streamid.engine.validation",
+    "DEFAULT": "streamid.engine.settings",
+    "EnsembleModel": "streamid.engine.ensemble",
+    "EvalHelper": "streamid.engine.parallel",
+    "MODEL_FORMAT": "streamid.engine.model",
+    "Model": "streamid.engine.model",
+    "PAPER": "streamid.engine.settings",
+    "Progress": "streamid.engine.coevolution",
+    "Result": "streamid.engine.identification",
+    "RunSummary": "streamid.engine.identification",
+    "ValidationReport": "streamid.engine.validation",
+    "correlation_tests": "streamid.engine.validation",
+    "identify": "streamid.engine.identification",
+    "r2": "streamid.engine.validation",
+    "validate": "streamid.engine.validation",
+    "warm_up_kernels": "streamid.engine._kernels",
+}
 
 __all__ = [
     "CoEAConfig",
@@ -39,3 +70,5 @@ __all__ = [
     "validate",
     "warm_up_kernels",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals(), __all__)

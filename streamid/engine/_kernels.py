@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["exp2_rows", "free_run_sensitivities", "gram_rows", "recursion", "warm_up"]
+__all__ = ["exp2_rows", "free_run_sensitivities", "gram_rows", "recursion", "warm_up_kernels"]
 
 
 F64 = NDArray[np.float64]
@@ -286,7 +286,7 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
     return Y, S
 
 
-def warm_up() -> None:
+def warm_up_kernels() -> None:
     """Compile the kernels now (the first time on a machine, about 1 s) or load them from the cache, so that
     no time-bound caller (the daemon's first decision) pays for it. Idempotent and cheap once done.
 

@@ -1,7 +1,7 @@
 """The final choice among candidate models: free-run scores with a range guard.
 
-The rule (the one place it is applied; :func:`~streamid.engine.identify.select_model`
-and through it :func:`~streamid.engine.identify.identify` and the online updates use it)
+The rule (the one place it is applied; :func:`~streamid.engine.identification.select_model`
+and through it :func:`~streamid.engine.identification.identify` and the online updates use it)
 ------------------------------------------------------------------------------------------
 Every candidate is simulated in free run over the **whole estimation record**, from
 its first ``max_lag`` measured outputs. A candidate is *admissible* when that free

@@ -94,7 +94,7 @@ class Coevolution:
     fixed_mask : ndarray of bool, optional
         Search only centres and widths for these lags (one bit per candidate):
         the lag population is this mask throughout (the second stage of a two-stage
-        run, see :mod:`streamid.engine.identify`). Not combinable with ``warm_start``.
+        run, see :mod:`streamid.engine.identification`). Not combinable with ``warm_start``.
     normalisation : Normalisation, optional
         Use this normalisation instead of the min/max of ``u``, ``y`` (e.g. the
         min/max of a larger estimation set this run sees a part of).
@@ -175,7 +175,7 @@ class Coevolution:
         self._rows = rows
         self.search_rows = int(t_s.shape[0])
         # The search's fitness includes the linear part with linear_terms (unless the caller says otherwise:
-        # the lag search of a two-stage run stays RBF-only, streamid.engine.identify).
+        # the lag search of a two-stage run stays RBF-only, streamid.engine.identification).
         self.linear_search = cfg.linear_terms and cfg.linear_search if linear_search is None else bool(linear_search)
         self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay, linear=self.linear_search)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])

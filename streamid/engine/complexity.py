@@ -1,6 +1,6 @@
 """Complexity chosen by the data: an information criterion on the estimation free run.
 
-The rule (``CoEAConfig.complexity``; applied by :func:`~streamid.engine.identify.identify`
+The rule (``CoEAConfig.complexity``; applied by :func:`~streamid.engine.identification.identify`
 to the runs' chosen candidates, each a network of its own size and lag space)
 --------------------------------------------------------------------------------------------
 Every run offers one candidate (its best by the selection rule, range guard included).

@@ -1,6 +1,6 @@
 """Ensembles of the restarts' networks competing in the final choice (``CoEAConfig.run_ensembles``).
 
-The rule (applied by :func:`~streamid.engine.identify.identify` after the complexity choice)
+The rule (applied by :func:`~streamid.engine.identification.identify` after the complexity choice)
 --------------------------------------------------------------------------------------------
 The runs' candidates after pruning are ranked by the ``complexity`` criterion (AIC on the
 estimation free run, :mod:`streamid.engine.complexity`; ties by run order), the admissible

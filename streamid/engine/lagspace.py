@@ -20,7 +20,7 @@ With ``require_input`` a lag set without an input term is infeasible in the sear
 (:class:`~streamid.engine.coevolution.Coevolution`). Without it, the rule below
 still applies to what a second stage trains on.
 
-The input-term rule (every two-stage run, :func:`~streamid.engine.identify.identify`)
+The input-term rule (every two-stage run, :func:`~streamid.engine.identification.identify`)
 ------------------------------------------------------------------------------------
 The first stage's best harmony is chosen by one-step-ahead error, and on an
 oscillating output an autoregression of ``y`` alone predicts one step ahead very

@@ -9,7 +9,7 @@ linear ARX of order 120-160 reaches 0.79-0.89 (docs/engine-results.md, round 12)
 to 160 with the harmony search would cost the search its speed on every record; a *dense* linear
 part of order ``n`` costs one least squares.
 
-The rule (:func:`long_linear_choice`, applied by :func:`~streamid.engine.identify.identify` to its
+The rule (:func:`long_linear_choice`, applied by :func:`~streamid.engine.identification.identify` to its
 final choice when ``CoEAConfig.long_linear`` > 0)
 -------------------------------------------------------------------------------------------------
 0. It is tried only on a record the final choice explains in part: its estimation free-run R^2

@@ -24,7 +24,7 @@ when the free run's error falls (the damping then divided by 10, at least 1e-4),
 with ten times the damping (at most 1e2); it stops after ``iterations``, when no step lowers the
 error, or when one lowers it by less than 1e-4 of itself.
 
-The rule (applied by :func:`~streamid.engine.identify.identify` after the final choice)
+The rule (applied by :func:`~streamid.engine.identification.identify` after the final choice)
 -----------------------------------------------------------------------------------------
 * **Gate:** refined only when the chosen model's free-run R^2 on the estimation record is at
   least ``refine_above`` (0.8). Below it the network's structure does not explain the record, and

@@ -2,7 +2,7 @@
 
 Pure rules over the runs already made (their ``score``: the estimation free-run R^2 of each run's
 chosen candidate, ``-1e9`` when none is admissible) and the loop that makes the restarts in order.
-:func:`~streamid.engine.identify.identify` owns the runs themselves.
+:func:`~streamid.engine.identification.identify` owns the runs themselves.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Scoring and choosing finished runs' models: refits, batched free runs, the selection rule.
 
-:func:`select_model` is the one final-model choice of streamid (:func:`~streamid.engine.identify.identify`
+:func:`select_model` is the one final-model choice of streamid (:func:`~streamid.engine.identification.identify`
 and the online updates use it); the rule itself is in :mod:`streamid.engine.choice`.
 """
 

@@ -2,7 +2,7 @@
 
 :class:`CoEAConfig` holds the settings of the method of the paper (Table 3 and
 section 6) plus the few choices streamid adds (regularisation of the least
-squares of the search, the multi-start strategy of :func:`~streamid.engine.identify`).
+squares of the search, the multi-start strategy of :func:`~streamid.engine.identification.identify`).
 Every field is checked in ``__post_init__``; a bad value raises
 :class:`~streamid.errors.ConfigError` naming the field, the accepted form and the value.
 """
@@ -18,7 +18,7 @@ from streamid.errors import ConfigError
 
 __all__ = ["CoEAConfig", "PAPER", "DEFAULT", "SELECTIONS"]
 
-#: Ways :func:`~streamid.engine.identify` chooses among restarts.
+#: Ways :func:`~streamid.engine.identification.identify` chooses among restarts.
 SELECTIONS = ("fr_est", "holdout_fr", "cv_fr", "fitness")
 
 
@@ -97,7 +97,7 @@ class CoEAConfig:
         units, ``n`` rows), in both the search and the final fit; 0 = none (the paper).
     lag_search_neurons : int
         0 (the paper): lags, centres and widths coevolve in one run of
-        ``generations``. > 0: a two-stage run (:func:`~streamid.engine.identify`):
+        ``generations``. > 0: a two-stage run (:func:`~streamid.engine.identification.identify`):
         first the paper's coevolution with this many neurons for
         ``lag_search_generations`` generations, the lag population evolving
         throughout, chooses the lags; then ``generations`` of DE search the
@@ -107,10 +107,10 @@ class CoEAConfig:
     lag_search_generations : int
         Generations of the first stage of a two-stage run.
     restarts : int
-        Independent coevolution runs made by :func:`~streamid.engine.identify`;
+        Independent coevolution runs made by :func:`~streamid.engine.identification.identify`;
         the final model is chosen among them (see ``holdout_fraction``).
     workers : int
-        Processes used by :func:`~streamid.engine.identify` for the restarts
+        Processes used by :func:`~streamid.engine.identification.identify` for the restarts
         (1 = in the calling process).
     selection : str
         With ``restarts > 1``, how the final run is chosen: ``"fr_est"`` the
@@ -176,7 +176,7 @@ class CoEAConfig:
         stays inside (see :mod:`streamid.engine.choice`).
     max_lag_cap : int
         0: candidate lags ``1..max_lag_y`` and ``1..max_lag_u``. > 0 (with restarts or a
-        two-stage run, :func:`~streamid.engine.identify.identify`): the maximum lag
+        two-stage run, :func:`~streamid.engine.identification.identify`): the maximum lag
         ``L`` is chosen from the estimation data between ``max(max_lag_y, max_lag_u)``
         and this cap (:mod:`streamid.engine.lagspace`), and both use ``1..L``.
     lag_alternation : bool
@@ -256,7 +256,7 @@ class CoEAConfig:
         0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
         up to N (chosen by the ``complexity`` criterion) competes with it, and so do the means of the two and
         three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.longlinear`;
-        :func:`~streamid.engine.identify.identify`'s final choice; an online update's model gets a single
+        :func:`~streamid.engine.identification.identify`'s final choice; an online update's model gets a single
         network's part, of an order above its lag search's only: :func:`streamid.online.update.long_linear_part`).
     cv_folds : int
         Blocks of the blocked cross-validation of ``selection="cv_fr"``.

@@ -13,7 +13,7 @@ A run splits the window (the newest ``validation_fraction`` is held out), runs
 the coevolution generation by generation -- cold, or warm-started from the
 previous final populations, which the engine re-evaluates on the new data --
 chooses the model with the engine's one selection rule
-(:func:`~streamid.engine.identify.select_model`: ``"fitness"``, the paper's,
+(:func:`~streamid.engine.identification.select_model`: ``"fitness"``, the paper's,
 or ``"fr_est"``; validation data are never looked at), lets a dense linear ARX
 part longer than the lag search's compete with it (:func:`long_linear_part`),
 and computes its validation figures (:mod:`streamid.online.summary`).  It never raises for bad
@@ -37,7 +37,7 @@ import numpy as np
 
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine.feedthrough import direct_terms
-from streamid.engine.identify import select_model
+from streamid.engine.identification import select_model
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.refine import refine_weights
 from streamid.engine.settings import CoEAConfig

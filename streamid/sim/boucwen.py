@@ -75,7 +75,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import expm
 
 from streamid.errors import ConfigError
 from streamid.sim._common import (
@@ -254,6 +253,8 @@ def bouc_wen_operator(
 
 def _foh_matrices(p: BoucWenParams, h: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Exact first-order-hold discretisation ``(Phi, P0, P1)`` of ``m y'' + c y' + k y = F`` over ``h``."""
+    from scipy.linalg import expm  # imported here: the commands' parsers import this package, not its simulations
+
     a = np.array([[0.0, 1.0], [-p.k / p.m, -p.c / p.m]])
     b = np.array([0.0, 1.0 / p.m])
     big = np.zeros((4, 4))

@@ -65,7 +65,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, cont2discrete, lfilter
 
 from streamid.errors import ConfigError
 from streamid.sim._common import (
@@ -147,6 +146,7 @@ class PiezoParams:
 
 def _mode_filter(p: PiezoParams) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Exact ZOH discretisation of ``wn^2 / (s^2 + 2 zeta wn s + wn^2)`` as lfilter (b, a)."""
+    from scipy.signal import cont2discrete  # scipy.signal costs 0.8 s to import: only a simulation pays it
     wn = 2.0 * np.pi * p.resonance_hz
     num, den, _ = cont2discrete(([wn**2], [1.0, 2.0 * p.zeta * wn, wn**2]), p.period_s, method="zoh")
     return np.asarray(num, dtype=np.float64).ravel(), np.asarray(den, dtype=np.float64).ravel()
@@ -154,6 +154,8 @@ def _mode_filter(p: PiezoParams) -> tuple[NDArray[np.float64], NDArray[np.float6
 
 def _piezo_clean(u: NDArray[np.float64], p: PiezoParams) -> NDArray[np.float64]:
     """Noise-free sensor output for a held voltage sequence starting at rest (u = 0 V before t_0)."""
+    from scipy.signal import butter, lfilter
+
     u_ext = np.concatenate([[0.0], u])  # virgin state at 0 V before the first sample
     h = bouc_wen_operator(
         u_ext, alpha=p.hyst_a * p.d_p, beta=1.0, gamma=p.hyst_b, delta=p.hyst_g, nu=1.0

@@ -66,7 +66,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from streamid.errors import ConfigError
 from streamid.sim._common import (
@@ -196,6 +195,8 @@ def reactor_steady_state(u: float, params: ReactorParams = ReactorParams()) -> N
 
 def _affine_recurrence(decay: float, x0: float, forcing: NDArray[np.float64]) -> NDArray[np.float64]:
     """Return ``x[0..N]`` with ``x[0] = x0`` and ``x[k+1] = decay * x[k] + forcing[k]``."""
+    from scipy.signal import lfilter  # scipy.signal costs 0.8 s to import: only a simulation pays it
+
     out = np.empty(forcing.size + 1)
     out[0] = x0
     out[1:] = lfilter([1.0], [1.0, -decay], forcing, zi=[decay * x0])[0]
