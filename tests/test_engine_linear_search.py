@@ -9,7 +9,8 @@ from streamid.engine import CoEAConfig
 from streamid.engine.choice import free_run_scores
 from streamid.engine.coevolution import Coevolution
 from streamid.engine.complexity import criterion, parameter_count
-from streamid.engine.rbf import BatchEvaluator, activations, fit_linear_rbf
+from streamid.engine.batch import BatchEvaluator
+from streamid.engine.rbf import activations, fit_linear_rbf
 from streamid.engine.selection import _by_criterion, select_model
 from streamid.errors import ConfigError
 

@@ -17,7 +17,7 @@ import pytest
 
 from streamid.engine import CoEAConfig, Coevolution, EvalHelper, identify
 from benchmarks.engine_cases import reactor_data
-from streamid.engine.rbf import BatchEvaluator
+from streamid.engine.batch import BatchEvaluator
 from streamid.errors import StreamidError
 
 pytestmark = pytest.mark.skipif(not EvalHelper.supported(), reason="the helper needs POSIX on x86-64")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamid.engine.rbf import BatchEvaluator, activations, fit_weights, rbf_output
+from streamid.engine.batch import BatchEvaluator
+from streamid.engine.rbf import activations, fit_weights, rbf_output
 
 
 def _direct(r: np.ndarray, c: np.ndarray, s: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -125,7 +126,7 @@ def test_weight_decay_shrinks_weights() -> None:
 
 
 def test_batched_solve_and_its_singular_fallback() -> None:
-    from streamid.engine.rbf import _solve
+    from streamid.engine.batch import _solve
 
     rng = np.random.default_rng(11)
     a = rng.standard_normal((4, 5, 5))
@@ -217,7 +218,7 @@ def test_both_paths_of_the_evaluator_give_the_same_fitness(monkeypatch: pytest.M
     for numpy_path in (True, False):
         monkeypatch.setattr(rbf, "NUMPY_PATH", numpy_path)
         for linear in (False, True):
-            ev = rbf.BatchEvaluator(R, y, M, P, linear=linear)
+            ev = BatchEvaluator(R, y, M, P, linear=linear)
             for shared in (False, True):
                 mk = np.repeat(masks[:1], P, axis=0) if shared else masks
                 out[numpy_path, linear, shared] = ev.evaluate(mk, centres, widths, return_weights=True, shared=shared)

@@ -54,7 +54,7 @@ from streamid.engine.parallel import (
     _remove_folder,
     _views,
 )
-from streamid.engine.rbf import BatchEvaluator
+from streamid.engine.batch import BatchEvaluator
 
 
 def _lowest_priority() -> None:

@@ -15,7 +15,7 @@ first time, then 5.6-6.1 s); later processes load them from ``__pycache__`` in a
   linear part's coefficients) along it, for the output-error refinement (:mod:`streamid.engine.refine`,
   which prepares its arguments).
 * :func:`exp2_rows` and :func:`gram_rows`: the population's activations' ``exp2`` and the batched Gram of
-  :class:`~streamid.engine.rbf.BatchEvaluator`, used where ``rbf.NUMPY_PATH`` is false.
+  :class:`~streamid.engine.batch.BatchEvaluator`, used where ``rbf.NUMPY_PATH`` is false.
 
 The arithmetic is the free run's: ``yhat(t) = lin_u(t) + sum_k lin_y_k yhat(t - lag_k) +
 sum_m w_m exp(-(du(t, m) + a_m sum_k (yhat(t - lag_k) - cy_mk)^2))``, ``du`` the input regressors'

@@ -50,7 +50,8 @@ from streamid.engine.fanout import thread_map
 from streamid.engine.settings import CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
-from streamid.engine.rbf import BatchEvaluator, activations, activations_batch, fit_linear_rbf, fit_weights
+from streamid.engine.batch import BatchEvaluator
+from streamid.engine.rbf import activations, activations_batch, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
 from streamid.engine.populations import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
@@ -107,7 +108,7 @@ class Coevolution:
         its rows. Models (:meth:`model_for`) are still fitted on every row.
     linear_search : bool, optional
         Whether the search's fitness fits a direct linear part with the weights
-        (:meth:`~streamid.engine.rbf.BatchEvaluator.evaluate`); default ``config.linear_terms and
+        (:meth:`~streamid.engine.batch.BatchEvaluator.evaluate`); default ``config.linear_terms and
         config.linear_search``.
         A helper process is not used when it does (it evaluates the RBF-only fitness).
 

@@ -1,6 +1,6 @@
 r"""A helper process that evaluates half of every population batch: the second core.
 
-A coevolution generation evaluates its P pairs at once (:class:`~streamid.engine.rbf.BatchEvaluator`);
+A coevolution generation evaluates its P pairs at once (:class:`~streamid.engine.batch.BatchEvaluator`);
 at the paper's sizes that batch is ~0.3 ms of numpy calls, too short for a pool of
 workers and too many small calls for Python threads (they serialise on the GIL).
 :class:`EvalHelper` starts ONE long-lived helper process (``python -m
@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine.rbf import BatchEvaluator
+from streamid.engine.batch import BatchEvaluator
 from streamid.errors import ConfigError, StreamidError
 
 __all__ = ["EvalHelper", "HelperBinding"]
