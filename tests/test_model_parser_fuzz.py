@@ -310,9 +310,9 @@ def test_watch_lines_say_why_and_escape_what_came_from_the_network() -> None:
     up = parse_model_update(encode_json(_doc(13, metrics={"r2_osa_val": 0.99, "r2_fr_val": 0.95})))
     line = format_update(up, now_ns=7 + 2 * 10**9)
     assert line.startswith("bench1 v13 warm G=30 force_N(t) = F[") and "age 2.0s" in line
-    assert line.endswith("; accepted: better than v2 by 0.013 (FR R2)")
+    assert line.endswith("; accepted: better than v2 (FR R2 0.9370 on the same data) by 0.013")
     rej = parse_model_update(encode_json(_doc(12, accepted=False)))
-    assert decision_text(rej) == "rejected: not better than v2 (+0.013, margin 0.01)"
+    assert decision_text(rej) == "rejected: not better than v2 (FR R2 0.9370 on the same data): +0.013, margin 0.01"
     assert format_update(rej).startswith("bench1 challenger rejected (serving v12) ")
     doc = _doc(4, model=_model("force_N", inputs=("v\u202e",)).to_dict())
     doc["decision"] = {"accepted": True, "code": "odd", "reason": "line\nbreak \u202eevil", "margin": None}

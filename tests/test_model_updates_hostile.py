@@ -215,7 +215,7 @@ def test_watch_shows_each_output_with_its_decision_skips_the_malformed_and_escap
     assert err.count("(malformed)") == 1 and "1e400" in err and "skipped 1 invalid model updates (malformed: 1)" in err
     assert len(lines) == 3, out
     y1 = next(ln for ln in lines if " y1(t) " in ln and ln.startswith("w v13"))
-    assert y1.rstrip().endswith("accepted: better than v12 by 0.013 (FR R2)"), y1
+    assert y1.rstrip().endswith("accepted: better than v12 (FR R2 0.9370 on the same data) by 0.013"), y1
     y2 = next(ln for ln in lines if ln.startswith("w v12 warm G=10 y2(t) = F["))
     assert "v\\u202e(t-1)" in y2 and y2.rstrip().endswith("; accepted: first model"), y2
     assert lines[2].startswith("w challenger rejected (serving v13) warm G=10 y1(t) = F[")

@@ -3,7 +3,7 @@
 Connects to the daemon (``tcp/127.0.0.1:7447`` by default), prints the current
 model of every output of every watched stream at once (from the daemon's
 queryable), then one line per new model with why it was accepted ("accepted:
-better than v12 by 0.013"); with ``--rejected`` also the challengers that were
+better than v12 (FR R2 0.9370 on the same data) by 0.013"); with ``--rejected`` also the challengers that were
 not; with ``--every S`` the age of the current models is re-printed every S
 seconds, and degraded streams are reported from their status.  Stops on Ctrl-C,
 after ``--count`` updates or after ``--duration``.  Names and reasons that came
@@ -66,11 +66,13 @@ def decision_text(up: Any) -> str:
         by = fr - c.r2_fr_val
     if d.code == "first":
         return f"{word}: first model"
+    # the champion's figure is on the challenger's held-out data, not the one its own line showed: say so
+    same = f" (FR R2 {c.r2_fr_val:.4f} on the same data)" if c is not None and c.r2_fr_val is not None else ""
     if c is not None and d.code == "better":
-        return f"{word}: better than v{c.version}" + (f" by {by:.3f}" if by is not None else "") + " (FR R2)"
+        return f"{word}: better than v{c.version}{same}" + (f" by {by:.3f}" if by is not None else "")
     if c is not None and d.code == "not_better":
         margin = f", margin {d.margin:g}" if d.margin is not None else ""
-        return f"{word}: not better than v{c.version}" + (f" ({by:+.3f}{margin})" if by is not None else "")
+        return f"{word}: not better than v{c.version}{same}" + (f": {by:+.3f}{margin}" if by is not None else "")
     if c is not None and d.code == "champion_invalid":
         return f"{word}: champion v{c.version} no longer valid on current data, FR R2 {_r2(c.r2_fr_val)} -> {_r2(fr)}"
     reason = d.reason if len(d.reason) <= 200 else d.reason[:197] + "..."
