@@ -111,3 +111,19 @@ def test_address_in_use_is_one_sentence_with_the_endpoint_and_the_flag(command: 
     assert err.startswith(f"streamid {command}: error: cannot listen on tcp/127.0.0.1:{port}: the address is already in use")
     assert "--listen" in err and ".rs" not in err and "cargo" not in err
     assert len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize(("words", "usage", "error"), [
+    (["status", "nosuch"], "usage: streamid status ", "streamid status: error: unrecognized arguments: nosuch"),
+    (["simulate", "mr_damper", "x.mcap", "--change", "3"], "usage: streamid simulate ",
+     "streamid simulate: error: unrecognized arguments: --change 3"),
+    (["--bogus"], "usage: streamid [-h]", "streamid: error: unrecognized arguments: --bogus"),
+])
+def test_an_unknown_argument_is_refused_by_the_command_it_was_given_to(
+        words: list[str], usage: str, error: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """The command's own usage, not the top level's, shows what it accepts (before: ``streamid status nosuch``
+    printed ``usage: streamid [-h] [--version] COMMAND ...``, which lists no option of status)."""
+    with pytest.raises(SystemExit) as info:
+        main(words)
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and err.startswith(usage) and error in err, err
