@@ -210,3 +210,21 @@ def test_mat_file_missing_values_are_named_by_sample(tmp_path: Path, capsys: pyt
     assert code == 0, err
     assert "read      300 rows; no clock (samples counted), 2 rows with missing values (fill: 0 rows left out, " \
            "2 values filled)" in out, out
+
+
+def test_a_column_that_is_not_numbers_stops_the_file_only_when_it_is_used(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A notes column beside the signals (text in a cell) does not stop an identification of the others; used, it is
+    an error naming its cell; a misspelt column is named as unknown, whatever else the file holds. A time column's
+    fault always stops the file: it would be the samples' clock."""
+    cols = signals(200)
+    notes = write(tmp_path / "n.csv", cols, cells={(7, "noise"): "valve opened"})
+    rep, _ = report(capsys, str(notes), "--input", "force", "--output", "pos")
+    assert rep["data"]["n_est"] + rep["data"]["n_val"] == 200 and rep["data"]["read"]["clock"] == "t_s", rep["data"]
+    code, _, err = run(capsys, str(notes), "--input", "noise", "--output", "pos", *QUICK)
+    assert code == 2 and "column 'noise', line 9: 'valve opened' is not a number" in err, err
+    code, _, err = run(capsys, str(notes), "--input", "force", "--output", "pso", *QUICK)
+    assert code == 2 and "unknown column 'pso'" in err and "'pos'" in err, err
+    clock = write(tmp_path / "c.csv", cols, cells={(3, "t_s"): "later"})
+    code, _, err = run(capsys, str(clock), "--input", "force", "--output", "pos", *QUICK)
+    assert code == 2 and "column 't_s', line 5: 'later' is not a number" in err, err

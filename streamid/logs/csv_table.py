@@ -124,19 +124,22 @@ def clock_of(columns: dict[str, NDArray[np.float64]]) -> tuple[str, NDArray[np.i
 
 def read_delimited(
     path: Path, delimiter: str | None = None
-) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.int64], dict[str, str]]:
-    """Columns (NaN where a cell is missing), the 1-based file line of every row, and how the file was read.
+) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.int64], dict[str, str], dict[str, str]]:
+    """Columns (NaN where a cell is missing), the 1-based file line of every row, how the file was read, and why
+    each unreadable column cannot be used.
 
     Returns
     -------
-    columns, lines, how
-        ``how`` holds ``delimiter`` (its name), ``decimal`` (``"."`` or ``","``).
+    columns, lines, how, unreadable
+        ``how`` holds ``delimiter`` (its name), ``decimal`` (``"."`` or ``","``). ``unreadable`` maps a column
+        holding a cell that is neither a number nor a missing value to the error naming its first such cell:
+        it is raised only if the column is used (a notes column beside the signals does not stop a file).
 
     Raises
     ------
     DataError
         Unreadable file, no header or data, duplicate names, a row with another number of
-        fields than the header, a cell that is neither a number nor a missing value.
+        fields than the header.
     """
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
@@ -173,6 +176,7 @@ def read_delimited(
         rows.append(r)
     comma = d != "," and _decimal_comma(rows)
     cols: dict[str, NDArray[np.float64]] = {}
+    unreadable: dict[str, str] = {}
     for j, name in enumerate(header):
         vals = np.empty(len(rows))
         for i, r in enumerate(rows):
@@ -186,10 +190,11 @@ def read_delimited(
                 hint = ""
                 if "," in cell and not comma:
                     hint = " (a decimal comma? it is read only in files not separated by commas, when the first lines use it)"
-                raise DataError(
+                unreadable[name] = (
                     f"{path}: column {name!r}, line {body[i][0]}: {r[j]!r} is not a number{hint}; every cell must be a "
                     f"number or a missing value (empty, NaN, NA, N/A, null)"
-                ) from None
+                )
+                break
         cols[name] = vals
     lines = np.asarray([n for n, _ in body], dtype=np.int64)
-    return cols, lines, {"delimiter": DELIMITER_NAMES[d], "decimal": "," if comma else "."}
+    return cols, lines, {"delimiter": DELIMITER_NAMES[d], "decimal": "," if comma else "."}, unreadable

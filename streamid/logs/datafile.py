@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from streamid.errors import DataError
 from streamid.logs.columns import MISSING_POLICIES, check_columns, handle_missing
-from streamid.logs.csv_table import clock_of, read_delimited
+from streamid.logs.csv_table import clock_of, read_delimited, time_unit_ns
 
 __all__ = ["Table", "Dataset", "load_table", "load_dataset", "split_index"]
 
@@ -48,6 +48,8 @@ class Table:
     t_ns: NDArray[np.int64] | None = None
     period_ns: int | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    #: columns that cannot be read as numbers, and why (raised by :meth:`column`, only when one is used)
+    unreadable: dict[str, str] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(next(iter(self.columns.values()))) if self.columns else 0
@@ -58,6 +60,8 @@ class Table:
             raise DataError(
                 f"unknown column {name!r} in {self.path}; available columns: {sorted(self.columns)}"
             )
+        if name in self.unreadable:
+            raise DataError(self.unreadable[name])
         return self.columns[name]
 
 
@@ -95,14 +99,17 @@ class Dataset:
 
 
 def _read_csv(path: Path, delimiter: str | None = None) -> Table:
-    cols, lines, how = read_delimited(path, delimiter)
+    cols, lines, how, unreadable = read_delimited(path, delimiter)
+    for name, why in unreadable.items():
+        if time_unit_ns(name) is not None:  # a clock column, used whenever it is one: its fault stops the file
+            raise DataError(why)
     clock = clock_of(cols)
     t_ns = period_ns = None
     if clock is not None:
         how["clock"] = clock[0]
         t_ns = clock[1]
         period_ns = int(np.median(np.diff(t_ns)))
-    return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta={"lines": lines, **how})
+    return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta={"lines": lines, **how}, unreadable=unreadable)
 
 
 def _read_mat(path: Path) -> Table:
