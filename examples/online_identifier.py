@@ -10,4 +10,4 @@ for k in range(0, len(t_ns), 200):                     # samples arrive one seco
     ident.learn_many(t_ns[k:k + 200], u[k:k + 200], y[k:k + 200], inputs=["velocity"], outputs=["force"])
     for update in ident.update_all():                  # identify what is due, here and now
         print(update.version, update.kind, update.code, f"free-run R² {update.metrics['r2_fr_val']:.3f}")
-print(ident.model.summary())                           # the champion; ident.predict_one() forecasts
+print(ident.model.summary() if ident.model else "no model yet")  # the champion; predict_one() forecasts
