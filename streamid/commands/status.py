@@ -4,7 +4,8 @@ Asks every stream's status queryable (``streamid/<stream>/status``: only the dae
 serving a stream answers for it) and prints one line per stream: the daemon that
 serves it (its id and the start of its life), the model version, the champion's
 age and current free-run R², the drift events so far, the stream's state, and the members sharing the
-streams as that daemon sees them.  Network text is shown escaped.  Exit code 1 when
+streams as that daemon sees them.  A stream of several outputs (MIMO: one champion per output) gets one more
+line per output, indented, with that output's champion.  Network text is shown escaped.  Exit code 1 when
 no stream answered within ``--timeout``.
 """
 
@@ -17,7 +18,7 @@ from typing import Any
 
 from streamid.wire.names import printable
 
-__all__ = ["register", "run", "status_line"]
+__all__ = ["register", "run", "status_line", "output_lines"]
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -47,9 +48,18 @@ def _table(doc: dict[str, Any], key: str) -> dict[str, Any]:
     return value if isinstance(value, dict) else {}
 
 
+def _outputs(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    models = doc.get("models")
+    return {str(k): v for k, v in models.items() if isinstance(v, dict)} if isinstance(models, dict) else {}
+
+
 def status_line(doc: dict[str, Any]) -> str:
-    """One line of the table for a parsed ``streamid.status/1`` document (escaped)."""
+    """One line of the table for a parsed ``streamid.status/1`` document (escaped).
+
+    A stream of several outputs shows no champion here (each output has its own: :func:`output_lines`)."""
     daemon, champ = _table(doc, "daemon"), _table(doc, "champion")
+    if len(_outputs(doc)) > 1:
+        champ = {}
     origin, sharing, current = _table(daemon, "origin"), _table(daemon, "sharing"), _table(champ, "current")
     members = sharing.get("members")
     members = members if isinstance(members, list) else []
@@ -58,6 +68,22 @@ def status_line(doc: dict[str, Any]) -> str:
             f"v{_num(doc.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
             f"{_num(current.get('r2_fr_val'), '.4f'):>9} {_num(doc.get('drifts'), 'd'):>6} {len(members) or 1:>7}  {state}")
     return printable(text, 400)
+
+
+def output_lines(doc: dict[str, Any]) -> list[str]:
+    """Under a stream of several outputs, one line per output: its champion's version, age, current free-run R²
+    and drifts, in the table's columns (escaped); none for a stream of one output."""
+    outputs = _outputs(doc)
+    if len(outputs) < 2:
+        return []
+    lines = []
+    for name in sorted(outputs):
+        out = outputs[name]
+        champ = _table(out, "champion")
+        text = (f"{'  ' + name:<20} {'':<18} v{_num(out.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
+                f"{_num(_table(champ, 'current').get('r2_fr_val'), '.4f'):>9} {_num(out.get('drifts'), 'd'):>6}")
+        lines.append(printable(text, 400))
+    return lines
 
 
 HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'drifts':>6} "
@@ -97,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
         print(HEADER)
         for name in sorted(docs):
             print(status_line(docs[name]))
+            for line in output_lines(docs[name]):
+                print(line)
     if skipped:
         print(f"streamid status: skipped {skipped} invalid status documents", file=sys.stderr)
     if not docs:
