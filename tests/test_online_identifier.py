@@ -231,3 +231,21 @@ def test_direct_terms_online_when_asked_and_kept_by_warm_updates() -> None:
     plain = OnlineIdentifier(CFG, stream="d")  # the default online: the paper's u(t-1) on
     plain.learn_many(t, u, y, **NAMES)
     assert all(up.outcome.model is not None and up.outcome.model.config["min_lag_u"] == 1 for up in plain.update_all())
+
+
+def test_each_output_of_a_stream_is_healthy_or_degraded_on_its_own(
+        damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    """Two outputs: white noise (no model of the input predicts it: every challenger fails the floors) first,
+    the damper's force second. The force's accepted models must not hide that the noise output has none: before,
+    the stream's one health flag was cleared by whichever output was accepted last, and read healthy."""
+    t, u, y = damper
+    noise = np.random.default_rng(0).normal(0.0, 1.0, y.size)
+    ident = OnlineIdentifier(CFG, stream="two")
+    ident.learn_many(t, u, np.column_stack([noise, y]), inputs=["velocity_cm_s"], outputs=["noise", "force_N"])
+    ups = ident.update_all()
+    assert {(up.output, up.kind) for up in ups} >= {("force_N", "accepted"), ("noise", "rejected")}, \
+        [(up.output, up.kind, up.code) for up in ups]
+    assert all(up.code == "validation" for up in ups if up.output == "noise")
+    st = ident.status()
+    assert ident.degraded and st["degraded"] and st["degraded_reason"].startswith("noise: "), st["degraded_reason"]
+    assert "force_N" not in st["degraded_reason"]

@@ -126,7 +126,7 @@ class OnlineIdentifier(StreamIntake):
         self._decisions: Counter[str] = Counter()
         self._drop_reasons: Counter[str] = Counter()
         self._last: dict[str, Any] = {}
-        self._degraded_reason = ""
+        self._degraded: dict[str, str] = {}  # per output ("": the stream), why it is degraded
         self._state_error = ""
 
     # ---------------------------------------------------------------- identification
@@ -270,7 +270,7 @@ class OnlineIdentifier(StreamIntake):
                                 "versions kept unique in memory", w.t_end_ns, now_ns)
                 self._state_error = str(exc)[:300] or type(exc).__name__
         self._outcomes["accepted"] += 1
-        self._degraded_reason = ""
+        self._degraded.pop(head.output, None)  # (another output's health is its own)
         m = outcome.summary.metrics if outcome.summary is not None else {}
         self._last.update(outcome="accepted", r2_osa_val=m.get("r2_osa_val"), r2_fr_val=m.get("r2_fr_val"),
                           model_unix_ns=now_ns)
@@ -470,14 +470,23 @@ class OnlineIdentifier(StreamIntake):
     # ---------------------------------------------------------------- status and events
     @property
     def degraded(self) -> bool:
-        """Whether the last update was not accepted for a fault or an invalid challenger (reason in :meth:`status`)."""
-        return bool(self._degraded_reason)
+        """Whether an output's last update was not accepted for a fault or an invalid challenger (reason in
+        :meth:`status`).  Each output of a stream of several is healthy or not on its own: a model accepted for
+        one does not make another's failure go away."""
+        return bool(self._degraded)
+
+    def _degraded_text(self) -> str:
+        """Why the stream is degraded ("": it is not); with several outputs, each degraded one named."""
+        modelled = 1 if self.config.output is not None else max(len(self._buffer.output_names), len(self._heads))
+        if len(self._degraded) == 1 and modelled <= 1:
+            return next(iter(self._degraded.values()))
+        return "; ".join(f"{out}: {why}" if out else why for out, why in sorted(self._degraded.items()))[:500]
 
     def status(self, *, now_ns: int = 0) -> dict[str, Any]:
         """The ``streamid.status/1`` document of this stream (the daemon adds its own part)."""
         return stream_status(
             self.stream, self._buffer.counters(), list(self._heads.values()), now_ns=now_ns,
-            degraded_reason=self._degraded_reason, version=self._version, busy=self.busy,
+            degraded_reason=self._degraded_text(), version=self._version, busy=self.busy,
             outcomes=self._outcomes, decisions=self._decisions, drop_reasons=self._drop_reasons,
             last=self._last, events_dropped=self._events_dropped, state_error=self._state_error,
             outputs_to_do=len(self._todo),
@@ -521,11 +530,14 @@ class OnlineIdentifier(StreamIntake):
                 decision: Decision | None = None, document: dict[str, Any] | None = None,
                 payload: bytes | None = None) -> Update:
         health = degraded_after(decision, self.config) if decision is not None else None
-        if health is not None:  # the champion ran on the same data: the stream's health is its validity there
-            self._degraded_reason = health
-        elif code != "not_better":
-            self._degraded_reason = reason[:500] or kind
         w, output = job.window, job.output or ""
+        if health is not None:  # the champion ran on the same data: the output's health is its validity there
+            if health:
+                self._degraded[output] = health
+            else:
+                self._degraded.pop(output, None)
+        elif code != "not_better":
+            self._degraded[output] = reason[:500] or kind
         ev = self._event(f"update.{kind}", f"window {w.number} {output} {kind}: {reason}", w.t_end_ns, now_ns)
         version = self._heads[output].version if output in self._heads else 0
         return Update(kind, reason, code, version, w, outcome, document, payload, ev, output, decision)
