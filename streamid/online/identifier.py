@@ -473,14 +473,20 @@ class OnlineIdentifier(StreamIntake):
         """Whether an output's last update was not accepted for a fault or an invalid challenger (reason in
         :meth:`status`).  Each output of a stream of several is healthy or not on its own: a model accepted for
         one does not make another's failure go away."""
-        return bool(self._degraded)
+        return bool(self._current_faults())
+
+    def _current_faults(self) -> dict[str, str]:
+        """The degraded outputs that the stream still has (after a schema change, the old outputs' are moot)."""
+        names = self._buffer.output_names
+        return {k: v for k, v in self._degraded.items() if not names or not k or k in names}
 
     def _degraded_text(self) -> str:
         """Why the stream is degraded ("": it is not); with several outputs, each degraded one named."""
+        faults = self._current_faults()
         modelled = 1 if self.config.output is not None else max(len(self._buffer.output_names), len(self._heads))
-        if len(self._degraded) == 1 and modelled <= 1:
-            return next(iter(self._degraded.values()))
-        return "; ".join(f"{out}: {why}" if out else why for out, why in sorted(self._degraded.items()))[:500]
+        if len(faults) == 1 and modelled <= 1:
+            return next(iter(faults.values()))
+        return "; ".join(f"{out}: {why}" if out else why for out, why in sorted(faults.items()))[:500]
 
     def status(self, *, now_ns: int = 0) -> dict[str, Any]:
         """The ``streamid.status/1`` document of this stream (the daemon adds its own part)."""
