@@ -213,7 +213,8 @@ def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> N
     assert shown.returncode == 0, shown.stderr
     plan = json.loads(shown.stdout)
     files = plan["files"]
-    assert files and files[0].endswith("mr_damper.rrd") and plan["command"][-len(files):] == files and not plan["no_footer"]
+    assert files and files[0].endswith("mr_damper.rrd") and plan["command"][-len(files):] == files[::-1]
+    assert not plan["no_footer"]
     check = subprocess.run(["rerun", "rrd", "verify", *files], cwd=work, capture_output=True, text=True, timeout=60)
     assert f"{len(files)} file" in check.stdout + check.stderr and check.returncode == 0, (check.stdout, check.stderr)
 

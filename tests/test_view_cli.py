@@ -66,7 +66,7 @@ def test_errors_name_the_file_and_the_accepted_form(tmp_path: Path, monkeypatch:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fake.rrd", "notes.txt"]  # nothing written
 
 
-def test_print_command_opens_every_segment_in_order_on_loopback(tmp_path: Path) -> None:
+def test_print_command_opens_every_segment_newest_first_on_loopback(tmp_path: Path) -> None:
     base = tmp_path / "d.rrd"
     files = segments(base, n=5, rrd_keep=4)
     assert not base.exists() and len(files) == 4  # the first segments were removed by the bound
@@ -76,7 +76,7 @@ def test_print_command_opens_every_segment_in_order_on_loopback(tmp_path: Path) 
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
     assert doc["files"] == files and doc["no_footer"] == [str(last)] and doc["empty"] == []
-    assert doc["command"] == [rerun_cli(), "--bind", "127.0.0.1", *files]
+    assert doc["command"] == [rerun_cli(), "--bind", "127.0.0.1", *reversed(files)]  # the fullest layout first
     res = view(str(base), "--print-command")
     assert res.returncode == 0 and res.stdout.split() == doc["command"]
     assert "streamid view: 4 files" in res.stderr
@@ -125,3 +125,40 @@ def test_screenshot_renders_every_segment_as_one_recording(tmp_path: Path) -> No
     assert cols.max() - cols.min() > panel.shape[1] // 2  # from the first segment's update to the last
     top = img[: h * 35 // 100]  # the newest update's figures are drawn too
     assert np.all(np.abs(top - np.array((66, 150, 250))) < 40, axis=2).sum() > 200
+
+
+@pytest.mark.needs("vulkan")
+def test_a_stream_of_several_outputs_is_laid_out_across_its_segments(tmp_path: Path) -> None:
+    """The daemon's layout grows: a stream's tab when it is declared, an output's tab when its first model comes, so
+    a stream of several outputs has a first segment whose blueprint holds none of their tabs. The viewer lays a
+    recording out by the first file it opens; opened oldest first, the F-16 log's segments showed its default layout
+    (no R² panel where ours has it). ``streamid view`` opens the newest first."""
+    from PIL import Image
+
+    import time
+
+    base = tmp_path / "m.rrd"
+    viz = Viz(VizSettings(rrd=str(base), rrd_rotate_s=0.3, recording_id="view-mimo"))
+    viz.log_event(None, "daemon started: streams (discovering)", t_ns=0)  # as the daemon's first segment
+    viz.flush()
+    time.sleep(0.7)  # the idle segment is closed: the next one starts with the stream's layout
+    viz.add_stream("s")
+    for k, out in enumerate(("y1", "y2", "y3")):
+        viz.add_stream(f"s/{out}")
+        for v in range(1, 3):
+            r = report(2 * k + v, n_val=400)
+            viz.log_update(dataclasses.replace(r, stream=f"s/{out}", output_name=out,
+                                               metrics={"r2_osa_val": 0.99, "r2_fr_val": 0.3 + 0.08 * (2 * k + v)}))
+            viz.flush()
+        time.sleep(0.35)  # each output's tab in a later segment than the one before
+    viz.close()
+    files = viz.files
+    assert len(files) >= 3, files
+    png = tmp_path / "m.png"
+    res = view(str(base), "--screenshot", str(png), "--json", "--timeout", "60")
+    assert res.returncode == 0, res.stderr
+    img = np.asarray(Image.open(png).convert("RGB"), dtype=int)
+    h, w = img.shape[:2]
+    panel = img[h * 53 // 100: h * 75 // 100, w * 26 // 100: w * 49 // 100]  # "R² (held out)" of the first output
+    orange = np.all(np.abs(panel - np.array((250, 140, 40))) < 40, axis=2)  # R² free run
+    assert orange.sum() > 100, orange.sum()

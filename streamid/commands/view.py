@@ -3,7 +3,8 @@
 A recording written to FILE.rrd is continued in FILE.001.rrd, FILE.002.rrd...
 (the daemon closes a segment every few seconds, see --rrd-rotate-s of
 ``streamid daemon``).  ``streamid view FILE.rrd`` opens FILE.rrd and all its
-segments as one recording::
+segments as one recording (the newest first: the viewer takes the layout of the
+first file it opens, and the newest segment has the fullest)::
 
     streamid view diag.rrd                        # the viewer, on every segment
     streamid view diag.rrd --screenshot diag.png  # rendered headless into a PNG
@@ -77,7 +78,12 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
     from streamid.viz.screenshot import rerun_cli
 
-    command = [rerun_cli(), "--bind", "127.0.0.1", *map(str, files)]
+    # The viewer lays the recording out by the blueprint of the file it opens first. The daemon's layout only grows
+    # (a stream's tab when it is declared, an output's tab when its first model comes), so the newest segment holds
+    # the fullest one: opened oldest first, a stream of several outputs showed the viewer's default layout, its first
+    # segment's blueprint holding no tab yet (seen with the F-16 log).
+    newest_first = list(reversed(files))
+    command = [rerun_cli(), "--bind", "127.0.0.1", *map(str, newest_first)]
     doc: dict[str, object] = {"files": [str(f) for f in files], "no_footer": open_, "empty": [str(f) for f in empty]}
     if args.print_command:
         _say(args, {**doc, "command": command}, shlex.join(command))
@@ -86,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         from streamid.viz.rerun_view import screenshot
 
         try:
-            png = screenshot(files, args.screenshot, window_size=args.window_size, timeout_s=args.timeout)
+            png = screenshot(newest_first, args.screenshot, window_size=args.window_size, timeout_s=args.timeout)
         except (OSError, RuntimeError) as exc:
             print(f"streamid view: error: {exc}", file=sys.stderr)
             return 1
