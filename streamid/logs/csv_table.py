@@ -194,6 +194,7 @@ def read_delimited(
                     f"{path}: column {name!r}, line {body[i][0]}: {r[j]!r} is not a number{hint}; every cell must be a "
                     f"number or a missing value (empty, NaN, NA, N/A, null)"
                 )
+                vals[i:] = np.nan  # never read (Table.column raises), but not left uninitialised
                 break
         cols[name] = vals
     lines = np.asarray([n for n, _ in body], dtype=np.int64)
