@@ -202,5 +202,23 @@ def test_window_too_short_for_the_lags_is_dropped_with_the_reason() -> None:
     out = identify_window(short, StreamConfig(window_samples=30, update_every_samples=10), version=1)
     assert out.kind == "dropped" and out.code == "window_too_short"
     assert "max lag 10 and 10 neurons need >= 30 estimation" in out.reason and "lengthen window_s" in out.reason
+    period_s = w.period_ns / 1e9  # the concrete fix: 43 samples (30 estimation + round(0.3 x 43) = 13 validation)
+    assert f"at this stream's {period_s:g} s per sample, window_s >= {43 * period_s:g} or window_samples >= 43" \
+        in out.reason, out.reason
+    longer = Window("s", 1, 1, w.t0_ns, w.period_ns, ("v",), ("f",), w.u[:43].copy(), w.y[:43].copy(), 0, 0)
+    cfg = StreamConfig(window_samples=43, update_every_samples=10, cold_generations=5)
+    assert identify_window(longer, cfg, version=1).code != "window_too_short"
     missing = identify_window(w, StreamConfig(output="torque"), version=1)
     assert missing.kind == "dropped" and "'torque' is not among the stream's outputs ['f']" in missing.reason
+
+
+def test_the_shortest_window_hint_is_the_fewest_samples_the_split_accepts() -> None:
+    from streamid.online.update import _shortest_window
+
+    def fewest(need_est: int, need_val: int, f: float) -> int:
+        return next(n for n in range(1, 100_000) if n - round(n * f) >= need_est and round(n * f) >= need_val)
+
+    for need_est in (1, 5, 30, 301):
+        for need_val in (1, 3, 13, 40):
+            for f in (0.05, 0.1, 0.25, 0.3, 0.5, 0.7, 0.9, 0.95):
+                assert _shortest_window(need_est, need_val, f) == fewest(need_est, need_val, f), (need_est, need_val, f)

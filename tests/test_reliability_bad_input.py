@@ -365,6 +365,8 @@ def test_window_too_short_for_the_lags_is_a_clear_error(run: dict[str, Any]) -> 
     assert st["degraded"] is True and st["version"] == 0
     assert "window too short for the configured lags" in st["degraded_reason"]
     assert "lengthen window_s or lower max_lag_y/max_lag_u/neurons" in st["degraded_reason"]
+    # the fewest samples that give max lag 3 and 5 neurons 13 estimation and 6 validation samples, at 200 Hz
+    assert "window_s >= 0.095 or window_samples >= 19" in st["degraded_reason"], st["degraded_reason"]
     assert st["drop_reasons"] == {"window_too_short": st["identifications"]["dropped"]} and st["drop_reasons"]
 
 

@@ -27,6 +27,7 @@ error (the fault-injection tests use it).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import zlib
 from collections.abc import Callable
@@ -230,6 +231,19 @@ def _unusable(names_parts: list[tuple[str, str, np.ndarray]]) -> str | None:
     return None
 
 
+def _shortest_window(need_est: int, need_val: int, validation_fraction: float) -> int:
+    """Fewest samples a window needs for ``need_est`` estimation and ``need_val`` validation samples, split as
+    :func:`identify_window` splits (``round(n * validation_fraction)`` held out)."""
+    f = min(max(validation_fraction, 1e-9), 1 - 1e-9)
+    n = max(need_est + need_val, math.ceil((need_val - 0.5) / f) - 1, math.ceil((need_est - 0.5) / (1 - f)) - 1)
+    for _ in range(10_000):  # from a lower bound: the split rounds, so a few more samples at most
+        n_val = int(round(n * validation_fraction))
+        if n - n_val >= need_est and n_val >= need_val:
+            return n
+        n += 1
+    return n
+
+
 def identify_window(
     window: Window,
     cfg: StreamConfig,
@@ -274,11 +288,14 @@ def identify_window(
     max_lag = max(cfg.max_lag_y, cfg.max_lag_u)
     need_est = max_lag + 2 * cfg.neurons
     if n_est < need_est or n_val < max_lag + 3:
+        n_min = _shortest_window(need_est, max_lag + 3, cfg.validation_fraction)
+        period_s = window.period_ns / 1e9
         return Outcome(
             "dropped",
             f"window too short for the configured lags: {n_est} estimation + {n_val} validation samples; "
             f"max lag {max_lag} and {cfg.neurons} neurons need >= {need_est} estimation and >= {max_lag + 3} "
-            "validation samples (lengthen window_s or lower max_lag_y/max_lag_u/neurons)",
+            f"validation samples (lengthen window_s or lower max_lag_y/max_lag_u/neurons: at this stream's "
+            f"{period_s:g} s per sample, window_s >= {n_min * period_s:g} or window_samples >= {n_min})",
             "window_too_short",
             **common,
         )
