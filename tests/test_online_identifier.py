@@ -249,3 +249,16 @@ def test_each_output_of_a_stream_is_healthy_or_degraded_on_its_own(
     st = ident.status()
     assert ident.degraded and st["degraded"] and st["degraded_reason"].startswith("noise: "), st["degraded_reason"]
     assert "force_N" not in st["degraded_reason"]
+
+
+def test_outputs_degraded_for_the_same_reason_are_named_together(
+        damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    """Every output of a window too short for the lags fails alike: one reason naming both, not the reason twice
+    (the CSTR replayed into a default daemon filled the 500 characters with the same sentence)."""
+    t, u, y = damper
+    ident = OnlineIdentifier(StreamConfig(window_samples=20, update_every_samples=20), stream="two")
+    ident.learn_many(t[:40], u[:40], np.column_stack([y[:40], -y[:40]]), inputs=["v"], outputs=["a", "b"])
+    ups = ident.update_all()
+    assert ups and all(up.code == "window_too_short" for up in ups)
+    why = ident.status()["degraded_reason"]
+    assert why.startswith("a, b: window too short for the configured lags") and why.count("window too short") == 1, why

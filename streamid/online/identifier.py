@@ -486,7 +486,11 @@ class OnlineIdentifier(StreamIntake):
         modelled = 1 if self.config.output is not None else max(len(self._buffer.output_names), len(self._heads))
         if len(faults) == 1 and modelled <= 1:
             return next(iter(faults.values()))
-        return "; ".join(f"{out}: {why}" if out else why for out, why in sorted(faults.items()))[:500]
+        by_reason: dict[str, list[str]] = {}  # outputs failing alike are named together
+        for out, why in sorted(faults.items()):
+            by_reason.setdefault(why, []).append(out)
+        return "; ".join(f"{', '.join(o for o in outs if o)}: {why}" if any(outs) else why
+                         for why, outs in by_reason.items())[:500]
 
     def status(self, *, now_ns: int = 0) -> dict[str, Any]:
         """The ``streamid.status/1`` document of this stream (the daemon adds its own part)."""
