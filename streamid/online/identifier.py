@@ -57,6 +57,7 @@ from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidEr
 from streamid.online.acceptance import Decision, Update, decide, degraded_after
 from streamid.online.drift import DriftSettings, reference_monitor
 from streamid.online.head import OutputHead
+from streamid.online.health import Health
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
 from streamid.online.snapshot import StreamState
 from streamid.online.status import stream_status
@@ -126,7 +127,7 @@ class OnlineIdentifier(StreamIntake):
         self._decisions: Counter[str] = Counter()
         self._drop_reasons: Counter[str] = Counter()
         self._last: dict[str, Any] = {}
-        self._degraded: dict[str, str] = {}  # per output ("": the stream), why it is degraded
+        self._health = Health()  # why each output is degraded
         self._state_error = ""
 
     # ---------------------------------------------------------------- identification
@@ -270,7 +271,7 @@ class OnlineIdentifier(StreamIntake):
                                 "versions kept unique in memory", w.t_end_ns, now_ns)
                 self._state_error = str(exc)[:300] or type(exc).__name__
         self._outcomes["accepted"] += 1
-        self._degraded.pop(head.output, None)  # (another output's health is its own)
+        self._health.set(head.output, "")  # (another output's health is its own)
         m = outcome.summary.metrics if outcome.summary is not None else {}
         self._last.update(outcome="accepted", r2_osa_val=m.get("r2_osa_val"), r2_fr_val=m.get("r2_fr_val"),
                           model_unix_ns=now_ns)
@@ -473,30 +474,15 @@ class OnlineIdentifier(StreamIntake):
         """Whether an output's last update was not accepted for a fault or an invalid challenger (reason in
         :meth:`status`).  Each output of a stream of several is healthy or not on its own: a model accepted for
         one does not make another's failure go away."""
-        return bool(self._current_faults())
-
-    def _current_faults(self) -> dict[str, str]:
-        """The degraded outputs that the stream still has (after a schema change, the old outputs' are moot)."""
-        names = self._buffer.output_names
-        return {k: v for k, v in self._degraded.items() if not names or not k or k in names}
-
-    def _degraded_text(self) -> str:
-        """Why the stream is degraded ("": it is not); with several outputs, each degraded one named."""
-        faults = self._current_faults()
-        modelled = 1 if self.config.output is not None else max(len(self._buffer.output_names), len(self._heads))
-        if len(faults) == 1 and modelled <= 1:
-            return next(iter(faults.values()))
-        by_reason: dict[str, list[str]] = {}  # outputs failing alike are named together
-        for out, why in sorted(faults.items()):
-            by_reason.setdefault(why, []).append(out)
-        return "; ".join(f"{', '.join(o for o in outs if o)}: {why}" if any(outs) else why
-                         for why, outs in by_reason.items())[:500]
+        return bool(self._health.current(self._buffer.output_names))
 
     def status(self, *, now_ns: int = 0) -> dict[str, Any]:
         """The ``streamid.status/1`` document of this stream (the daemon adds its own part)."""
         return stream_status(
             self.stream, self._buffer.counters(), list(self._heads.values()), now_ns=now_ns,
-            degraded_reason=self._degraded_text(), version=self._version, busy=self.busy,
+            degraded_reason=self._health.text(self._buffer.output_names, one_output=self.config.output is not None
+                                              or max(len(self._buffer.output_names), len(self._heads)) <= 1),
+            version=self._version, busy=self.busy,
             outcomes=self._outcomes, decisions=self._decisions, drop_reasons=self._drop_reasons,
             last=self._last, events_dropped=self._events_dropped, state_error=self._state_error,
             outputs_to_do=len(self._todo),
@@ -542,12 +528,9 @@ class OnlineIdentifier(StreamIntake):
         health = degraded_after(decision, self.config) if decision is not None else None
         w, output = job.window, job.output or ""
         if health is not None:  # the champion ran on the same data: the output's health is its validity there
-            if health:
-                self._degraded[output] = health
-            else:
-                self._degraded.pop(output, None)
+            self._health.set(output, health)
         elif code != "not_better":
-            self._degraded[output] = reason[:500] or kind
+            self._health.set(output, reason or kind)
         ev = self._event(f"update.{kind}", f"window {w.number} {output} {kind}: {reason}", w.t_end_ns, now_ns)
         version = self._heads[output].version if output in self._heads else 0
         return Update(kind, reason, code, version, w, outcome, document, payload, ev, output, decision)
