@@ -9,10 +9,11 @@ answers with one model per output.
 
 from __future__ import annotations
 
+import subprocess
 import time
 
 import pytest
-from conftest import endpoint
+from conftest import STREAMID, endpoint
 
 from replay.player import ReplayConfig, replay_log
 from streamid.daemon.config import DaemonConfig, StreamConfig
@@ -46,9 +47,11 @@ def run() -> dict[str, object]:
             time.sleep(0.3)
             models = latest_models(bus, "cstr", timeout_s=2.0)
             per_output = sub.latest_per_output("cstr")
+        table = subprocess.run([*STREAMID, "status", "--connect", ep, "--timeout", "5"], capture_output=True,
+                               text=True, timeout=60)
     finally:
         daemon.stop()
-    return {"got": got, "status": status, "models": models, "per_output": per_output}
+    return {"got": got, "status": status, "models": models, "per_output": per_output, "table": table}
 
 
 def test_every_window_is_decided_for_every_output(run: dict) -> None:
@@ -79,3 +82,15 @@ def test_each_output_has_its_champion_and_rejected_challengers_arrive_when_asked
     newest = {o: max((u for u in accepted if u.output == o), key=lambda u: u.version) for o in OUTS}
     assert {o: m.version for o, m in models.items()} == {o: u.version for o, u in newest.items()}
     assert {o: m.version for o, m in run["per_output"].items()} == {o: u.version for o, u in newest.items()}
+
+
+def test_streamid_status_shows_a_line_per_output_under_the_stream(run: dict) -> None:
+    """The real command against the daemon: the stream's line, then each output's champion on its own line."""
+    table: subprocess.CompletedProcess[str] = run["table"]
+    assert table.returncode == 0, table.stderr
+    lines = table.stdout.splitlines()
+    assert lines[0].startswith("stream ") and lines[1].split()[0] == "cstr" and lines[1].rstrip().endswith("ok")
+    rows = {ln.split()[0]: ln.split() for ln in lines[2:]}
+    assert set(rows) == set(OUTS) and all(ln.startswith("  ") for ln in lines[2:]), table.stdout
+    for out in OUTS:  # the version each output's champion has, as the status document says
+        assert rows[out][1] == f"v{run['status']['models'][out]['champion']['version']}", (out, table.stdout)
