@@ -53,6 +53,12 @@ def _outputs(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return {str(k): v for k, v in models.items() if isinstance(v, dict)} if isinstance(models, dict) else {}
 
 
+def _model_columns(version: Any, champ: dict[str, Any], drifts: Any) -> str:
+    """The version, champion, FR R2 now and drifts columns of the table (a stream's line and an output's)."""
+    return (f"v{_num(version, 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
+            f"{_num(_table(champ, 'current').get('r2_fr_val'), '.4f'):>9} {_num(drifts, 'd'):>6}")
+
+
 def status_line(doc: dict[str, Any]) -> str:
     """One line of the table for a parsed ``streamid.status/1`` document (escaped).
 
@@ -60,13 +66,12 @@ def status_line(doc: dict[str, Any]) -> str:
     daemon, champ = _table(doc, "daemon"), _table(doc, "champion")
     if len(_outputs(doc)) > 1:
         champ = {}
-    origin, sharing, current = _table(daemon, "origin"), _table(daemon, "sharing"), _table(champ, "current")
+    origin, sharing = _table(daemon, "origin"), _table(daemon, "sharing")
     members = sharing.get("members")
     members = members if isinstance(members, list) else []
     state = "DEGRADED: " + str(doc.get("degraded_reason", "")) if doc.get("degraded") else "ok"
     text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
-            f"v{_num(doc.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
-            f"{_num(current.get('r2_fr_val'), '.4f'):>9} {_num(doc.get('drifts'), 'd'):>6} {len(members) or 1:>7}  {state}")
+            f"{_model_columns(doc.get('version'), champ, doc.get('drifts'))} {len(members) or 1:>7}  {state}")
     return printable(text, 400)
 
 
@@ -79,10 +84,8 @@ def output_lines(doc: dict[str, Any]) -> list[str]:
     lines = []
     for name in sorted(outputs):
         out = outputs[name]
-        champ = _table(out, "champion")
-        text = (f"{'  ' + name:<20} {'':<18} v{_num(out.get('version'), 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
-                f"{_num(_table(champ, 'current').get('r2_fr_val'), '.4f'):>9} {_num(out.get('drifts'), 'd'):>6}")
-        lines.append(printable(text, 400))
+        columns = _model_columns(out.get("version"), _table(out, "champion"), out.get("drifts"))
+        lines.append(printable(f"{'  ' + name:<20} {'':<18} {columns}", 400))
     return lines
 
 
