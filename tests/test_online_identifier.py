@@ -262,3 +262,15 @@ def test_outputs_degraded_for_the_same_reason_are_named_together(
     assert ups and all(up.code == "window_too_short" for up in ups)
     why = ident.status()["degraded_reason"]
     assert why.startswith("a, b: window too short for the configured lags") and why.count("window too short") == 1, why
+
+
+def test_a_streams_health_keeps_one_entry_per_output_it_has() -> None:
+    """A publisher renaming its signals again and again must not grow what is kept of the outputs it had."""
+    from streamid.online.health import Health
+
+    health = Health()
+    for k in range(1000):
+        health.set(f"y{k}", "window too short", (f"y{k}",))
+    assert health.current(()) == {"y999": "window too short"}  # every output ever seen, had it not been bounded
+    health.set("", "stream fault", ("y999",))
+    assert health.text(("y999",), one_output=False) == "stream fault; y999: window too short"

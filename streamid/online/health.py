@@ -23,8 +23,12 @@ class Health:
     def __init__(self) -> None:
         self._why: dict[str, str] = {}
 
-    def set(self, output: str, why: str) -> None:
-        """``output`` is degraded for ``why``; an empty ``why`` makes it healthy."""
+    def set(self, output: str, why: str, outputs: Sequence[str] = ()) -> None:
+        """``output`` is degraded for ``why``; an empty ``why`` makes it healthy. Outputs no longer among the
+        stream's ``outputs`` are forgotten: at most one entry per output the stream has, and the stream's own,
+        however often a publisher renames its signals."""
+        if outputs:
+            self._why = self.current(outputs)
         if why:
             self._why[output] = why[:REASON_CHARS]
         else:

@@ -271,7 +271,7 @@ class OnlineIdentifier(StreamIntake):
                                 "versions kept unique in memory", w.t_end_ns, now_ns)
                 self._state_error = str(exc)[:300] or type(exc).__name__
         self._outcomes["accepted"] += 1
-        self._health.set(head.output, "")  # (another output's health is its own)
+        self._health.set(head.output, "", self._buffer.output_names)  # (another output's health is its own)
         m = outcome.summary.metrics if outcome.summary is not None else {}
         self._last.update(outcome="accepted", r2_osa_val=m.get("r2_osa_val"), r2_fr_val=m.get("r2_fr_val"),
                           model_unix_ns=now_ns)
@@ -528,9 +528,9 @@ class OnlineIdentifier(StreamIntake):
         health = degraded_after(decision, self.config) if decision is not None else None
         w, output = job.window, job.output or ""
         if health is not None:  # the champion ran on the same data: the output's health is its validity there
-            self._health.set(output, health)
+            self._health.set(output, health, self._buffer.output_names)
         elif code != "not_better":
-            self._health.set(output, reason or kind)
+            self._health.set(output, reason or kind, self._buffer.output_names)
         ev = self._event(f"update.{kind}", f"window {w.number} {output} {kind}: {reason}", w.t_end_ns, now_ns)
         version = self._heads[output].version if output in self._heads else 0
         return Update(kind, reason, code, version, w, outcome, document, payload, ev, output, decision)
