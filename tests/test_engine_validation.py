@@ -140,3 +140,58 @@ def test_correlation_test_names_are_the_documented_ones() -> None:
         assert f"`{name}`" in doc and formula in doc, name
     with pytest.raises(DataError, match="must be one of"):
         correlation_test_name("xixi")
+
+
+def test_fit_percent_is_the_nrmse_fit() -> None:
+    from streamid.engine.validation import fit_percent
+
+    rng = np.random.default_rng(1)
+    y = rng.normal(size=200)
+    yhat = y + 0.3 * rng.normal(size=200)
+    direct = 100 * (1 - np.linalg.norm(y - yhat) / np.linalg.norm(y - y.mean()))
+    assert fit_percent(r2(y, yhat)) == pytest.approx(direct, abs=1e-9)
+    assert fit_percent(0.99) == pytest.approx(90.0) and fit_percent(0.75) == pytest.approx(50.0)
+    assert fit_percent(-3.0) == pytest.approx(-100.0) and np.isnan(fit_percent(float("nan")))
+    assert fit_percent(-np.inf) != fit_percent(-np.inf)  # a diverged run: nan, not a number to rank
+
+
+def _toy_model() -> object:
+    from streamid.engine import CoEAConfig, identify
+
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-1, 1, 700)
+    y = np.zeros(700)
+    for t in range(2, 700):
+        y[t] = 0.6 * y[t - 1] + np.tanh(1.5 * u[t - 1])
+    cfg = CoEAConfig.paper(neurons=5, generations=15, max_lag_y=2, max_lag_u=2)
+    return identify(u[:400], y[:400], cfg, 0).model, u, y
+
+
+def test_assess_is_validate_on_one_record() -> None:
+    """The record's figures equal validate()'s validation part; its RMSE is the free run's own."""
+    from streamid.engine import assess, validate
+
+    model, u, y = _toy_model()
+    full = validate(model, u[:400], y[:400], u[400:], y[400:])
+    rec = assess(model, u[400:], y[400:])
+    assert rec.fr == full.fr_val and rec.osa == full.osa_val and rec.n == 300  # type: ignore[attr-defined]
+    assert rec.n_scored == 300 - model.max_lag  # type: ignore[attr-defined]
+    assert rec.correlation.to_dict() == full.correlation_val.to_dict()
+    L = model.max_lag  # type: ignore[attr-defined]
+    fr = model.simulate(u[400:], y[400:400 + L])  # type: ignore[attr-defined]
+    assert rec.rmse_fr == pytest.approx(float(np.sqrt(np.mean((y[400 + L:] - fr[L:]) ** 2))), rel=1e-12)
+    assert np.array_equal(rec.predictions["fr"], fr)
+    with pytest.raises(DataError, match=r"the model has 1 input\(s\) \['u0'\]; the data give 2"):
+        assess(model, np.column_stack([u, u])[400:], y[400:])
+
+
+def test_record_caveats_read_the_range_from_the_model() -> None:
+    from streamid.engine.caveats import record_caveats
+
+    model, u, y = _toy_model()
+    inside = record_caveats(model, 0.99, 0.9, u[400:], y[400:])
+    assert inside == []
+    wide = record_caveats(model, 0.99, 0.9, 2.5 * u[400:], y[400:])
+    assert len(wide) == 1 and wide[0].startswith("the validation input u0 spans") and "beyond the estimation range" in wide[0]
+    drifting = record_caveats(model, 0.95, -2.0, u[400:], np.cumsum(np.abs(u[400:])))
+    assert any(c.startswith("a one-step predictor, not a simulator") and "pole at |z| =" in c for c in drifting), drifting

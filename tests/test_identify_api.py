@@ -116,3 +116,26 @@ def test_split_index() -> None:
         split_index(10, est=10)
     with pytest.raises(DataError, match="not both"):
         split_index(10, est=3, est_fraction=0.5)
+
+
+def test_a_validation_file_is_the_validation_data(tmp_path: Path) -> None:
+    """load_dataset(..., validation=FILE): all of the data file is estimation data, the second file validation."""
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text("t_s,x,z\n0,1,2\n0.5,2,3\n1,4,5\n1.5,3,1\n")
+    b.write_text("t_s;x;z\n7,5;9;8\n8;7;6\n")  # another delimiter and decimal mark: each file is read as it is
+    ds = load_dataset(a, ["x"], "z", validation=b)
+    assert ds.n_est == 4 and ds.n_val == 2 and ds.validation_path == str(b)
+    assert ds.u_est[:, 0].tolist() == [1, 2, 4, 3] and ds.y_val.tolist() == [8, 6]
+    assert ds.t_ns is not None and ds.t_ns.tolist() == [0, 500_000_000, 1_000_000_000, 1_500_000_000,
+                                                        2_000_000_000, 2_500_000_000]  # drawn after the estimation
+    assert ds.window()["period_ns"] == 500_000_000 and ds.info["validation"]["delimiter"] == "semicolon" and ds.info["validation"]["decimal"] == ","
+    with pytest.raises(DataError, match="give one or the other"):
+        load_dataset(a, ["x"], "z", validation=b, est=2)
+    c = tmp_path / "c.csv"
+    c.write_text("t_s,x,z\n0,1,2\n2,2,3\n4,4,5\n")
+    with pytest.raises(DataError, match=r"samples every 2000 ms but .*a\.csv every 500 ms"):
+        load_dataset(a, ["x"], "z", validation=c)
+    d = tmp_path / "d.csv"
+    d.write_text("t_s,x,y\n0,1,2\n0.5,2,3\n")
+    with pytest.raises(DataError, match=r"unknown column 'z' in .*d\.csv"):
+        load_dataset(a, ["x"], "z", validation=d)

@@ -24,6 +24,7 @@ README = ROOT / "README.md"
 STREAMID = [sys.executable, "-m", "streamid"]
 README_ENDPOINT = "tcp/127.0.0.1:7447"
 SEVERAL = "## More than one machine"
+SECOND_RECORD = "### Judge a model on a record it has never seen"
 #: Upper bounds of the waits of the several-machines recipe: a process up, the first models at the watcher.
 UP_S, MODELS_S = 30.0, 60.0
 #: Lines of `streamid watch`: which daemon serves a stream (stream, daemon id), a model (stream).
@@ -103,7 +104,8 @@ def test_configuration_example_is_accepted_by_the_daemon() -> None:
 def test_every_shell_block_is_run_or_listed_with_a_reason() -> None:
     text = README.read_text(encoding="utf-8")
     blocks = [b.strip() for b in re.findall(r"```sh\n(.*?)```", text, re.S)]
-    run = {_block_after(h, "sh", k).strip() for h, k in (("## 1. Your own data file", 0), ("## 2. Replay a log", 0),
+    run = {_block_after(h, "sh", k).strip() for h, k in (("## 1. Your own data file", 0), (SECOND_RECORD, 0),
+                                                        ("## 2. Replay a log", 0),
                                                         ("## 2. Replay a log", 1), ("## 3. Inspect residuals", 0),
                                                         (SEVERAL, 0))}
     for b in blocks:
@@ -165,6 +167,31 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     assert q.stdout.startswith("RBF-NARX model velocity_cm_s -> force_N\n  regressors  force_N(t-1")
     rms = float(re.search(r"validation part: ([0-9.]+) N", q.stdout).group(1))  # type: ignore[union-attr]
     assert 0 < rms < 20  # the MR damper's force spans about -70..70 N
+
+
+def test_journey_1b_a_model_judged_on_another_record(tmp_path: Path) -> None:
+    """The README's second experiment, each line run as printed: identify --validate, then validate agrees."""
+    work = _workdir(tmp_path)
+    block = _block_after(SECOND_RECORD, "sh")
+    outs = []
+    for line in [ln for ln in block.splitlines() if ln.strip()]:
+        p = subprocess.run(_command(line, endpoint()), cwd=work, capture_output=True, text=True, timeout=180)
+        assert p.returncode == 0, (line, p.stderr)
+        outs.append(p.stdout)
+    identified, validated = outs[2], outs[3]
+    assert "data      estimation all 6000 samples of damper_a.mcap, validation all 6000 of damper_b.mcap" in identified
+    best = next(ln for ln in identified.splitlines() if re.match(r"^\s+\d+\*", ln)).split()
+    fr_val, osa_val = best[8], best[6]  # the kept run's FR val and OSA val columns
+    free = next(ln for ln in validated.splitlines() if ln.startswith("  free run "))
+    one = next(ln for ln in validated.splitlines() if ln.startswith("  one step ahead "))
+    assert free.split()[2] == fr_val and one.split()[3] == osa_val, (free, one, best)
+    assert re.search(rf"^passed: free-run R² {fr_val} >= --min-r2-fr 0.9$", validated, re.M), validated
+    section = _section(SECOND_RECORD)
+    for line in validated.splitlines()[:4]:  # the README shows the real header lines (its figures are one run's)
+        if line.startswith(("  read", "streamid validate:")):
+            assert line in section, line
+    for term in ("fit %", "RMSE", "--min-r2-fr"):
+        assert term in validated and (f"**{term}**" in section or f"**`{term}`**" in section), term
 
 
 def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> None:

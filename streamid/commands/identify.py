@@ -6,6 +6,7 @@ Examples:
     streamid identify mr_damper --est 2000 --model mr.json     # a bundled log: its input and output
     streamid identify data.csv --input u --output y --rrd r.rrd && streamid view r.rrd
     streamid identify data.csv --input u --output y --paper --runs 10 --report r.json
+    streamid identify sweep1.csv --validate sweep2.csv --input u --output y --model m.json
 
 Reading a CSV: the delimiter (, ; tab | whitespace) is detected from the header
 and the first lines (--delimiter sets it); with ; tab | or whitespace a decimal
@@ -20,7 +21,10 @@ ever increases or decreases (a time column?) is refused; --allow-time-input
 uses the latter anyway, with a warning.
 
 Estimation data are the first samples (--est N or --est-fraction F, default
-half), validation data the rest. With --runs R the identification is repeated
+half), validation data the rest; or --validate VAL: all of DATA is estimated on
+and VAL, a second experiment with the same columns and sample period (another
+excitation is the real test), validated on. A model saved with --model can be
+judged on any later record with streamid validate. With --runs R the identification is repeated
 with seeds S .. S+R-1 (in parallel over --workers processes) and the fitness
 statistics are reported like the paper's Table 4.  How to read the output:
 the README's "Your own data file" section and docs/method.md.
@@ -61,6 +65,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     split = p.add_mutually_exclusive_group()
     split.add_argument("--est", type=int, metavar="N", help="estimation samples: the first N (default: half)")
     split.add_argument("--est-fraction", type=float, metavar="F", help="estimation samples: the first fraction F")
+    split.add_argument("--validate", metavar="VAL",
+                       help="validation data from a second file (or bundled log) with the same columns, e.g. an "
+                            "experiment with another excitation: all of DATA is then the estimation data")
     p.add_argument("--stream", help="stream of an MCAP log holding several")
     p.add_argument(
         "--paper",

@@ -19,7 +19,7 @@ from streamid.logs.datafile import Dataset, load_dataset, load_table
 if TYPE_CHECKING:
     from streamid.engine.coevolution import Progress
 
-__all__ = ["Bar", "load", "read_summary", "check_rrd_target", "draw_rrd"]
+__all__ = ["Bar", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd"]
 
 
 class Bar:
@@ -78,31 +78,49 @@ def _columns(args: argparse.Namespace, path: Path, delimiter: str | None) -> tup
 
 
 def load(args: argparse.Namespace) -> Dataset:
-    """The data of the command line: a file or a bundled log, the columns, delimiter, missing values, split."""
+    """The data of the command line: a file or a bundled log, the columns, delimiter, missing values, split
+    (or ``--validate``'s second file)."""
     delimiter = parse_delimiter(args.delimiter) if args.delimiter is not None else None
     path = data_file(args.data)
     inputs, output = _columns(args, path, delimiter)
     missing = "drop" if args.drop else "fill" if args.fill else "error"
+    validation = data_file(args.validate) if getattr(args, "validate", None) else None
     return load_dataset(path, inputs, output, est=args.est, est_fraction=args.est_fraction, stream=args.stream,
-                        delimiter=delimiter, missing=missing, allow_time_input=args.allow_time_input)
+                        delimiter=delimiter, missing=missing, allow_time_input=args.allow_time_input,
+                        validation=validation)
 
 
-def read_summary(ds: Dataset) -> str:
-    """How the file was read, in one line (delimiter, decimal mark, clock, missing values)."""
-    info = ds.info
+def read_text(info: dict[str, Any], period_ns: int | None, rows: int) -> str:
+    """How a file was read, in one line (delimiter, decimal mark, clock, missing values), from its ``info``."""
     parts = []
     if "delimiter" in info:
         parts.append(f"{info['delimiter']}-separated, decimal {'comma' if info.get('decimal') == ',' else 'point'}")
-    if ds.period_ns:
+    if period_ns:
         clock = f"clock {info['clock']!r}" if "clock" in info else "clock of the log"
-        parts.append(f"{clock} (period {ds.period_ns / 1e6:.6g} ms)")
+        parts.append(f"{clock} (period {period_ns / 1e6:.6g} ms)")
     else:
         parts.append("no clock (samples counted)")
     m = info.get("missing", {})
     if m.get("rows_with_missing"):
         parts.append(f"{m['rows_with_missing']} rows with missing values ({m['policy']}: {m['rows_dropped']} rows left "
                      f"out, {m['values_filled']} values filled)")
-    return f"{info.get('rows', ds.n_est + ds.n_val)} rows; " + ", ".join(parts)
+    return f"{info.get('rows', rows)} rows; " + ", ".join(parts)
+
+
+def read_summary(ds: Dataset) -> str:
+    """How the data were read, in one line per file (the validation file's after ``; validation file: ``)."""
+    text = read_text(ds.info, ds.period_ns, ds.n_est + ds.n_val)
+    val = ds.info.get("validation")
+    if val is not None:
+        text += f"; validation file {val['path']}: " + read_text(val, ds.period_ns, ds.n_val)
+    return text
+
+
+def split_text(ds: Dataset) -> str:
+    """Which samples are estimated on and which validated on, in words."""
+    if ds.validation_path is not None:
+        return f"estimation all {ds.n_est} samples of {ds.path}, validation all {ds.n_val} of {ds.validation_path}"
+    return f"estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)"
 
 
 def check_rrd_target(path: str) -> None:
@@ -129,8 +147,8 @@ def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, gene
     clock = Clock.of(ds.t_ns, ds.period_ns)
     stream = Path(ds.path).stem or "data"
     events: list[tuple[str, str]] = [
-        ("INFO", f"streamid identify {ds.path}: {', '.join(ds.input_names)} -> {ds.output_name}; estimation the first "
-                 f"{ds.n_est} samples, validation the {ds.n_val} after"),
+        ("INFO", f"streamid identify {ds.path}: {', '.join(ds.input_names)} -> {ds.output_name}; {split_text(ds)}"
+                 + (" (its times drawn after the estimation data's)" if ds.validation_path is not None else "")),
         ("INFO", f"read: {read_summary(ds)}"),
     ]
     if not clock.from_file:

@@ -12,7 +12,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from streamid.commands.identify_io import Bar, check_rrd_target, draw_rrd, load, read_summary
+from streamid.commands.identify_io import Bar, check_rrd_target, draw_rrd, load, read_text, split_text
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import CoEAConfig
 from streamid.engine.caveats import model_caveats
@@ -152,8 +152,11 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     w = out.write
     w(f"streamid identify: {ds.path}\n")
     w(f"  model     {', '.join(ds.input_names)} -> {ds.output_name}\n")
-    w(f"  read      {read_summary(ds)}\n")
-    w(f"  data      estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)\n")
+    w(f"  read      {read_text(ds.info, ds.period_ns, ds.n_est + ds.n_val)}\n")
+    val = ds.info.get("validation")
+    if val is not None:
+        w(f"  read val  {val['path']}: {read_text(val, ds.period_ns, ds.n_val)}\n")
+    w(f"  data      {split_text(ds)}\n")
     w(
         f"  settings  neurons {cfg.neurons}, max lag y {cfg.max_lag_y} / u {cfg.max_lag_u}"
         + (f" (raised from the data up to {cfg.max_lag_cap})" if cfg.max_lag_cap else "")
@@ -298,6 +301,7 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
                 "output": ds.output_name,
                 "n_est": ds.n_est,
                 "n_val": ds.n_val,
+                "validation_path": ds.validation_path,
                 "read": ds.info,
                 "warnings": list(ds.notes),
                 "period_ns": ds.period_ns,

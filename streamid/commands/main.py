@@ -25,6 +25,7 @@ from streamid.errors import StreamidError
 #: Subcommands that live inside streamid itself, in the order ``--help`` lists them.
 BUILTIN_COMMANDS: tuple[str, ...] = (
     "streamid.commands.identify",
+    "streamid.commands.validate",
     "streamid.commands.daemon",
     "streamid.commands.watch",
     "streamid.commands.status",

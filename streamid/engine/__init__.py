@@ -2,7 +2,7 @@
 
 ``identify`` (one identification, possibly several runs), ``Coevolution`` (one
 steppable run with exportable ``CoEAState`` for warm starts), ``Model`` (prediction,
-free run, ``streamid.model/1`` JSON; ``EnsembleModel``: the mean of several networks, ``/3``), ``validate`` / ``r2`` / ``correlation_tests``,
+free run, ``streamid.model/1`` JSON; ``EnsembleModel``: the mean of several networks, ``/3``), ``validate`` / ``assess`` (a model on a record it never saw) / ``r2`` / ``correlation_tests``,
 ``EvalHelper`` (a helper process evaluating half of every population batch: the second core),
 ``warm_up_kernels`` (compile or load the compiled free-run loops before time-bound work).
 
@@ -24,7 +24,8 @@ if TYPE_CHECKING:
     from streamid.engine.model import MODEL_FORMAT, Model
     from streamid.engine.parallel import EvalHelper
     from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
-    from streamid.engine.validation import CorrelationReport, ValidationReport, correlation_tests, r2, validate
+    from streamid.engine.validation import (CorrelationReport, RecordReport, ValidationReport, assess, correlation_tests,
+                                           r2, validate)
 
 #: Where each exported name lives.
 _EXPORTS = {
@@ -39,9 +40,11 @@ _EXPORTS = {
     "Model": "streamid.engine.model",
     "PAPER": "streamid.engine.settings",
     "Progress": "streamid.engine.coevolution",
+    "RecordReport": "streamid.engine.validation",
     "Result": "streamid.engine.identification",
     "RunSummary": "streamid.engine.identification",
     "ValidationReport": "streamid.engine.validation",
+    "assess": "streamid.engine.validation",
     "correlation_tests": "streamid.engine.validation",
     "identify": "streamid.engine.identification",
     "r2": "streamid.engine.validation",
@@ -61,9 +64,11 @@ __all__ = [
     "Model",
     "PAPER",
     "Progress",
+    "RecordReport",
     "Result",
     "RunSummary",
     "ValidationReport",
+    "assess",
     "correlation_tests",
     "identify",
     "r2",

@@ -25,7 +25,8 @@ from numpy.typing import NDArray
 from streamid.engine.longlinear import dense_regressors
 from streamid.engine.regressors import regressor_columns
 
-__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "model_caveats"]
+__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "model_caveats", "range_caveats",
+           "record_caveats"]
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
 #: estimation span (the free-run range guard of the final choice allows 0.25 of it; docs/method.md).
@@ -52,8 +53,7 @@ def arx_pole_radius(u: NDArray[np.float64], y: NDArray[np.float64], order: int =
     return float(np.max(np.abs(np.roots(np.concatenate([[1.0], -np.asarray(a)])))))
 
 
-def _beyond(name: str, est: NDArray[np.float64], val: NDArray[np.float64]) -> str | None:
-    lo, hi = float(np.min(est)), float(np.max(est))
+def _beyond(name: str, lo: float, hi: float, val: NDArray[np.float64]) -> str | None:
     span = hi - lo
     vlo, vhi = float(np.min(val)), float(np.max(val))
     if not span > 0 or max(vhi - hi, lo - vlo) <= BEYOND_RANGE * span:
@@ -64,6 +64,36 @@ def _beyond(name: str, est: NDArray[np.float64], val: NDArray[np.float64]) -> st
             f"figures there judge data the model never saw the like of; estimate on data that span the range of use")
 
 
+def range_caveats(u_range: tuple[tuple[float, ...], tuple[float, ...]], y_range: tuple[float, float],
+                  u_val: NDArray[np.float64], y_val: NDArray[np.float64], input_names: tuple[str, ...] = (),
+                  output_name: str = "y") -> list[str]:
+    """A caveat per validation signal that leaves its estimation range (``(lows, highs)`` of the inputs, ``(low,
+    high)`` of the output) by more than :data:`BEYOND_RANGE` of its span."""
+    if not len(y_val):
+        return []
+    uv = np.asarray(u_val, dtype=np.float64).reshape(len(y_val), -1)
+    names = input_names or tuple(f"u{j}" for j in range(uv.shape[1]))
+    notes = [_beyond(f"input {names[j]}", float(u_range[0][j]), float(u_range[1][j]), uv[:, j])
+             for j in range(uv.shape[1])]
+    notes.append(_beyond(f"output {output_name}", float(y_range[0]), float(y_range[1]),
+                         np.asarray(y_val, dtype=np.float64)))
+    return [n for n in notes if n]
+
+
+def _simulator_caveat(osa: float, fr: float, u: NDArray[np.float64], y: NDArray[np.float64], data: str) -> list[str]:
+    """'A one-step predictor, not a simulator', with the likely reason read from ``u``/``y`` (``data`` names them)."""
+    if not (osa >= OSA_GOOD and fr < 0.0):
+        return []
+    why = ""
+    radius = arx_pole_radius(u, y)
+    if radius >= MARGINAL_RADIUS:
+        why = (f"; a second-order linear ARX fit of the {data} has a pole at |z| = {radius:.3f}: the plant "
+               f"integrates or is unstable in open loop, and every open-loop simulation of it drifts (judge such a "
+               f"model one step ahead, or identify the closed loop)")
+    return [f"a one-step predictor, not a simulator: one-step-ahead R2 on the validation data {osa:.4f}, "
+            f"free run {_fmt(fr)} (worse than the data's mean){why}"]
+
+
 def model_caveats(r2: dict[str, float], u_est: NDArray[np.float64], y_est: NDArray[np.float64],
                   u_val: NDArray[np.float64] | None, y_val: NDArray[np.float64] | None,
                   input_names: tuple[str, ...] = (), output_name: str = "y") -> list[str]:
@@ -71,31 +101,29 @@ def model_caveats(r2: dict[str, float], u_est: NDArray[np.float64], y_est: NDArr
     the data (see the module docstring); an empty list when there is nothing to say."""
     out: list[str] = []
     ue = np.asarray(u_est, dtype=np.float64).reshape(len(y_est), -1)
-    if y_val is not None and u_val is not None and len(y_val):
-        uv = np.asarray(u_val, dtype=np.float64).reshape(len(y_val), -1)
-        names = input_names or tuple(f"u{j}" for j in range(ue.shape[1]))
-        for j in range(ue.shape[1]):
-            note = _beyond(f"input {names[j]}", ue[:, j], uv[:, j])
-            if note:
-                out.append(note)
-        note = _beyond(f"output {output_name}", np.asarray(y_est, dtype=np.float64), np.asarray(y_val, dtype=np.float64))
-        if note:
-            out.append(note)
-    osa, fr = r2.get("osa_val", float("nan")), r2.get("fr_val", float("nan"))
-    if osa >= OSA_GOOD and fr < 0.0:
-        why = ""
-        radius = arx_pole_radius(ue, np.asarray(y_est, dtype=np.float64))
-        if radius >= MARGINAL_RADIUS:
-            why = (f"; a second-order linear ARX fit of the estimation data has a pole at |z| = {radius:.3f}: the plant "
-                   f"integrates or is unstable in open loop, and every open-loop simulation of it drifts (judge such a "
-                   f"model one step ahead, or identify the closed loop)")
-        out.append(f"a one-step predictor, not a simulator: one-step-ahead R2 on the validation data {osa:.4f}, "
-                   f"free run {_fmt(fr)} (worse than the data's mean){why}")
+    ye = np.asarray(y_est, dtype=np.float64)
+    if y_val is not None and u_val is not None:
+        out += range_caveats((tuple(ue.min(axis=0)), tuple(ue.max(axis=0))), (float(ye.min()), float(ye.max())),
+                             u_val, y_val, input_names, output_name)
+    out += _simulator_caveat(r2.get("osa_val", float("nan")), r2.get("fr_val", float("nan")), ue, ye,
+                             "estimation data")
     fr_est = r2.get("fr_est", float("nan"))
     if fr_est < 0.0:
         out.append(f"its free run does not explain even its estimation record (free-run R2 {_fmt(fr_est)}): do not "
                    f"use it to simulate this device")
     return out
+
+
+def record_caveats(model: Any, osa: float, fr: float, u: NDArray[np.float64], y: NDArray[np.float64]) -> list[str]:
+    """Caveats on ``model`` judged on a record it never saw (``streamid validate``): the record's signals beyond
+    the model's estimation range (its normalisation keeps that range), and a one-step predictor that does not
+    simulate (the likely reason read from the record itself)."""
+    n = model.normalisation
+    u2 = np.asarray(u, dtype=np.float64).reshape(len(y), -1)
+    y1 = np.asarray(y, dtype=np.float64)
+    return (range_caveats((n.u_low, n.u_high), (n.y_low, n.y_high), u2, y1, tuple(model.input_names),
+                          model.output_name)
+            + _simulator_caveat(osa, fr, u2, y1, "data"))
 
 
 def _fmt(v: Any) -> str:

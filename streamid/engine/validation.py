@@ -57,6 +57,9 @@ __all__ = [
     "CorrelationReport",
     "ValidationReport",
     "validate",
+    "RecordReport",
+    "assess",
+    "fit_percent",
     "PASS_FRACTION",
     "STRICT_Z",
 ]
@@ -319,6 +322,78 @@ class ValidationReport:
         }
 
 
+def fit_percent(r2_value: float) -> float:
+    """The normalised-RMSE fit of System Identification Toolbox users, ``100 (1 - |y - yhat| / |y - mean y|)``.
+
+    It is ``100 (1 - sqrt(1 - R^2))``: R^2 0.99 is a fit of 90 %, 0.75 of 50 %; a prediction worse than the
+    data's mean (R^2 < 0) has a negative fit, and a non-finite R^2 gives nan.
+    """
+    if not np.isfinite(r2_value):
+        return float("nan")
+    return float(100.0 * (1.0 - np.sqrt(max(0.0, 1.0 - float(r2_value)))))
+
+
+@dataclass(frozen=True)
+class RecordReport:
+    """A model on one record that was not used to fit it: :func:`assess`'s result.
+
+    R^2 and RMSE are over ``t >= model.max_lag`` (``n_scored`` samples); the free run starts from the record's
+    first ``max_lag`` measured outputs; the correlation tests use the one-step-ahead residual.
+    """
+
+    n: int
+    n_scored: int
+    osa: float
+    fr: float
+    rmse_osa: float
+    rmse_fr: float
+    correlation: CorrelationReport
+    #: full-length ``osa`` and ``fr`` predictions (the first ``max_lag`` values measured); not in :meth:`to_dict`
+    predictions: dict[str, NDArray[np.float64]] = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "n": self.n,
+            "n_scored": self.n_scored,
+            "r2": {"osa": self.osa, "fr": self.fr},
+            "fit_percent": {"osa": fit_percent(self.osa), "fr": fit_percent(self.fr)},
+            "rmse": {"osa": self.rmse_osa, "fr": self.rmse_fr},
+            "correlation": self.correlation.to_dict(),
+        }
+
+
+def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], fr: NDArray[np.float64],
+            max_lag: int) -> RecordReport:
+    osa_r2, fr_r2, res, osa, _ = _predictions(model, u, y, fr=fr)
+    L = model.max_lag
+    with np.errstate(over="ignore", invalid="ignore"):
+        rmse_fr = float(np.sqrt(np.mean((y[L:] - fr[L:]) ** 2)))
+    return RecordReport(
+        n=int(y.shape[0]), n_scored=int(y.shape[0] - L), osa=osa_r2, fr=fr_r2,
+        rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else float("inf"),
+        correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
+        predictions={"osa": osa, "fr": fr},
+    )
+
+
+def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20) -> RecordReport:
+    """One-step-ahead and free-run R^2, RMSE and the correlation tests of ``model`` on one record.
+
+    The record is typically one the model has never seen (``streamid validate``; a second experiment with
+    another excitation is the real test).  Pure: numbers in, a :class:`RecordReport` out.
+
+    Raises
+    ------
+    DataError
+        A record shorter than ``model.max_lag + 2`` samples, or inputs that do not match the model's count.
+    """
+    ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
+    if ua.shape[1] != model.n_inputs:
+        raise DataError(f"the model has {model.n_inputs} input(s) {list(model.input_names)}; the data give "
+                        f"{ua.shape[1]}: pass one input column per model input, in the model's order")
+    return _record(model, ua, ya, model.simulate(ua, ya[: model.max_lag]), max_lag)
+
+
 def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, float, NDArray[np.float64]]:
     """``(osa_r2, fr_r2, osa_residual)`` of a model on one data set (over ``t >= max_lag``)."""
     osa_r2, fr_r2, res, _, _ = _predictions(model, u, y)
@@ -364,14 +439,14 @@ def validate(
     ue, ye = as_data(u_est, y_est, min_samples=L + 2)
     uv, yv = as_data(u_val, y_val, min_samples=L + 2)
     p_fr_e, p_fr_v = model.simulate_many([(ue, ye[:L]), (uv, yv[:L])])  # both free runs in one recursion
-    osa_e, fr_e, res_e, p_osa_e, _ = _predictions(model, ue, ye, fr=p_fr_e)
-    osa_v, fr_v, res_v, p_osa_v, _ = _predictions(model, uv, yv, fr=p_fr_v)
+    e, v = _record(model, ue, ye, p_fr_e, max_lag), _record(model, uv, yv, p_fr_v, max_lag)
     return ValidationReport(
-        osa_est=osa_e,
-        osa_val=osa_v,
-        fr_est=fr_e,
-        fr_val=fr_v,
-        correlation_est=correlation_tests(res_e, ue[L:], max_lag, model.input_names),
-        correlation_val=correlation_tests(res_v, uv[L:], max_lag, model.input_names),
-        predictions={"osa_est": p_osa_e, "fr_est": p_fr_e, "osa_val": p_osa_v, "fr_val": p_fr_v},
+        osa_est=e.osa,
+        osa_val=v.osa,
+        fr_est=e.fr,
+        fr_val=v.fr,
+        correlation_est=e.correlation,
+        correlation_val=v.correlation,
+        predictions={"osa_est": e.predictions["osa"], "fr_est": p_fr_e, "osa_val": v.predictions["osa"],
+                     "fr_val": p_fr_v},
     )

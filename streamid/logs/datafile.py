@@ -1,8 +1,9 @@
 """Load identification data from CSV (header row), MATLAB ``.mat`` or streamid MCAP logs.
 
 :func:`load_table` reads every numeric column of a file into ``{name: array}``;
-:func:`load_dataset` picks the input and output columns by name and splits the
-samples into an estimation part (the first ones) and a validation part (the rest).
+:func:`load_record` picks the input and output columns by name and checks them;
+:func:`load_dataset` splits them into an estimation part (the first samples) and a
+validation part (the rest), or takes the validation part from a second file.
 
 Formats
 -------
@@ -36,7 +37,7 @@ from streamid.errors import DataError
 from streamid.logs.columns import MISSING_POLICIES, check_columns, handle_missing
 from streamid.logs.csv_table import clock_of, read_delimited, time_unit_ns
 
-__all__ = ["Table", "Dataset", "load_table", "load_dataset", "split_index"]
+__all__ = ["Table", "Dataset", "Record", "load_table", "load_record", "load_dataset", "split_index"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,8 @@ class Dataset:
     info: dict[str, Any] = field(default_factory=dict)
     #: sample period of the file's clock (None when it has none)
     period_ns: int | None = None
+    #: the validation data's own file (None: the validation data are the data file's last samples)
+    validation_path: str | None = None
 
     @property
     def n_val(self) -> int:
@@ -95,6 +98,8 @@ class Dataset:
         if self.t_ns is not None and self.n_est:
             w["t0_ns"] = int(self.t_ns[0])
             w["t1_ns"] = int(self.t_ns[self.n_est - 1])
+        if self.period_ns:
+            w["period_ns"] = int(self.period_ns)
         return w
 
 
@@ -204,6 +209,81 @@ def split_index(n: int, est: int | None = None, est_fraction: float | None = Non
     return k
 
 
+@dataclass(frozen=True)
+class Record:
+    """The chosen columns of one data file (one experiment), checked, missing values handled."""
+
+    path: str
+    input_names: tuple[str, ...]
+    output_name: str
+    u: NDArray[np.float64]  # (N, n_inputs)
+    y: NDArray[np.float64]  # (N,)
+    t_ns: NDArray[np.int64] | None = None
+    notes: tuple[str, ...] = ()
+    info: dict[str, Any] = field(default_factory=dict)
+    period_ns: int | None = None
+
+
+def load_record(
+    path: str | os.PathLike[str],
+    inputs: list[str] | tuple[str, ...],
+    output: str,
+    *,
+    stream: str | None = None,
+    delimiter: str | None = None,
+    missing: str = "error",
+    allow_time_input: bool = False,
+) -> Record:
+    """Load the named columns of one file and check them, handling missing values (see :func:`load_dataset`)."""
+    if not inputs:
+        raise DataError("at least one input column is needed (--input COL)")
+    if missing not in MISSING_POLICIES:
+        raise DataError(f"missing must be one of {MISSING_POLICIES}; got {missing!r}")
+    table = load_table(path, stream=stream, delimiter=delimiter)
+    names = list(dict.fromkeys([*inputs, output]))
+    cols = {c: table.column(c) for c in names}
+    lengths = {c: len(a) for c, a in cols.items()}
+    if len(set(lengths.values())) != 1:
+        raise DataError(f"{path}: the columns have different lengths {lengths}; all must be equal")
+    notes = check_columns(str(path), list(inputs), output, cols, allow_time_input=allow_time_input)
+    lines = table.meta.get("lines")
+    clean = handle_missing(str(path), cols, missing, lines)
+    notes += clean.notes
+    info: dict[str, Any] = {k_: v for k_, v in table.meta.items() if k_ in ("delimiter", "decimal", "clock")}
+    info["rows"] = len(table)
+    info["missing"] = {
+        "policy": missing,
+        "rows_with_missing": clean.rows_missing,
+        "rows_dropped": clean.dropped,
+        "values_filled": clean.filled,
+        "places_spacing_broken": clean.gaps,
+    }
+    return Record(
+        str(path), tuple(inputs), output, np.column_stack([clean.columns[c] for c in inputs]), clean.columns[output],
+        table.t_ns[clean.keep] if table.t_ns is not None else None, tuple(notes), info, table.period_ns,
+    )
+
+
+def _same_period(est: Record, val: Record) -> None:
+    """Refuse a validation file sampled at another rate than the estimation file (when both have clocks)."""
+    a, b = est.period_ns, val.period_ns
+    if a and b and abs(a - b) > 1e-3 * max(a, b):
+        raise DataError(
+            f"the validation file {val.path} samples every {b / 1e6:.6g} ms but {est.path} every {a / 1e6:.6g} ms: "
+            f"a NARX model's lags count samples, so both must have one sample period (resample one of them)"
+        )
+
+
+def _joined_times(est: Record, val: Record) -> NDArray[np.int64] | None:
+    """Times for the estimation samples then the validation file's, drawn after them (one axis for both)."""
+    period = est.period_ns or val.period_ns
+    if not period or (est.t_ns is None and val.t_ns is None):
+        return None
+    t_est = est.t_ns if est.t_ns is not None else np.arange(len(est.y), dtype=np.int64) * period
+    rel = (val.t_ns - val.t_ns[0]) if val.t_ns is not None else np.arange(len(val.y), dtype=np.int64) * period
+    return np.concatenate([t_est, t_est[-1] + period + rel]).astype(np.int64)
+
+
 def load_dataset(
     path: str | os.PathLike[str],
     inputs: list[str] | tuple[str, ...],
@@ -215,6 +295,7 @@ def load_dataset(
     delimiter: str | None = None,
     missing: str = "error",
     allow_time_input: bool = False,
+    validation: str | os.PathLike[str] | None = None,
 ) -> Dataset:
     """Load the named columns, check them, handle missing values, and split them (estimation first).
 
@@ -238,41 +319,33 @@ def load_dataset(
     allow_time_input : bool
         Use an input that only increases or decreases (a time column?) with a warning
         instead of refusing it.
+    validation : path-like, optional
+        A second file with the same columns (another experiment): all of ``path`` is then the
+        estimation data and this file the validation data, read with the same settings
+        (``est``/``est_fraction`` must not be given).  Its times are drawn after the estimation
+        data's; the two files must have one sample period.
 
     Raises
     ------
     DataError
         Unknown columns, columns of different lengths, infinite values, missing values
-        (``missing="error"``), an input that is the output, a time-like input.
+        (``missing="error"``), an input that is the output, a time-like input; with
+        ``validation``: a split given as well, or two sample periods.
     """
-    if not inputs:
-        raise DataError("at least one input column is needed (--input COL)")
-    if missing not in MISSING_POLICIES:
-        raise DataError(f"missing must be one of {MISSING_POLICIES}; got {missing!r}")
-    table = load_table(path, stream=stream, delimiter=delimiter)
-    names = list(dict.fromkeys([*inputs, output]))
-    cols = {c: table.column(c) for c in names}
-    lengths = {c: len(a) for c, a in cols.items()}
-    if len(set(lengths.values())) != 1:
-        raise DataError(f"{path}: the columns have different lengths {lengths}; all must be equal")
-    notes = check_columns(str(path), list(inputs), output, cols, allow_time_input=allow_time_input)
-    lines = table.meta.get("lines")
-    clean = handle_missing(str(path), cols, missing, lines)
-    notes += clean.notes
-    u = np.column_stack([clean.columns[c] for c in inputs])
-    y = clean.columns[output]
-    k = split_index(len(y), est, est_fraction)
-    t_ns = table.t_ns[clean.keep] if table.t_ns is not None else None
-    info: dict[str, Any] = {k_: v for k_, v in table.meta.items() if k_ in ("delimiter", "decimal", "clock")}
-    info["rows"] = len(table)
-    info["missing"] = {
-        "policy": missing,
-        "rows_with_missing": clean.rows_missing,
-        "rows_dropped": clean.dropped,
-        "values_filled": clean.filled,
-        "places_spacing_broken": clean.gaps,
-    }
-    return Dataset(
-        str(path), tuple(inputs), output, u[:k], y[:k], u[k:], y[k:], k, t_ns,
-        notes=tuple(notes), info=info, period_ns=table.period_ns,
-    )
+    if validation is not None and (est is not None or est_fraction is not None):
+        raise DataError("a validation file and a split of the data were both given: with a validation file all of "
+                        "the data file is estimation data; give one or the other (--validate, or --est/--est-fraction)")
+    def read(file: str | os.PathLike[str]) -> Record:
+        return load_record(file, inputs, output, stream=stream, delimiter=delimiter, missing=missing,
+                           allow_time_input=allow_time_input)
+
+    rec = read(path)
+    if validation is None:
+        k = split_index(len(rec.y), est, est_fraction)
+        return Dataset(rec.path, rec.input_names, output, rec.u[:k], rec.y[:k], rec.u[k:], rec.y[k:], k, rec.t_ns,
+                       notes=rec.notes, info=rec.info, period_ns=rec.period_ns)
+    val = read(validation)
+    _same_period(rec, val)
+    return Dataset(rec.path, rec.input_names, output, rec.u, rec.y, val.u, val.y, len(rec.y), _joined_times(rec, val),
+                   notes=rec.notes + val.notes, info={**rec.info, "validation": {"path": val.path, **val.info}},
+                   period_ns=rec.period_ns or val.period_ns, validation_path=val.path)

@@ -1,4 +1,4 @@
-"""``streamid identify --rrd FILE``: one offline identification drawn in the daemon's Rerun layout.
+"""``streamid identify --rrd FILE`` (and ``streamid validate --rrd``): one offline result drawn in the daemon's Rerun layout.
 
 The kept model becomes one :class:`~streamid.viz.reports.UpdateReport` (version 1,
 a cold run over the whole estimation part, validated on the rest) and is drawn by
@@ -23,10 +23,10 @@ from numpy.typing import NDArray
 
 from streamid.engine.ensemble import members_of
 from streamid.engine.model import Model
-from streamid.engine.validation import ValidationReport
+from streamid.engine.validation import CorrelationReport, RecordReport, ValidationReport
 from streamid.viz.reports import UpdateReport, VizSettings, first_input_tests
 
-__all__ = ["Clock", "identify_update_report", "draw_identification", "NO_CLOCK_PERIOD_NS"]
+__all__ = ["Clock", "identify_update_report", "record_update_report", "draw_identification", "NO_CLOCK_PERIOD_NS"]
 
 #: Time axis of a file without a clock: one second per sample.
 NO_CLOCK_PERIOD_NS = 1_000_000_000
@@ -65,10 +65,28 @@ def identify_update_report(
     note: str = "",
 ) -> UpdateReport:
     """The drawing of an offline identification: ``report`` must come from :func:`streamid.engine.validation.validate`."""
+    return _update_report(stream, model, osa=report.predictions["osa_val"], fr=report.predictions["fr_val"],
+                          correlation=report.correlation_val, r2=report.r2_dict(), u_val=u_val, y_val=y_val,
+                          n_est=n_est, clock=clock, fitness_history=fitness_history, generations=generations,
+                          seconds=seconds, note=note)
+
+
+def record_update_report(stream: str, model: Model, report: RecordReport, *, u: NDArray[np.float64],
+                         y: NDArray[np.float64], clock: Clock, note: str = "") -> UpdateReport:
+    """The drawing of a model judged on a record it never saw (``streamid validate``): the whole record is the
+    validation part; no estimation part and no fitness curve (no identification ran)."""
+    return _update_report(stream, model, osa=report.predictions["osa"], fr=report.predictions["fr"],
+                          correlation=report.correlation, r2={"osa_val": report.osa, "fr_val": report.fr}, u_val=u,
+                          y_val=y, n_est=0, clock=clock, fitness_history=(), generations=0, seconds=0.0, note=note)
+
+
+def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: NDArray[np.float64],
+                   correlation: CorrelationReport, r2: dict[str, float], u_val: NDArray[np.float64],
+                   y_val: NDArray[np.float64], n_est: int, clock: Clock, fitness_history: Sequence[float],
+                   generations: int, seconds: float, note: str) -> UpdateReport:
     n_val = len(y_val)
     n = n_est + n_val
     u = np.asarray(u_val, dtype=np.float64)
-    r2 = report.r2_dict()
     return UpdateReport(
         stream=stream,
         version=1,
@@ -80,13 +98,13 @@ def identify_update_report(
         period_ns=clock.period_ns,
         val_t0_ns=clock.t0_ns + n_est * clock.period_ns,
         y_val=np.asarray(y_val, dtype=np.float64),
-        osa_val=np.asarray(report.predictions["osa_val"], dtype=np.float64),
-        fr_val=np.asarray(report.predictions["fr_val"], dtype=np.float64),
+        osa_val=np.asarray(osa, dtype=np.float64),
+        fr_val=np.asarray(fr, dtype=np.float64),
         u_val=u[:, 0] if u.ndim == 2 else u,
         input_name=model.input_names[0] if model.input_names else "u",
         output_name=model.output_name,
         fitness=np.asarray(fitness_history, dtype=np.float64),
-        correlations=first_input_tests(tuple(report.correlation_val.tests)),
+        correlations=first_input_tests(tuple(correlation.tests)),
         lags=model.lags,
         metrics={f"r2_{k}": float(v) for k, v in r2.items()},
         identification_s=float(seconds),

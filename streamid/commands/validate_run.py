@@ -1,0 +1,174 @@
+"""``streamid validate``'s work: a saved model on a record it never saw (options: :mod:`streamid.commands.validate`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+from streamid.commands.identify_io import check_rrd_target, read_text
+from streamid.engine.caveats import record_caveats
+from streamid.engine.model import Model
+from streamid.engine.validation import RecordReport, assess, fit_percent
+from streamid.errors import ConfigError, DataError
+from streamid.logs.bundled import data_file
+from streamid.logs.csv_table import parse_delimiter
+from streamid.logs.datafile import Record, load_record
+
+__all__ = ["model_period_ns", "validate_command"]
+
+#: Relative difference of two sample periods taken as the same period.
+PERIOD_TOLERANCE = 1e-3
+
+
+def model_period_ns(model: Model) -> int | None:
+    """The sample period the model was identified at, from its window (None: it records none)."""
+    w = model.window
+    period = w.get("period_ns")
+    if isinstance(period, int) and period > 0:
+        return period
+    t0, t1, n = w.get("t0_ns"), w.get("t1_ns"), w.get("n_samples")
+    if isinstance(t0, int) and isinstance(t1, int) and isinstance(n, int) and n >= 2 and t1 > t0:
+        return round((t1 - t0) / (n - 1))
+    return None
+
+
+def _columns(args: argparse.Namespace, model: Model) -> tuple[list[str], str]:
+    inputs = list(args.input) if args.input else list(model.input_names)
+    if len(inputs) != model.n_inputs:
+        raise ConfigError(f"the model has {model.n_inputs} input(s) {list(model.input_names)}; --input was given "
+                          f"{len(inputs)} time(s) ({inputs}): give one --input COL per model input, in its order")
+    return inputs, args.output or model.output_name
+
+
+def _period_notes(model: Model, rec: Record) -> list[str]:
+    """Refuse a record sampled at another period than the model's; say when either has none to compare."""
+    want, have = model_period_ns(model), rec.period_ns
+    if want and have:
+        if abs(want - have) > PERIOD_TOLERANCE * max(want, have):
+            raise DataError(f"{rec.path} samples every {have / 1e6:.6g} ms but the model was identified at one sample "
+                            f"every {want / 1e6:.6g} ms: a NARX model's lags count samples, so judge it on data "
+                            f"sampled at its period (resample the record)")
+        return []
+    if want:
+        return [f"{rec.path} has no clock: its rows are taken as samples {want / 1e6:.6g} ms apart, the model's period"]
+    if have:
+        return [f"the model records no sample period (it was identified on a file without a clock): {rec.path}'s "
+                f"{have / 1e6:.6g} ms was not checked against it"]
+    return []
+
+
+def _model_text(model: Model) -> str:
+    w = model.window
+    where = f"identified on {w['source']}" if w.get("source") else (
+        f"stream window {w['number']}" if "number" in w else "identified")
+    n = w.get("n_samples")
+    period = model_period_ns(model)
+    return (f"{model.output_name}(t) = F[{model.lags_text()}], {model.neurons} neurons; {where}"
+            + (f" ({n} samples" + (f", one every {period / 1e6:.6g} ms" if period else "") + ")" if n else ""))
+
+
+def _print(out: TextIO, args: argparse.Namespace, model: Model, rec: Record, rep: RecordReport, notes: list[str],
+           caveats: list[str]) -> None:
+    w = out.write
+    w(f"streamid validate: {args.model} on {rec.path}\n")
+    w(f"  model     {_model_text(model)}\n")
+    w(f"  read      {read_text(rec.info, rec.period_ns, len(rec.y))}\n")
+    mapped = [f"{c} as {m}" for c, m in zip([*rec.input_names, rec.output_name], [*model.input_names, model.output_name])
+              if c != m]
+    w(f"  data      {rep.n} samples of {', '.join(rec.input_names)} -> {rec.output_name}"
+      + (f" ({', '.join(mapped)})" if mapped else "")
+      + f"; R² over the {rep.n_scored} after the first {model.max_lag}, which start the predictions\n\n")
+    w(f"  {'':16} {'R²':>9} {'fit %':>8} {'RMSE':>11}\n")
+    for name, r2v, rmse in (("free run", rep.fr, rep.rmse_fr), ("one step ahead", rep.osa, rep.rmse_osa)):
+        w(f"  {name:16} {r2v:>9.5f} {fit_percent(r2v):>8.2f} {rmse:>11.5g}\n")
+    for n in notes:
+        w(f"note: {n}\n")
+    for c in caveats:
+        w(f"caveat: {c}\n")
+    tests = rep.correlation
+    w(f"correlation tests on the one-step residual ({tests.n} samples, 95 % band ±{tests.band:.3g}):\n")
+    for t in tests.tests:
+        w(f"  {t.verdict()}\n")
+
+
+def _draw(path: str, model: Model, rec: Record, rep: RecordReport, notes: list[str], caveats: list[str]) -> list[str]:
+    from streamid.viz.identify_report import Clock, draw_identification, record_update_report
+
+    clock = Clock.of(rec.t_ns, rec.period_ns or model_period_ns(model))
+    events = [("INFO", f"streamid validate: the model {model.output_name}(t) = F[{model.lags_text()}] on {rec.path}, "
+                       f"{rep.n} samples it never saw (no identification ran)"),
+              ("INFO", f"read: {read_text(rec.info, rec.period_ns, len(rec.y))}")]
+    events += [("WARN", n) for n in [*rec.notes, *notes, *caveats]]
+    up = record_update_report(Path(rec.path).stem or "data", model, rep, u=rec.u, y=rec.y, clock=clock,
+                              note="validation on a record the model never saw")
+    files = draw_identification(path, up, events, application_id="streamid validate")
+    if not files or not Path(files[-1]).is_file():
+        raise DataError(f"--rrd {path!r}: the recording could not be written (see the warning above)")
+    return files
+
+
+def validate_command(args: argparse.Namespace) -> int:
+    """``streamid validate``'s work, with its options ``args``; the exit status."""
+    if args.rrd is not None:
+        check_rrd_target(args.rrd)
+    if args.min_r2_fr is not None and not (math.isfinite(args.min_r2_fr) and args.min_r2_fr <= 1.0):
+        raise ConfigError(f"--min-r2-fr must be a finite number <= 1 (an R²); got {args.min_r2_fr}")
+    model = Model.load(args.model)
+    inputs, output = _columns(args, model)
+    delimiter = parse_delimiter(args.delimiter) if args.delimiter is not None else None
+    missing = "drop" if args.drop else "fill" if args.fill else "error"
+    rec = load_record(data_file(args.data), inputs, output, stream=args.stream, delimiter=delimiter,
+                      missing=missing, allow_time_input=args.allow_time_input)
+    for note in rec.notes:
+        print(f"streamid validate: warning: {note}", file=sys.stderr, flush=True)
+    notes = _period_notes(model, rec)
+    if len(rec.y) < model.max_lag + 2 + 20:
+        raise DataError(f"{rec.path} has {len(rec.y)} samples; judging a model of max lag {model.max_lag} needs at "
+                        f"least {model.max_lag + 22} (its first {model.max_lag} start the predictions)")
+    rep = assess(model, rec.u, rec.y)
+    caveats = record_caveats(model, rep.osa, rep.fr, rec.u, rec.y)
+    passed = None if args.min_r2_fr is None else bool(rep.fr >= args.min_r2_fr)
+    files = _draw(args.rrd, model, rec, rep, notes, caveats) if args.rrd is not None else []
+    if not args.json:
+        _print(sys.stdout, args, model, rec, rep, notes, caveats)
+        if files:
+            print(f"rrd: {', '.join(files)} (streamid view {args.rrd}; --screenshot PNG renders it)")
+        if passed is not None:
+            print(f"{'passed' if passed else 'FAILED'}: free-run R² {rep.fr:.5f} "
+                  f"{'>=' if passed else '<'} --min-r2-fr {args.min_r2_fr:g}")
+    if args.json or args.report:
+        report = {
+            "format": "streamid.validate_report/1",
+            "model": {"path": args.model, "inputs": list(model.input_names), "output": model.output_name,
+                      "lags": model.lags, "neurons": model.neurons, "max_lag": model.max_lag,
+                      "period_ns": model_period_ns(model), "window": model.window},
+            "data": {"path": rec.path, "inputs": list(rec.input_names), "output": rec.output_name, "n": rep.n,
+                     "period_ns": rec.period_ns, "read": rec.info, "warnings": list(rec.notes)},
+            **{k: _finite(v) for k, v in rep.to_dict().items()},
+            "notes": notes,
+            "caveats": caveats,
+            "min_r2_fr": args.min_r2_fr,
+            "passed": passed,
+            "rrd": files,
+        }
+        if args.report:
+            with open(args.report, "w", encoding="utf-8") as fh:
+                json.dump(report, fh, indent=1, allow_nan=False)
+        if args.json:
+            print(json.dumps(report, allow_nan=False), flush=True)
+    return 1 if passed is False else 0
+
+
+def _finite(v: Any) -> Any:
+    """``v`` with non-finite floats as None (JSON has no inf or nan)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    return v
