@@ -195,3 +195,4 @@ def test_record_caveats_read_the_range_from_the_model() -> None:
     assert len(wide) == 1 and wide[0].startswith("the validation input u0 spans") and "beyond the estimation range" in wide[0]
     drifting = record_caveats(model, 0.95, -2.0, u[400:], np.cumsum(np.abs(u[400:])))
     assert any(c.startswith("a one-step predictor, not a simulator") and "pole at |z| =" in c for c in drifting), drifting
+

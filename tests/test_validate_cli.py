@@ -194,3 +194,12 @@ def test_validate_draws_the_record_in_rerun(fitted: dict) -> None:
     assert len(measured) == 400  # the whole record is the validation part
     (doc,) = column(rrd, "/streams/val/model", "TextDocument:text")
     assert f"FR **{got['r2']['fr']:.4f}**" in doc[0]  # type: ignore[index]
+
+
+def test_reports_write_a_diverged_free_run_as_null() -> None:
+    """JSON has no inf or nan: a free run that diverged (R² -inf) is written as null by every command's report."""
+    from streamid.commands.identify_io import json_safe
+
+    doc = json_safe({"r2": {"fr": -np.inf, "osa": 0.5}, "runs": [(np.nan, 1.0)], "n": 3})
+    assert doc == {"r2": {"fr": None, "osa": 0.5}, "runs": [[None, 1.0]], "n": 3}
+    json.dumps(doc, allow_nan=False)

@@ -6,6 +6,8 @@ Kept apart from :mod:`streamid.commands.identify` (options, runs, the report tab
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import time
 from pathlib import Path
@@ -19,7 +21,8 @@ from streamid.logs.datafile import Dataset, load_dataset, load_table
 if TYPE_CHECKING:
     from streamid.engine.coevolution import Progress
 
-__all__ = ["Bar", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd"]
+__all__ = ["Bar", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd", "emit_report",
+           "json_safe"]
 
 
 class Bar:
@@ -121,6 +124,29 @@ def split_text(ds: Dataset) -> str:
     if ds.validation_path is not None:
         return f"estimation all {ds.n_est} samples of {ds.path}, validation all {ds.n_val} of {ds.validation_path}"
     return f"estimation {ds.n_est} samples (first), validation {ds.n_val} samples (rest)"
+
+
+def json_safe(v: Any) -> Any:
+    """``v`` with every non-finite float as None: JSON has no inf or nan, and a free run that diverged scores
+    R² -inf (every report is written with ``allow_nan=False``)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [json_safe(x) for x in v]
+    return v
+
+
+def emit_report(report: dict[str, Any], *, to_stdout: bool, path: str | None) -> None:
+    """A command's JSON report: one line on stdout (``--json``) and/or a file (``--report``); non-finite floats
+    are written as null."""
+    report = json_safe(report)
+    if path:
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(report, fh, indent=1, allow_nan=False)
+    if to_stdout:
+        print(json.dumps(report, allow_nan=False), flush=True)
 
 
 def check_rrd_target(path: str) -> None:

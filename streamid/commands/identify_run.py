@@ -5,14 +5,14 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from typing import Any, TextIO
 
 import numpy as np
 
-from streamid.commands.identify_io import Bar, check_rrd_target, draw_rrd, load, read_text, split_text
+from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit_report, load, read_text,
+                                           split_text)
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import CoEAConfig
 from streamid.engine.caveats import model_caveats
@@ -319,9 +319,5 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
                 "wall_seconds": wall,
             },
         }
-        if args.report:
-            with open(args.report, "w", encoding="utf-8") as fh:
-                json.dump(report, fh, indent=1, allow_nan=False)
-        if args.json:
-            print(json.dumps(report, allow_nan=False), flush=True)
+        emit_report(report, to_stdout=args.json, path=args.report)
     return 0

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
-from streamid.commands.identify_io import check_rrd_target, read_text
+from streamid.commands.identify_io import check_rrd_target, emit_report, read_text
 from streamid.engine.caveats import record_caveats
 from streamid.engine.model import Model
 from streamid.engine.validation import RecordReport, assess, fit_percent
@@ -148,27 +147,13 @@ def validate_command(args: argparse.Namespace) -> int:
                       "period_ns": model_period_ns(model), "window": model.window},
             "data": {"path": rec.path, "inputs": list(rec.input_names), "output": rec.output_name, "n": rep.n,
                      "period_ns": rec.period_ns, "read": rec.info, "warnings": list(rec.notes)},
-            **{k: _finite(v) for k, v in rep.to_dict().items()},
+            **rep.to_dict(),
             "notes": notes,
             "caveats": caveats,
             "min_r2_fr": args.min_r2_fr,
             "passed": passed,
             "rrd": files,
         }
-        if args.report:
-            with open(args.report, "w", encoding="utf-8") as fh:
-                json.dump(report, fh, indent=1, allow_nan=False)
-        if args.json:
-            print(json.dumps(report, allow_nan=False), flush=True)
+        emit_report(report, to_stdout=args.json, path=args.report)
     return 1 if passed is False else 0
 
-
-def _finite(v: Any) -> Any:
-    """``v`` with non-finite floats as None (JSON has no inf or nan)."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    return v
