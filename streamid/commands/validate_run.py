@@ -103,8 +103,8 @@ def _draw(path: str, model: Model, rec: Record, rep: RecordReport, notes: list[s
               ("INFO", f"read: {read_text(rec.info, rec.period_ns, len(rec.y))}")]
     events += [("WARN", n) for n in [*rec.notes, *notes, *caveats]]
     up = record_update_report(Path(rec.path).stem or "data", model, rep, u=rec.u, y=rec.y, clock=clock,
-                              note="validation on a record the model never saw")
-    files = draw_identification(path, up, events, application_id="streamid validate")
+                              note=f"{rep.n} samples")
+    files = draw_identification(path, up, events, application_id="streamid validate", layout="validate")
     if not files or not Path(files[-1]).is_file():
         raise DataError(f"--rrd {path!r}: the recording could not be written (see the warning above)")
     return files

@@ -77,13 +77,14 @@ def record_update_report(stream: str, model: Model, report: RecordReport, *, u: 
     validation part; no estimation part and no fitness curve (no identification ran)."""
     return _update_report(stream, model, osa=report.predictions["osa"], fr=report.predictions["fr"],
                           correlation=report.correlation, r2={"osa_val": report.osa, "fr_val": report.fr}, u_val=u,
-                          y_val=y, n_est=0, clock=clock, fitness_history=(), generations=0, seconds=0.0, note=note)
+                          y_val=y, n_est=0, clock=clock, fitness_history=(), generations=0, seconds=0.0, note=note,
+                          judged_only=True)
 
 
 def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: NDArray[np.float64],
                    correlation: CorrelationReport, r2: dict[str, float], u_val: NDArray[np.float64],
                    y_val: NDArray[np.float64], n_est: int, clock: Clock, fitness_history: Sequence[float],
-                   generations: int, seconds: float, note: str) -> UpdateReport:
+                   generations: int, seconds: float, note: str, judged_only: bool = False) -> UpdateReport:
     n_val = len(y_val)
     n = n_est + n_val
     u = np.asarray(u_val, dtype=np.float64)
@@ -113,6 +114,7 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
         networks=len(members_of(model)),
         linear_parts=sum(m.linear is not None for m in members_of(model)),
         long_linear_order=model.linear_order,
+        judged_only=judged_only,
     )
 
 
@@ -122,6 +124,7 @@ def draw_identification(
     events: Sequence[tuple[str, str]] = (),
     *,
     application_id: str = "streamid identify",
+    layout: str = "identify",
 ) -> list[str]:
     """Write ``update`` (and ``events``: ``(level, text)`` pairs, before it) to the .rrd ``path``; the files written.
 
@@ -129,7 +132,7 @@ def draw_identification(
     """
     from streamid.viz.rerun_view import Viz
 
-    viz = Viz(VizSettings(rrd=path, rrd_rotate_mb=None, application_id=application_id))
+    viz = Viz(VizSettings(rrd=path, rrd_rotate_mb=None, application_id=application_id, layout=layout))
     try:
         viz.add_stream(update.stream)
         for level, text in events:

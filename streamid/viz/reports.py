@@ -20,6 +20,7 @@ from streamid.engine.validation import TESTS, CorrelationTest
 from streamid.errors import ConfigError
 
 __all__ = [
+    "LAYOUTS",
     "VizSettings",
     "UpdateReport",
     "parse_rerun_url",
@@ -64,6 +65,10 @@ def parse_rerun_url(url: str) -> tuple[str, int]:
     return p.hostname, port
 
 
+#: The layouts of :class:`VizSettings`: the daemon's, one offline identification's, one model judged on a record.
+LAYOUTS = ("daemon", "identify", "validate")
+
+
 @dataclass(frozen=True)
 class VizSettings:
     """Where the diagnostics go.
@@ -102,6 +107,9 @@ class VizSettings:
     max_points
         Longest series drawn per update (validation part and input-output plane
         are decimated by a stride beyond it).
+    layout
+        ``"daemon"`` (champions over time), ``"identify"`` (one offline identification: the kept model) or
+        ``"validate"`` (a model judged on a record: no identification, so no fitness or timing views).
     """
 
     rrd: str | None = None
@@ -117,8 +125,11 @@ class VizSettings:
     rrd_keep: int = 4096
     rrd_max_mb: float | None = 1024.0
     max_points: int = 1000
+    layout: str = "daemon"
 
     def __post_init__(self) -> None:
+        if self.layout not in LAYOUTS:
+            raise ConfigError(f"layout must be one of {LAYOUTS}; got {self.layout!r}")
         if self.connect is not None:
             parse_rerun_url(self.connect)
         if self.serve_port is not None and not (
@@ -178,6 +189,7 @@ class UpdateReport:
     networks: int = 1  # > 1: the model is the mean of this many networks (streamid.model/3); ``lags`` is their union
     linear_parts: int = 0  # how many of its networks have a direct linear part a'r + b (CoEAConfig.linear_terms)
     long_linear_order: int = 0  # > 0: its linear part is a dense ARX part of this order (CoEAConfig.long_linear)
+    judged_only: bool = False  # a model judged on a record (streamid validate): no identification ran
 
 
 def fmt_metric(v: float | None) -> str:
@@ -197,12 +209,16 @@ def model_markdown(r: UpdateReport) -> str:
         if len(c.values):
             v = c.verdict()
             verdicts.append(f"- **{v}**" if not c.passed else f"- {v}")
+    if r.judged_only:
+        head = [f"**{r.stream}** · the model judged on a record it never saw (no identification ran)", "",
+                f"R² on the record: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}**"]
+    else:
+        head = [f"**{r.stream} v{r.version}** · {'warm' if r.warm else 'cold'} · G={r.generations} · "
+                f"{r.identification_s:.2f} s{'' if r.accepted else ' · **rejected**'}", "",
+                f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
+                f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})"]
     lines = [
-        f"**{r.stream} v{r.version}** · {'warm' if r.warm else 'cold'} · G={r.generations} · "
-        f"{r.identification_s:.2f} s{'' if r.accepted else ' · **rejected**'}",
-        "",
-        f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
-        f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})",
+        *head,
         "",
         f"model: {r.output_name}(t) = " + (f"mean of {r.networks} networks on " if r.networks > 1 else "")
         + f"F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]"

@@ -260,25 +260,36 @@ class Viz:
                                      visual_bounds=rrb.VisualBounds2D(x_range=[0.0, w], y_range=[0.0, h]))
 
         history = f"{base}/history"
-        return rrb.Vertical(
-            rrb.Horizontal(
-                fig("plot/validation", "validation", f"{stream}: champion on the held-out part when it won"),
-                fig("plot/residual", "residual", "residuals on the validation part"),
-                column_shares=[3, 2],
-            ),
-            rrb.Horizontal(*corr, name="residual correlation tests (±95 % band; red: outside)"),
-            rrb.Horizontal(
-                fig("plot/fitness", "fitness", "best fitness per generation"),
+        layout = self.settings.layout
+        title, served = {"daemon": ("champion on the held-out part when it won", "champion (the model served)"),
+                         "identify": ("the kept model on the validation data", "the kept model"),
+                         "validate": ("the model on a record it never saw", "the model judged")}[layout]
+        plane = fig("hysteresis", "plane", "input-output plane")
+        fitness = fig("plot/fitness", "fitness", "best fitness per generation")
+        if layout == "validate":  # no identification ran: no fitness, no R² or time across updates
+            third: list[rrb.View] = [plane]
+        elif layout == "identify":  # one identification: no history across updates
+            third = [fitness, plane]
+        else:
+            third = [
+                fitness,
                 rrb.TimeSeriesView(origin=history, contents=[f"{history}/{k}" for k in (
                     "r2_osa", "r2_fr", "champion_r2_fr", "rejected_r2_fr")],
                                    name="R² (held out): champions, re-validations, rejected", plot_legend=legend),
                 rrb.TimeSeriesView(origin=history, contents=[f"{history}/identification_s", f"{history}/latency_s"],
                                    name="update time [s] across updates", plot_legend=legend_top),
-                fig("hysteresis", "plane", "input-output plane"),
-                column_shares=[1, 1, 1, 1],
-            ),
+                plane,
+            ]
+        return rrb.Vertical(
             rrb.Horizontal(
-                rrb.TextDocumentView(origin=f"{base}/model", name="champion (the model served)"),
+                fig("plot/validation", "validation", f"{stream}: {title}"),
+                fig("plot/residual", "residual", "residuals on the validation part"),
+                column_shares=[3, 2],
+            ),
+            rrb.Horizontal(*corr, name="residual correlation tests (±95 % band; red: outside)"),
+            rrb.Horizontal(*third, column_shares=[1] * len(third)),
+            rrb.Horizontal(
+                rrb.TextDocumentView(origin=f"{base}/model", name=served),
                 rrb.TextLogView(origin=f"{base}/events", name="events"),
                 column_shares=[2, 3],
             ),
@@ -375,21 +386,19 @@ class Viz:
         for name, metric in (("r2_osa", r.metrics.get("r2_osa_val")), ("r2_fr", r.metrics.get("r2_fr_val"))):
             if metric is not None and math.isfinite(metric):
                 rec.log(f"{base}/history/{name}", rr.Scalars(max(metric, -1.0)))
-        rec.log(f"{base}/history/identification_s", rr.Scalars(r.identification_s))
+        if not r.judged_only:
+            rec.log(f"{base}/history/identification_s", rr.Scalars(r.identification_s))
         if r.latency_s is not None:
             rec.log(f"{base}/history/latency_s", rr.Scalars(r.latency_s))
         rec.log(f"{base}/model", rr.TextDocument(model_markdown(r), media_type="text/markdown"))
         verdict = "published" if r.accepted else "REJECTED"
         level = "INFO" if r.accepted else "WARN"
-        rec.log(
-            f"{base}/events",
-            rr.TextLog(
+        figures = (f"R² val OSA {_f(r.metrics.get('r2_osa_val'))} FR {_f(r.metrics.get('r2_fr_val'))}"
+                   f"{'; ' + r.note if r.note else ''}")
+        text = (f"the model judged on this record: {figures}" if r.judged_only else
                 f"model v{r.version} {verdict} ({'warm' if r.warm else 'cold'}, G={r.generations}, "
-                f"{r.identification_s:.2f} s): R² val OSA {_f(r.metrics.get('r2_osa_val'))} "
-                f"FR {_f(r.metrics.get('r2_fr_val'))}{'; ' + r.note if r.note else ''}",
-                level=level,
-            ),
-        )
+                f"{r.identification_s:.2f} s): {figures}")
+        rec.log(f"{base}/events", rr.TextLog(text, level=level))
 
     @staticmethod
     def _log_figure(rec: rr.RecordingStream, path: str, fig: Figure, keys: Sequence[str]) -> None:
