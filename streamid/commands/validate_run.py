@@ -63,7 +63,7 @@ def _period_notes(model: Model, rec: Record) -> list[str]:
 def _model_text(model: Model) -> str:
     w = model.window
     where = f"identified on {w['source']}" if w.get("source") else (
-        f"stream window {w['number']}" if "number" in w else "identified")
+        f"identified on window {w['number']} of its stream" if "number" in w else "identified")
     n = w.get("n_samples")
     period = model_period_ns(model)
     return (f"{model.output_name}(t) = F[{model.lags_text()}], {model.neurons} neurons; {where}"

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine.parallel import (
+from streamid.engine.helper_protocol import (
     _BIND_ACK,
     _BIND_SEQ,
     _CAP,

@@ -141,6 +141,7 @@ class Coevolution:
         if not isinstance(cfg, CoEAConfig):
             raise ConfigError(f"config must be a CoEAConfig; got {type(cfg).__name__}")
         self.config = cfg
+        self._config_doc = cfg.to_dict()  # every model of the run records it (asdict is ~0.4 ms a call)
         self.rng = _as_rng(rng)
         ua, ya = as_data(u, y)
         L, M, P = cfg.max_lag, cfg.neurons, cfg.population
@@ -472,7 +473,7 @@ class Coevolution:
             output_name=self.output_name,
             metrics={"fitness": mse, "fitness_search": float(self.best_f), "evaluations": self.evaluations},
             window=self.window,
-            config=self.config.to_dict(),
+            config=dict(self._config_doc),
             linear=lin,
         )
 

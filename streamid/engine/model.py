@@ -269,7 +269,7 @@ class Model:
 
         ``u`` of shape (N, n_inputs) and ``y`` of shape (N,), as :meth:`_check` returns them.
         """
-        n, L = y.shape[0], self.max_lag
+        L = self.max_lag
         un, yn = self.normalisation.u(u), self.normalisation.y(y)
         return regressor_columns(self.regressors, un, yn, L), yn[L:]
 

@@ -54,6 +54,27 @@ def _bounds(name: str, value: object, positive: bool) -> tuple[float, float]:
     return (lo, hi)
 
 
+#: Integer fields and their accepted ranges (None: no upper bound), checked in this order.
+_INT_RANGES: dict[str, tuple[int, int | None]] = {
+    "neurons": (1, 1000), "max_lag_y": (0, 1000), "max_lag_u": (0, 1000), "generations": (0, None),
+    "population": (4, 10000), "lag_search_neurons": (0, 1000), "lag_search_generations": (0, None),
+    "restarts": (1, 10000), "workers": (1, 1024), "search_rows": (0, None), "lag_search_rows": (0, None),
+    "fr_candidates": (0, 10000), "cv_folds": (2, 20), "ensemble": (0, 20), "hedge_neurons": (0, 1000),
+    "prune_runs": (0, 10000), "more_restarts": (0, 100), "min_lag_u": (0, 1), "refine_iterations": (0, 1000),
+    "long_linear": (0, 1000), "max_lag_cap": (0, 1000),
+}
+#: Number fields: (low, high, whether low itself is refused).
+_FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
+    "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop")},
+    "ridge": (0.0, 1.0, False), "weight_decay": (0.0, 1.0, False), "holdout_fraction": (0.0, 0.9, True),
+    "range_margin": (0.0, 100.0, False), "agree_tol": (0.0, 1e6, False), "fallback_below": (-1e9, 1.0, False),
+    "more_below": (0.0, 1.0, True), "refine_above": (-1e9, 1.0, False),
+}
+#: Fields that must be true or false.
+_BOOL_FIELDS = ("feedthrough_test", "linear_terms", "linear_alternation", "linear_search", "run_ensembles",
+                "screen_rows", "lag_alternation", "require_input")
+
+
 @dataclass(frozen=True)
 class CoEAConfig:
     """Settings of a coevolutionary RBF-NARX identification.
@@ -320,71 +341,34 @@ class CoEAConfig:
     long_linear: int = 0
 
     def __post_init__(self) -> None:
-        _int("neurons", self.neurons, 1, 1000)
-        _int("max_lag_y", self.max_lag_y, 0, 1000)
-        _int("max_lag_u", self.max_lag_u, 0, 1000)
+        for name, (low, high) in _INT_RANGES.items():
+            _int(name, getattr(self, name), low, high)
+        for name, (flow, fhigh, open_low) in _FLOAT_RANGES.items():
+            _float(name, getattr(self, name), flow, fhigh, open_low=open_low)
+        for name in _BOOL_FIELDS:
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"CoEAConfig.{name} must be true or false; got {getattr(self, name)!r}")
         if self.max_lag_y + self.max_lag_u == 0:
             raise ConfigError("CoEAConfig.max_lag_y + max_lag_u must be >= 1 (at least one candidate lag); got 0 and 0")
-        _int("generations", self.generations, 0)
-        _int("population", self.population, 4, 10000)
-        _float("de_f", self.de_f, 0.0, 2.0, open_low=True)
-        for name in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop"):
-            _float(name, getattr(self, name), 0.0, 1.0)
         object.__setattr__(self, "centre_bounds", _bounds("centre_bounds", self.centre_bounds, False))
         object.__setattr__(self, "width_bounds", _bounds("width_bounds", self.width_bounds, True))
-        _float("ridge", self.ridge, 0.0, 1.0)
-        _float("weight_decay", self.weight_decay, 0.0, 1.0)
-        _int("lag_search_neurons", self.lag_search_neurons, 0, 1000)
-        _int("lag_search_generations", self.lag_search_generations, 0)
-        _int("restarts", self.restarts, 1, 10000)
-        _int("workers", self.workers, 1, 1024)
         if self.selection not in SELECTIONS:
             raise ConfigError(f"CoEAConfig.selection must be one of {list(SELECTIONS)}; got {self.selection!r}")
-        _float("holdout_fraction", self.holdout_fraction, 0.0, 0.9, open_low=True)
-        _int("search_rows", self.search_rows, 0)
+        if self.complexity not in ("aic", "bic", "score"):
+            raise ConfigError(f"CoEAConfig.complexity must be one of ['aic', 'bic', 'score']; got {self.complexity!r}")
         if 0 < self.search_rows < 2 * self.neurons:
             raise ConfigError(
                 f"CoEAConfig.search_rows must be 0 (all rows) or >= 2 * neurons = {2 * self.neurons}; got {self.search_rows}"
             )
-        _int("lag_search_rows", self.lag_search_rows, 0)
         if 0 < self.lag_search_rows < 2 * self.lag_search_neurons:
             raise ConfigError(f"CoEAConfig.lag_search_rows must be 0 (the search's rows) or >= 2 * lag_search_neurons = "
                               f"{2 * self.lag_search_neurons}; got {self.lag_search_rows}")
-        _float("range_margin", self.range_margin, 0.0, 100.0)
-        _int("fr_candidates", self.fr_candidates, 0, 10000)
-        _float("agree_tol", self.agree_tol, 0.0, 1e6)
         alts = self.neuron_alternatives
         if not (isinstance(alts, (tuple, list)) and all(isinstance(m, int) and not isinstance(m, bool) and 1 <= m <= 1000 for m in alts)):
             raise ConfigError(
                 f"CoEAConfig.neuron_alternatives must be a tuple of integers in [1, 1000]; got {alts!r}"
             )
         object.__setattr__(self, "neuron_alternatives", tuple(alts))
-        _int("cv_folds", self.cv_folds, 2, 20)
-        _int("ensemble", self.ensemble, 0, 20)
-        _int("hedge_neurons", self.hedge_neurons, 0, 1000)
-        if self.complexity not in ("aic", "bic", "score"):
-            raise ConfigError(f"CoEAConfig.complexity must be one of ['aic', 'bic', 'score']; got {self.complexity!r}")
-        _int("prune_runs", self.prune_runs, 0, 10000)
-        _float("fallback_below", self.fallback_below, -1e9, 1.0)
-        _int("more_restarts", self.more_restarts, 0, 100)
-        _int("min_lag_u", self.min_lag_u, 0, 1)
-        if not isinstance(self.feedthrough_test, bool):
-            raise ConfigError(f"CoEAConfig.feedthrough_test must be true or false; got {self.feedthrough_test!r}")
-        _float("more_below", self.more_below, 0.0, 1.0, open_low=True)
-        _int("refine_iterations", self.refine_iterations, 0, 1000)
-        _float("refine_above", self.refine_above, -1e9, 1.0)
-        _int("long_linear", self.long_linear, 0, 1000)
-        if not isinstance(self.linear_terms, bool):
-            raise ConfigError(f"CoEAConfig.linear_terms must be true or false; got {self.linear_terms!r}")
-        if not isinstance(self.linear_alternation, bool):
-            raise ConfigError(f"CoEAConfig.linear_alternation must be true or false; got {self.linear_alternation!r}")
-        if not isinstance(self.linear_search, bool):
-            raise ConfigError(f"CoEAConfig.linear_search must be true or false; got {self.linear_search!r}")
-        if not isinstance(self.run_ensembles, bool):
-            raise ConfigError(f"CoEAConfig.run_ensembles must be true or false; got {self.run_ensembles!r}")
-        if not isinstance(self.screen_rows, bool):
-            raise ConfigError(f"CoEAConfig.screen_rows must be true or false; got {self.screen_rows!r}")
-        _int("max_lag_cap", self.max_lag_cap, 0, 1000)
         fb = self.fallback_neurons
         if not (isinstance(fb, (tuple, list)) and len(fb) <= 10
                 and all(isinstance(m, int) and not isinstance(m, bool) and 1 <= m <= 1000 for m in fb)):
@@ -395,10 +379,6 @@ class CoEAConfig:
                 f"CoEAConfig.max_lag_cap must be 0 (lags 1..max_lag_y/max_lag_u as given) or >= "
                 f"max(max_lag_y, max_lag_u) = {max(self.max_lag_y, self.max_lag_u)} (the floor); got {self.max_lag_cap}"
             )
-        if not isinstance(self.lag_alternation, bool):
-            raise ConfigError(f"CoEAConfig.lag_alternation must be true or false; got {self.lag_alternation!r}")
-        if not isinstance(self.require_input, bool):
-            raise ConfigError(f"CoEAConfig.require_input must be true or false; got {self.require_input!r}")
 
     @property
     def max_lag(self) -> int:

@@ -24,7 +24,6 @@ input...) and missing values handled as :mod:`streamid.logs.columns` says.
 
 from __future__ import annotations
 
-import csv
 import os
 from dataclasses import dataclass, field
 from pathlib import Path

@@ -14,9 +14,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from streamid.engine import CoEAState, Model
+from streamid.errors import StreamidError
 from streamid.online.drift import DriftMonitor
+from streamid.wire.documents import encode_json
 
-__all__ = ["OutputHead", "Watched"]
+__all__ = ["OutputHead", "Watched", "restored_head"]
 
 #: replaced champions whose watch goes on at once (the newest kept)
 RETIRED_KEPT = 2
@@ -90,3 +92,43 @@ class OutputHead:
             "coea_state": self.coea_state.to_json() if self.coea_state is not None else None,
             "failures_in_row": self.failures_in_row,
         }
+
+
+def restored_head(part: dict[str, Any], name: str | None, warnings: list[str]) -> OutputHead | None:
+    """The head an :meth:`OutputHead.snapshot` part resumes (None: it holds nothing to resume).
+
+    ``name`` is the output's (None for the stream's first, whose output the part's model or signature names).
+    An unreadable model document leaves the head without a champion, unusable populations without a warm
+    start; each adds a line to ``warnings``.
+    """
+    msg, co = part.get("model_message"), part.get("coea_state")
+    model = None
+    if isinstance(msg, dict):
+        try:
+            encode_json(msg)
+            model = Model.from_dict(msg.get("model"))
+        except (ValueError, StreamidError) as exc:
+            warnings.append(f"saved model unusable ({exc}); no current model until the next update")
+            msg = None
+    else:
+        msg = None
+    output = name or (str(msg.get("output") or (model.output_name if model else "")) if msg else "")
+    if not output:
+        if co is None:
+            return None
+        output = str((part.get("signature") or {}).get("output") or "y")
+    head = OutputHead(output)
+    fails = part.get("failures_in_row", 0)
+    head.failures_in_row = fails if isinstance(fails, int) and fails >= 0 else 0
+    v = part.get("version", 0)
+    if model is not None and msg is not None:
+        head.version = int(msg.get("version", v) if isinstance(msg.get("version", v), int) else 0)
+        head.document, head.payload = dict(msg), encode_json(msg)
+        head.new_champion(model, None)  # no drift watch until the next champion is referenced on its held-out data
+    if isinstance(co, str):
+        try:
+            head.coea_state = CoEAState.from_json(co)
+            head.signature = dict(part.get("signature") or {})
+        except (StreamidError, ValueError) as exc:
+            warnings.append(f"saved populations unusable ({exc}); the next run starts cold")
+    return head

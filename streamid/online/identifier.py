@@ -52,11 +52,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine import CoEAState, EvalHelper, Model
-from streamid.errors import ConfigError, DataError, ModelFormatError, StreamidError
+from streamid.engine import EvalHelper, Model
+from streamid.errors import ConfigError, DataError, ModelFormatError
 from streamid.online.acceptance import Decision, Update, decide, degraded_after
 from streamid.online.drift import DriftSettings, reference_monitor
-from streamid.online.head import OutputHead
+from streamid.online.head import OutputHead, restored_head
 from streamid.online.health import Health
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
 from streamid.online.snapshot import StreamState
@@ -433,40 +433,10 @@ class OnlineIdentifier(StreamIntake):
                    "coea_state": state.coea_state, "failures_in_row": state.failures_in_row}, None)]
         parts += [(v, k) for k, v in state.others.items()]
         for part, name in parts:
-            self._restore_head(part, name, warnings)
+            head = restored_head(part, name, warnings)
+            if head is not None:
+                self._heads[head.output] = head
         return warnings
-
-    def _restore_head(self, part: dict[str, Any], name: str | None, warnings: list[str]) -> None:
-        msg, co = part.get("model_message"), part.get("coea_state")
-        model = None
-        if isinstance(msg, dict):
-            try:
-                encode_json(msg)
-                model = Model.from_dict(msg.get("model"))
-            except (ValueError, StreamidError) as exc:
-                warnings.append(f"saved model unusable ({exc}); no current model until the next update")
-                msg = None
-        else:
-            msg = None
-        output = name or (str(msg.get("output") or (model.output_name if model else "")) if msg else "")
-        if not output:
-            if co is None:
-                return
-            output = str((part.get("signature") or {}).get("output") or "y")
-        head = self._head(output)
-        fails = part.get("failures_in_row", 0)
-        head.failures_in_row = fails if isinstance(fails, int) and fails >= 0 else 0
-        v = part.get("version", 0)
-        if model is not None and msg is not None:
-            head.version = int(msg.get("version", v) if isinstance(msg.get("version", v), int) else 0)
-            head.document, head.payload = dict(msg), encode_json(msg)
-            head.new_champion(model, None)  # no drift watch until the next champion is referenced on its held-out data
-        if isinstance(co, str):
-            try:
-                head.coea_state = CoEAState.from_json(co)
-                head.signature = dict(part.get("signature") or {})
-            except (StreamidError, ValueError) as exc:
-                warnings.append(f"saved populations unusable ({exc}); the next run starts cold")
 
     # ---------------------------------------------------------------- status and events
     @property

@@ -84,7 +84,6 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
-from numpy.typing import NDArray
 
 from streamid.errors import ConfigError
 from streamid.sim._common import Trace, as_generator, check_nonneg_int, check_positive_int, sample_times_ns
