@@ -55,8 +55,10 @@ def fitted(tmp_path_factory: pytest.TempPathFactory) -> dict:
     p = cli("identify", str(est), "--validate", str(val), "--input", "force", "--output", "pos", *QUICK,
             "--model", str(model), "--report", str(rep))
     assert p.returncode == 0, p.stderr
+    judged = cli("validate", str(model), str(val), "--json")  # the figures every test below compares with
+    assert judged.returncode == 0, judged.stderr
     return {"tmp": tmp, "est": est, "val": val, "model": model, "report": json.loads(rep.read_text()),
-            "stdout": p.stdout, "ue": ue, "uv": uv}
+            "stdout": p.stdout, "ue": ue, "uv": uv, "judged": json.loads(judged.stdout)}
 
 
 def test_identify_takes_the_validation_data_from_the_second_file(fitted: dict) -> None:
@@ -75,9 +77,7 @@ def test_identify_takes_the_validation_data_from_the_second_file(fitted: dict) -
 
 
 def test_validate_gives_the_figures_identify_gave_on_the_same_record(fitted: dict) -> None:
-    p = cli("validate", str(fitted["model"]), str(fitted["val"]), "--json")
-    assert p.returncode == 0, p.stderr
-    got = json.loads(p.stdout)
+    got = fitted["judged"]
     want = fitted["report"]["runs"][0]
     assert got["format"] == "streamid.validate_report/1" and got["n"] == 400
     assert got["r2"]["fr"] == pytest.approx(want["r2"]["fr_val"], abs=1e-12)
@@ -109,8 +109,7 @@ def test_validate_maps_columns_and_names_what_it_needs(fitted: dict) -> None:
     assert p.returncode == 2 and "unknown column 'force'" in p.stderr and "'volts'" in p.stderr, p.stderr
     p = cli("validate", str(fitted["model"]), str(renamed), "--input", "volts", "--output", "position", "--json")
     assert p.returncode == 0, p.stderr
-    want = cli("validate", str(fitted["model"]), str(fitted["val"]), "--json")
-    assert json.loads(p.stdout)["r2"] == json.loads(want.stdout)["r2"]
+    assert json.loads(p.stdout)["r2"] == fitted["judged"]["r2"]
     p = cli("validate", str(fitted["model"]), str(renamed), "--input", "volts", "--output", "position")
     assert "(volts as force, position as pos)" in p.stdout, p.stdout
     p = cli("validate", str(fitted["model"]), str(renamed), "--input", "volts", "--input", "time_s")
@@ -131,7 +130,7 @@ def test_another_sample_period_is_refused(fitted: dict) -> None:
 
 
 def test_min_r2_fr_is_a_gate(fitted: dict) -> None:
-    fr = json.loads(cli("validate", str(fitted["model"]), str(fitted["val"]), "--json").stdout)["r2"]["fr"]
+    fr = fitted["judged"]["r2"]["fr"]
     above = min(1.0, fr + 1e-4)
     p = cli("validate", str(fitted["model"]), str(fitted["val"]), "--min-r2-fr", f"{above!r}")
     assert p.returncode == 1 and f"FAILED: free-run R² {fr:.5f} < --min-r2-fr" in p.stdout, p.stdout
@@ -146,8 +145,8 @@ def test_a_record_beyond_the_estimation_range_is_named(fitted: dict) -> None:
     wide = write(fitted["tmp"] / "wide.csv", wide_u, plant(wide_u))
     got = json.loads(cli("validate", str(fitted["model"]), str(wide), "--json").stdout)
     assert any(c.startswith("the validation input force spans [-1.8") for c in got["caveats"]), got["caveats"]
-    inside = json.loads(cli("validate", str(fitted["model"]), str(fitted["val"]), "--json").stdout)
-    assert not any("beyond the estimation range" in c for c in inside["caveats"]), inside["caveats"]
+    inside = fitted["judged"]["caveats"]
+    assert not any("beyond the estimation range" in c for c in inside), inside
 
 
 def test_a_published_model_update_is_judged_like_a_model_file(tmp_path: Path) -> None:
