@@ -206,3 +206,30 @@ def test_reports_write_a_diverged_free_run_as_null() -> None:
     doc = json_safe({"r2": {"fr": -np.inf, "osa": 0.5}, "runs": [(np.nan, 1.0)], "n": 3})
     assert doc == {"r2": {"fr": None, "osa": 0.5}, "runs": [[None, 1.0]], "n": 3}
     json.dumps(doc, allow_nan=False)
+
+
+def test_start_and_end_judge_a_part_of_a_log(tmp_path: Path) -> None:
+    """The bundled MR damper log: a model fitted on its first 10 s, judged from 10 s on, gives identify's figures."""
+    model = tmp_path / "mr.json"
+    p = cli("identify", "mr_damper", "--est", "2000", "--model", str(model), *QUICK, "--json")
+    assert p.returncode == 0, p.stderr
+    want = json.loads(p.stdout)["runs"][0]["r2"]
+    p = cli("validate", str(model), "mr_damper", "--start", "10", "--json")
+    assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout)
+    assert got["r2"] == {"osa": want["osa_val"], "fr": want["fr_val"]} and got["n"] == 1499  # the same free run
+    assert got["data"]["span"] == "rows 2000..3498 (10-17.49 s) of 3499"
+    p = cli("validate", str(model), "mr_damper", "--start", "10", "--end", "12")
+    assert p.returncode == 0 and "401 samples of velocity_cm_s -> force_N, rows 2000..2400 (10-12 s) of 3499" in p.stdout
+    p = cli("validate", str(model), "mr_damper", "--start", "20")
+    assert p.returncode == 2 and "has no sample between --start and --end: it spans 17.49 s" in p.stderr, p.stderr
+    p = cli("validate", str(model), "mr_damper", "--start", "6", "--end", "5")
+    assert p.returncode == 2 and "--end must be later than --start; got --start 6 --end 5" in p.stderr, p.stderr
+    bare = tmp_path / "bare.csv"  # no clock, and a model from a file without one: no times to cut at
+    bare.write_text("force,pos\n" + "\n".join(f"{np.sin(k / 7):.6f},{np.cos(k / 5):.6f}" for k in range(200)) + "\n")
+    arm = tmp_path / "arm.json"
+    q = cli("identify", str(bare), "--input", "force", "--output", "pos", "--model", str(arm), *QUICK)
+    assert q.returncode == 0, q.stderr
+    q = cli("validate", str(arm), str(bare), "--start", "1")
+    assert q.returncode == 2 and "has no clock and the model records no sample period: --start/--end need times" \
+        in q.stderr, q.stderr

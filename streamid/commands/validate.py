@@ -5,6 +5,7 @@ Examples:
     streamid identify sweep1.csv --input u --output y --model m.json
     streamid validate m.json sweep2.csv                      # the model's own signal names are the columns
     streamid validate m.json log.mcap --min-r2-fr 0.9        # exit status 1 when the free run is below 0.9
+    streamid validate m.json log.mcap --start 10 --end 60    # only 10-60 s of the log (times need a clock)
     streamid validate m.json run.csv --input volts --output pos --rrd v.rrd && streamid view v.rrd
 
 MODEL is a model file: streamid identify's --model, Model.save, or a model-update
@@ -53,6 +54,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     gaps.add_argument("--drop", action="store_true", help="leave out rows with a missing value")
     p.add_argument("--allow-time-input", action="store_true",
                    help="use an input that only ever increases or decreases (a time column?) instead of refusing it")
+    p.add_argument("--start", type=float, metavar="S",
+                   help="judge from S seconds after the record's first sample (e.g. past the model's own window)")
+    p.add_argument("--end", type=float, metavar="S", help="judge up to S seconds after the record's first sample")
     p.add_argument("--min-r2-fr", type=float, metavar="R2",
                    help="exit with status 1 when the free-run R² is below R2 (a gate for scripts and CI)")
     p.add_argument("--json", action="store_true",

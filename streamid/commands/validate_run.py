@@ -5,8 +5,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
+
+import numpy as np
 
 from streamid.commands.identify_io import check_rrd_target, emit_report, read_text
 from streamid.engine.caveats import record_caveats
@@ -60,6 +63,36 @@ def _period_notes(model: Model, rec: Record) -> list[str]:
     return []
 
 
+def _span(rec: Record, start_s: float | None, end_s: float | None, period_ns: int | None) -> tuple[Record, str]:
+    """The rows of ``rec`` from ``start_s`` to ``end_s`` seconds after its first sample, and how they were chosen."""
+    if start_s is None and end_s is None:
+        return rec, ""
+    for flag, v in (("--start", start_s), ("--end", end_s)):
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            raise ConfigError(f"{flag} must be a number of seconds >= 0 after the record's first sample; got {v}")
+    if start_s is not None and end_s is not None and not end_s > start_s:
+        raise ConfigError(f"--end must be later than --start; got --start {start_s:g} --end {end_s:g}")
+    n = len(rec.y)
+    if rec.t_ns is not None:
+        t = rec.t_ns - rec.t_ns[0]
+    elif period_ns:
+        t = np.arange(n, dtype=np.int64) * period_ns
+    else:
+        raise ConfigError(f"{rec.path} has no clock and the model records no sample period: --start/--end need "
+                          f"times (a time column such as time_s, or an MCAP log)")
+    keep = np.ones(n, dtype=bool)
+    if start_s is not None:
+        keep &= t >= round(start_s * 1e9)
+    if end_s is not None:
+        keep &= t <= round(end_s * 1e9)
+    rows = np.flatnonzero(keep)
+    if rows.size == 0:
+        raise DataError(f"{rec.path} has no sample between --start and --end: it spans {t[-1] / 1e9:.6g} s")
+    a, b = int(rows[0]), int(rows[-1]) + 1
+    part = replace(rec, u=rec.u[a:b], y=rec.y[a:b], t_ns=None if rec.t_ns is None else rec.t_ns[a:b])
+    return part, f"rows {a}..{b - 1} ({t[a] / 1e9:.6g}-{t[b - 1] / 1e9:.6g} s) of {n}"
+
+
 def _model_text(model: Model) -> str:
     w = model.window
     where = f"identified on {w['source']}" if w.get("source") else (
@@ -71,7 +104,7 @@ def _model_text(model: Model) -> str:
 
 
 def _print(out: TextIO, args: argparse.Namespace, model: Model, rec: Record, rep: RecordReport, notes: list[str],
-           caveats: list[str]) -> None:
+           caveats: list[str], span: str) -> None:
     w = out.write
     w(f"streamid validate: {args.model} on {rec.path}\n")
     w(f"  model     {_model_text(model)}\n")
@@ -79,7 +112,7 @@ def _print(out: TextIO, args: argparse.Namespace, model: Model, rec: Record, rep
     mapped = [f"{c} as {m}" for c, m in zip([*rec.input_names, rec.output_name], [*model.input_names, model.output_name])
               if c != m]
     w(f"  data      {rep.n} samples of {', '.join(rec.input_names)} -> {rec.output_name}"
-      + (f" ({', '.join(mapped)})" if mapped else "")
+      + (f" ({', '.join(mapped)})" if mapped else "") + (f", {span}" if span else "")
       + f"; R² over the {rep.n_scored} after the first {model.max_lag}, which start the predictions\n\n")
     w(f"  {'':16} {'R²':>9} {'fit %':>8} {'RMSE':>11}\n")
     for name, r2v, rmse in (("free run", rep.fr, rep.rmse_fr), ("one step ahead", rep.osa, rep.rmse_osa)):
@@ -125,6 +158,7 @@ def validate_command(args: argparse.Namespace) -> int:
     for note in rec.notes:
         print(f"streamid validate: warning: {note}", file=sys.stderr, flush=True)
     notes = _period_notes(model, rec)
+    rec, span = _span(rec, args.start, args.end, rec.period_ns or model_period_ns(model))
     if len(rec.y) < model.max_lag + 2 + 20:
         raise DataError(f"{rec.path} has {len(rec.y)} samples; judging a model of max lag {model.max_lag} needs at "
                         f"least {model.max_lag + 22} (its first {model.max_lag} start the predictions)")
@@ -133,7 +167,7 @@ def validate_command(args: argparse.Namespace) -> int:
     passed = None if args.min_r2_fr is None else bool(rep.fr >= args.min_r2_fr)
     files = _draw(args.rrd, model, rec, rep, notes, caveats) if args.rrd is not None else []
     if not args.json:
-        _print(sys.stdout, args, model, rec, rep, notes, caveats)
+        _print(sys.stdout, args, model, rec, rep, notes, caveats, span)
         if files:
             print(f"rrd: {', '.join(files)} (streamid view {args.rrd}; --screenshot PNG renders it)")
         if passed is not None:
@@ -146,6 +180,7 @@ def validate_command(args: argparse.Namespace) -> int:
                       "lags": model.lags, "neurons": model.neurons, "max_lag": model.max_lag,
                       "period_ns": model_period_ns(model), "window": model.window},
             "data": {"path": rec.path, "inputs": list(rec.input_names), "output": rec.output_name, "n": rep.n,
+                     "start_s": args.start, "end_s": args.end, "span": span or None,
                      "period_ns": rec.period_ns, "read": rec.info, "warnings": list(rec.notes)},
             **rep.to_dict(),
             "notes": notes,
