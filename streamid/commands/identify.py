@@ -35,7 +35,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from streamid.commands.identify_io import data_help
+from streamid.commands.identify_io import add_reading_flags, data_help
 from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
 from streamid.errors import ConfigError
 
@@ -53,15 +53,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--input", action="append", metavar="COL",
                    help="input column (repeat for several; an MCAP log's default: its stream's inputs)")
     p.add_argument("--output", metavar="COL", help="output column (an MCAP log's default: its stream's only output)")
-    p.add_argument("--delimiter", metavar="D", help="CSV delimiter: , ; tab | whitespace (default: detected)")
-    gaps = p.add_mutually_exclusive_group()
-    gaps.add_argument("--fill", action="store_true",
-                      help="fill missing values by linear interpolation between the neighbouring samples of the column")
-    gaps.add_argument("--drop", action="store_true",
-                      help="leave out rows with a missing value (breaks the sample spacing where they were: warned, "
-                           "refused at more than one place per 100 rows)")
-    p.add_argument("--allow-time-input", action="store_true",
-                   help="use an input that only ever increases or decreases (a time column?) instead of refusing it")
+    add_reading_flags(p)
     split = p.add_mutually_exclusive_group()
     split.add_argument("--est", type=int, metavar="N", help="estimation samples: the first N (default: half)")
     split.add_argument("--est-fraction", type=float, metavar="F", help="estimation samples: the first fraction F")

@@ -21,7 +21,7 @@ from streamid.logs.datafile import Dataset, load_dataset, load_table
 if TYPE_CHECKING:
     from streamid.engine.coevolution import Progress
 
-__all__ = ["Bar", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd", "emit_report",
+__all__ = ["Bar", "add_reading_flags", "reading", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd", "emit_report",
            "json_safe"]
 
 
@@ -64,6 +64,27 @@ class Bar:
             self.stream.flush()
 
 
+def add_reading_flags(p: argparse.ArgumentParser) -> None:
+    """How a data file is read, the same for every command that reads one (identify, validate): ``--delimiter``,
+    ``--fill``/``--drop`` (missing values) and ``--allow-time-input``; :func:`reading` turns them into settings."""
+    p.add_argument("--delimiter", metavar="D", help="CSV delimiter: , ; tab | whitespace (default: detected)")
+    gaps = p.add_mutually_exclusive_group()
+    gaps.add_argument("--fill", action="store_true",
+                      help="fill missing values by linear interpolation between the neighbouring samples of the column")
+    gaps.add_argument("--drop", action="store_true",
+                      help="leave out rows with a missing value (breaks the sample spacing where they were: warned, "
+                           "refused at more than one place per 100 rows)")
+    p.add_argument("--allow-time-input", action="store_true",
+                   help="use an input that only ever increases or decreases (a time column?) instead of refusing it")
+
+
+def reading(args: argparse.Namespace) -> dict[str, Any]:
+    """The reading settings of :func:`add_reading_flags`'s options: ``delimiter``, ``missing``, ``allow_time_input``."""
+    return {"delimiter": parse_delimiter(args.delimiter) if args.delimiter is not None else None,
+            "missing": "drop" if args.drop else "fill" if args.fill else "error",
+            "allow_time_input": bool(args.allow_time_input)}
+
+
 def _columns(args: argparse.Namespace, path: Path, delimiter: str | None) -> tuple[list[str], str]:
     """--input/--output, or for an MCAP log without them its stream's inputs and its only output."""
     if args.input and args.output:
@@ -83,14 +104,12 @@ def _columns(args: argparse.Namespace, path: Path, delimiter: str | None) -> tup
 def load(args: argparse.Namespace) -> Dataset:
     """The data of the command line: a file or a bundled log, the columns, delimiter, missing values, split
     (or ``--validate``'s second file)."""
-    delimiter = parse_delimiter(args.delimiter) if args.delimiter is not None else None
+    how = reading(args)
     path = data_file(args.data)
-    inputs, output = _columns(args, path, delimiter)
-    missing = "drop" if args.drop else "fill" if args.fill else "error"
+    inputs, output = _columns(args, path, how["delimiter"])
     validation = data_file(args.validate) if getattr(args, "validate", None) else None
     return load_dataset(path, inputs, output, est=args.est, est_fraction=args.est_fraction, stream=args.stream,
-                        delimiter=delimiter, missing=missing, allow_time_input=args.allow_time_input,
-                        validation=validation)
+                        validation=validation, **how)
 
 
 def read_text(info: dict[str, Any], period_ns: int | None, rows: int) -> str:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import argparse
 
-from streamid.commands.identify_io import data_help
+from streamid.commands.identify_io import add_reading_flags, data_help
 
 __all__ = ["register", "run"]
 
@@ -47,13 +47,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="input column, one per model input in the model's order (default: the model's input names)")
     p.add_argument("--output", metavar="COL", help="output column (default: the model's output name)")
     p.add_argument("--stream", help="stream of an MCAP log holding several")
-    p.add_argument("--delimiter", metavar="D", help="CSV delimiter: , ; tab | whitespace (default: detected)")
-    gaps = p.add_mutually_exclusive_group()
-    gaps.add_argument("--fill", action="store_true",
-                      help="fill missing values by linear interpolation between the neighbouring samples of the column")
-    gaps.add_argument("--drop", action="store_true", help="leave out rows with a missing value")
-    p.add_argument("--allow-time-input", action="store_true",
-                   help="use an input that only ever increases or decreases (a time column?) instead of refusing it")
+    add_reading_flags(p)
     p.add_argument("--start", type=float, metavar="S",
                    help="judge from S seconds after the record's first sample (e.g. past the model's own window)")
     p.add_argument("--end", type=float, metavar="S", help="judge up to S seconds after the record's first sample")

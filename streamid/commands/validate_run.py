@@ -11,13 +11,12 @@ from typing import TextIO
 
 import numpy as np
 
-from streamid.commands.identify_io import check_rrd_target, emit_report, read_text
+from streamid.commands.identify_io import check_rrd_target, emit_report, read_text, reading
 from streamid.engine.caveats import record_caveats
 from streamid.engine.model import Model
 from streamid.engine.validation import RecordReport, assess, fit_percent
 from streamid.errors import ConfigError, DataError
 from streamid.logs.bundled import data_file
-from streamid.logs.csv_table import parse_delimiter
 from streamid.logs.datafile import Record, load_record
 
 __all__ = ["model_period_ns", "validate_command"]
@@ -151,10 +150,7 @@ def validate_command(args: argparse.Namespace) -> int:
         raise ConfigError(f"--min-r2-fr must be a finite number <= 1 (an R²); got {args.min_r2_fr}")
     model = Model.load(args.model)
     inputs, output = _columns(args, model)
-    delimiter = parse_delimiter(args.delimiter) if args.delimiter is not None else None
-    missing = "drop" if args.drop else "fill" if args.fill else "error"
-    rec = load_record(data_file(args.data), inputs, output, stream=args.stream, delimiter=delimiter,
-                      missing=missing, allow_time_input=args.allow_time_input)
+    rec = load_record(data_file(args.data), inputs, output, stream=args.stream, **reading(args))
     for note in rec.notes:
         print(f"streamid validate: warning: {note}", file=sys.stderr, flush=True)
     notes = _period_notes(model, rec)
