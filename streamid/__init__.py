@@ -6,7 +6,8 @@ Search (lag selection) and Differential Evolution (centres and widths), and
 re-identified online from samples arriving over Eclipse Zenoh.
 
 The engine half: :func:`identify`, :class:`Coevolution` / :class:`CoEAState`,
-:class:`CoEAConfig`, :class:`Model`, :class:`Result`, :func:`validate`,
+:class:`CoEAConfig`, :class:`Model`, :class:`Result`, :func:`validate`, :func:`assess` (a model on a record it
+never saw),
 :class:`EvalHelper`.  The streaming half: :class:`OnlineIdentifier` (a stream's
 online identification as a library), :class:`Daemon` with :class:`DaemonConfig` and
 :class:`StreamConfig`, :class:`SampleBatch` (the samples on the wire), and on the
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
     from streamid.engine.model import Model
     from streamid.engine.parallel import EvalHelper
     from streamid.engine.settings import CoEAConfig
-    from streamid.engine.validation import validate
+    from streamid.engine.validation import assess, validate
     from streamid.online.identifier import OnlineIdentifier
     from streamid.transport.client import ModelSubscriber, latest_model
     from streamid.wire.codec import SampleBatch
@@ -54,6 +55,7 @@ _EXPORTS = {
     "Result": "streamid.engine.identification",
     "identify": "streamid.engine.identification",
     "validate": "streamid.engine.validation",
+    "assess": "streamid.engine.validation",
     # streaming
     "OnlineIdentifier": "streamid.online.identifier",
     "Daemon": "streamid.daemon.service",
@@ -76,6 +78,7 @@ __all__ = [
     "Result",
     "identify",
     "validate",
+    "assess",
     # streaming
     "OnlineIdentifier",
     "Daemon",

@@ -73,6 +73,8 @@ def test_python_example_runs_and_finds_the_reactor_lags() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert "'u': [[1, 2]]" in out.stdout  # the reactor's input lags, as the paper reports
+    fr_unseen = float(out.stdout.splitlines()[2])  # assess() on another experiment of the reactor
+    assert 0.99 < fr_unseen <= 1.0, out.stdout
 
 
 def test_every_command_in_the_table_exists() -> None:
