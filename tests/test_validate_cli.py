@@ -107,6 +107,8 @@ def test_validate_maps_columns_and_names_what_it_needs(fitted: dict) -> None:
     renamed = write(fitted["tmp"] / "renamed.csv", fitted["uv"], plant(fitted["uv"]), names="time_s,volts,position")
     p = cli("validate", str(fitted["model"]), str(renamed))
     assert p.returncode == 2 and "unknown column 'force'" in p.stderr and "'volts'" in p.stderr, p.stderr
+    assert "the columns default to the model's signal names (force -> pos): map the record's own with --input COL" \
+        in p.stderr, p.stderr
     p = cli("validate", str(fitted["model"]), str(renamed), "--input", "volts", "--output", "position", "--json")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["r2"] == fitted["judged"]["r2"]

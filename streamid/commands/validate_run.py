@@ -150,7 +150,14 @@ def validate_command(args: argparse.Namespace) -> int:
         raise ConfigError(f"--min-r2-fr must be a finite number <= 1 (an R²); got {args.min_r2_fr}")
     model = Model.load(args.model)
     inputs, output = _columns(args, model)
-    rec = load_record(data_file(args.data), inputs, output, stream=args.stream, **reading(args))
+    try:
+        rec = load_record(data_file(args.data), inputs, output, stream=args.stream, **reading(args))
+    except DataError as exc:
+        if args.input and args.output or "unknown column" not in str(exc):
+            raise
+        raise DataError(f"{exc}; the columns default to the model's signal names ({', '.join(model.input_names)} -> "
+                        f"{model.output_name}): map the record's own with --input COL (once per model input, in its "
+                        f"order) and --output COL") from None
     for note in rec.notes:
         print(f"streamid validate: warning: {note}", file=sys.stderr, flush=True)
     notes = _period_notes(model, rec)
