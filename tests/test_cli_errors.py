@@ -10,6 +10,7 @@ import json
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -127,3 +128,16 @@ def test_an_unknown_argument_is_refused_by_the_command_it_was_given_to(
         main(words)
     err = capsys.readouterr().err
     assert info.value.code == 2 and err.startswith(usage) and error in err, err
+
+
+def test_a_reader_that_went_away_ends_the_command_quietly(tmp_path: Path) -> None:
+    """``streamid ... | head``: once standard output's reader has gone, the command stops with 141 (128 + SIGPIPE,
+    what a shell reports) and no traceback; its work is done (the log is written)."""
+    out = tmp_path / "d.mcap"
+    p = subprocess.Popen([*STREAMID, "simulate", "mr_damper", str(out), "--duration", "1"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.close()  # before the command has written anything: its one line meets a closed pipe
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=60) == 141 and "Traceback" not in err and "BrokenPipe" not in err, err
+    assert out.is_file() and out.stat().st_size > 0

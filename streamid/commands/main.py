@@ -113,7 +113,28 @@ def console_main() -> None:
         rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
         if exc.code is not None and not isinstance(exc.code, int):
             print(exc.code, file=sys.stderr)
+    except BrokenPipeError:  # the reader of standard output went away (``streamid watch | head``): stop quietly
+        rc = BROKEN_PIPE
+    if rc == BROKEN_PIPE or _stdout_gone():
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # what is still buffered goes nowhere
+        rc = BROKEN_PIPE
     leave(rc)
+
+
+#: Exit status after the reader of standard output went away: 128 + SIGPIPE, as a shell reports a process that
+#: signal ended (a Python process ignores SIGPIPE and gets EPIPE instead).
+BROKEN_PIPE = 141
+
+
+def _stdout_gone() -> bool:
+    """Whether flushing standard output fails because its reader has gone (the rest of the output is lost)."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return False
 
 
 def leave(rc: int) -> NoReturn:
