@@ -129,6 +129,9 @@ def test_a_validation_file_is_the_validation_data(tmp_path: Path) -> None:
     assert ds.t_ns is not None and ds.t_ns.tolist() == [0, 500_000_000, 1_000_000_000, 1_500_000_000,
                                                         2_000_000_000, 2_500_000_000]  # drawn after the estimation
     assert ds.window()["period_ns"] == 500_000_000 and ds.info["validation"]["delimiter"] == "semicolon" and ds.info["validation"]["decimal"] == ","
+    assert not any("validation file is the data file" in n for n in ds.notes)
+    itself = load_dataset(a, ["x"], "z", validation=tmp_path / "." / "a.csv")
+    assert any(n.startswith("the validation file is the data file") for n in itself.notes), itself.notes
     with pytest.raises(DataError, match="give one or the other"):
         load_dataset(a, ["x"], "z", validation=b, est=2)
     c = tmp_path / "c.csv"

@@ -345,6 +345,9 @@ def load_dataset(
                        notes=rec.notes, info=rec.info, period_ns=rec.period_ns)
     val = read(validation)
     _same_period(rec, val)
+    same = os.path.realpath(path) == os.path.realpath(validation)
+    notes = rec.notes + val.notes + ((f"the validation file is the data file {rec.path}: the model is judged on "
+                                      f"the samples it was fitted to, not on data it never saw",) if same else ())
     return Dataset(rec.path, rec.input_names, output, rec.u, rec.y, val.u, val.y, len(rec.y), _joined_times(rec, val),
-                   notes=rec.notes + val.notes, info={**rec.info, "validation": {"path": val.path, **val.info}},
+                   notes=notes, info={**rec.info, "validation": {"path": val.path, **val.info}},
                    period_ns=rec.period_ns or val.period_ns, validation_path=val.path)
