@@ -220,7 +220,10 @@ def test_start_and_end_judge_a_part_of_a_log(tmp_path: Path) -> None:
     assert p.returncode == 0, p.stderr
     got = json.loads(p.stdout)
     assert got["r2"] == {"osa": want["osa_val"], "fr": want["fr_val"]} and got["n"] == 1499  # the same free run
-    assert got["data"]["span"] == "rows 2000..3498 (10-17.49 s) of 3499"
+    assert got["data"]["span"] == "rows 2000..3498 (10-17.49 s) of 3499" and got["notes"] == []
+    whole = json.loads(cli("validate", str(model), "mr_damper", "--json").stdout)  # the fitted rows included
+    assert whole["notes"] == ["2000 of the samples judged are ones the model was fitted on (rows 0..1999 of "
+                              "mr_damper.mcap): these figures are not all on data it never saw (--start past them)"]
     p = cli("validate", str(model), "mr_damper", "--start", "10", "--end", "12")
     assert p.returncode == 0 and "401 samples of velocity_cm_s -> force_N, rows 2000..2400 (10-12 s) of 3499" in p.stdout
     p = cli("validate", str(model), "mr_damper", "--start", "20")

@@ -62,10 +62,12 @@ def _period_notes(model: Model, rec: Record) -> list[str]:
     return []
 
 
-def _span(rec: Record, start_s: float | None, end_s: float | None, period_ns: int | None) -> tuple[Record, str]:
-    """The rows of ``rec`` from ``start_s`` to ``end_s`` seconds after its first sample, and how they were chosen."""
+def _span(rec: Record, start_s: float | None, end_s: float | None,
+          period_ns: int | None) -> tuple[Record, str, int]:
+    """The rows of ``rec`` from ``start_s`` to ``end_s`` seconds after its first sample, how they were chosen, and
+    the first one's index."""
     if start_s is None and end_s is None:
-        return rec, ""
+        return rec, "", 0
     for flag, v in (("--start", start_s), ("--end", end_s)):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise ConfigError(f"{flag} must be a number of seconds >= 0 after the record's first sample; got {v}")
@@ -89,7 +91,21 @@ def _span(rec: Record, start_s: float | None, end_s: float | None, period_ns: in
         raise DataError(f"{rec.path} has no sample between --start and --end: it spans {t[-1] / 1e9:.6g} s")
     a, b = int(rows[0]), int(rows[-1]) + 1
     part = replace(rec, u=rec.u[a:b], y=rec.y[a:b], t_ns=None if rec.t_ns is None else rec.t_ns[a:b])
-    return part, f"rows {a}..{b - 1} ({t[a] / 1e9:.6g}-{t[b - 1] / 1e9:.6g} s) of {n}"
+    return part, f"rows {a}..{b - 1} ({t[a] / 1e9:.6g}-{t[b - 1] / 1e9:.6g} s) of {n}", a
+
+
+def _seen_notes(model: Model, path: str, first: int, n: int) -> list[str]:
+    """Say so when the rows judged include some of those the model was fitted on (a model from ``streamid
+    identify`` records its file's name and the rows of its estimation data)."""
+    w = model.window
+    start, stop = w.get("start"), w.get("stop")
+    if w.get("source") != Path(path).name or not isinstance(start, int) or not isinstance(stop, int):
+        return []
+    lo, hi = max(start, first), min(stop, first + n)
+    if hi <= lo:
+        return []
+    return [f"{hi - lo} of the samples judged are ones the model was fitted on (rows {lo}..{hi - 1} of "
+            f"{w['source']}): these figures are not all on data it never saw (--start past them)"]
 
 
 def _model_text(model: Model) -> str:
@@ -161,7 +177,8 @@ def validate_command(args: argparse.Namespace) -> int:
     for note in rec.notes:
         print(f"streamid validate: warning: {note}", file=sys.stderr, flush=True)
     notes = _period_notes(model, rec)
-    rec, span = _span(rec, args.start, args.end, rec.period_ns or model_period_ns(model))
+    rec, span, first = _span(rec, args.start, args.end, rec.period_ns or model_period_ns(model))
+    notes += _seen_notes(model, rec.path, first, len(rec.y))
     if len(rec.y) < model.max_lag + 2 + 20:
         raise DataError(f"{rec.path} has {len(rec.y)} samples; judging a model of max lag {model.max_lag} needs at "
                         f"least {model.max_lag + 22} (its first {model.max_lag} start the predictions)")
