@@ -195,7 +195,7 @@ def test_validate_draws_the_record_in_rerun(fitted: dict) -> None:
     assert len(measured) == 400  # the whole record is the validation part
     (doc,) = column(rrd, "/streams/val/model", "TextDocument:text")
     assert f"FR **{got['r2']['fr']:.4f}**" in doc[0]  # type: ignore[index]
-    assert "the model judged on a record it never saw (no identification ran)" in doc[0]  # type: ignore[index]
+    assert "the model judged on this record (no identification ran)" in doc[0]  # type: ignore[index]
     events = [t[0] for t in column(rrd, "/streams/val/events", "TextLog:text")]  # type: ignore[index]
     assert any(e.startswith("the model judged on this record: R² val OSA") for e in events), events
     assert not column(rrd, "/streams/val/history/identification_s", "Scalars:scalars")  # no identification ran

@@ -146,8 +146,8 @@ def _draw(path: str, model: Model, rec: Record, rep: RecordReport, notes: list[s
     from streamid.viz.identify_report import Clock, draw_identification, record_update_report
 
     clock = Clock.of(rec.t_ns, rec.period_ns or model_period_ns(model))
-    events = [("INFO", f"streamid validate: the model {model.output_name}(t) = F[{model.lags_text()}] on {rec.path}, "
-                       f"{rep.n} samples it never saw (no identification ran)"),
+    events = [("INFO", f"streamid validate: the model {model.output_name}(t) = F[{model.lags_text()}] judged on "
+                       f"{rec.path}, {rep.n} samples (no identification ran)"),
               ("INFO", f"read: {read_text(rec.info, rec.period_ns, len(rec.y))}")]
     events += [("WARN", n) for n in [*rec.notes, *notes, *caveats]]
     up = record_update_report(Path(rec.path).stem or "data", model, rep, u=rec.u, y=rec.y, clock=clock,

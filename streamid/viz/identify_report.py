@@ -73,7 +73,7 @@ def identify_update_report(
 
 def record_update_report(stream: str, model: Model, report: RecordReport, *, u: NDArray[np.float64],
                          y: NDArray[np.float64], clock: Clock, note: str = "") -> UpdateReport:
-    """The drawing of a model judged on a record it never saw (``streamid validate``): the whole record is the
+    """The drawing of a model judged on a record (``streamid validate``): the whole record is the
     validation part; no estimation part and no fitness curve (no identification ran)."""
     return _update_report(stream, model, osa=report.predictions["osa"], fr=report.predictions["fr"],
                           correlation=report.correlation, r2={"osa_val": report.osa, "fr_val": report.fr}, u_val=u,

@@ -210,7 +210,7 @@ def model_markdown(r: UpdateReport) -> str:
             v = c.verdict()
             verdicts.append(f"- **{v}**" if not c.passed else f"- {v}")
     if r.judged_only:
-        head = [f"**{r.stream}** · the model judged on a record it never saw (no identification ran)", "",
+        head = [f"**{r.stream}** · the model judged on this record (no identification ran)", "",
                 f"R² on the record: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}**"]
     else:
         head = [f"**{r.stream} v{r.version}** · {'warm' if r.warm else 'cold'} · G={r.generations} · "

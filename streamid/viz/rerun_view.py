@@ -263,7 +263,7 @@ class Viz:
         layout = self.settings.layout
         title, served = {"daemon": ("champion on the held-out part when it won", "champion (the model served)"),
                          "identify": ("the kept model on the validation data", "the kept model"),
-                         "validate": ("the model on a record it never saw", "the model judged")}[layout]
+                         "validate": ("the model judged on this record", "the model judged")}[layout]
         plane = fig("hysteresis", "plane", "input-output plane")
         fitness = fig("plot/fitness", "fitness", "best fitness per generation")
         if layout == "validate":  # no identification ran: no fitness, no R² or time across updates
