@@ -17,12 +17,10 @@ from streamid.engine.model import Model
 from streamid.engine.validation import RecordReport, assess, fit_percent
 from streamid.errors import ConfigError, DataError
 from streamid.logs.bundled import data_file
-from streamid.logs.datafile import Record, load_record
+from streamid.logs.datafile import Record, load_record, same_period
 
 __all__ = ["model_period_ns", "validate_command"]
 
-#: Relative difference of two sample periods taken as the same period.
-PERIOD_TOLERANCE = 1e-3
 
 
 def model_period_ns(model: Model) -> int | None:
@@ -49,7 +47,7 @@ def _period_notes(model: Model, rec: Record) -> list[str]:
     """Refuse a record sampled at another period than the model's; say when either has none to compare."""
     want, have = model_period_ns(model), rec.period_ns
     if want and have:
-        if abs(want - have) > PERIOD_TOLERANCE * max(want, have):
+        if not same_period(want, have):
             raise DataError(f"{rec.path} samples every {have / 1e6:.6g} ms but the model was identified at one sample "
                             f"every {want / 1e6:.6g} ms: a NARX model's lags count samples, so judge it on data "
                             f"sampled at its period (resample the record)")

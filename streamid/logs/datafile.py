@@ -36,7 +36,8 @@ from streamid.errors import DataError
 from streamid.logs.columns import MISSING_POLICIES, check_columns, handle_missing
 from streamid.logs.csv_table import clock_of, read_delimited, time_unit_ns
 
-__all__ = ["Table", "Dataset", "Record", "load_table", "load_record", "load_dataset", "split_index"]
+__all__ = ["PERIOD_TOLERANCE", "Table", "Dataset", "Record", "load_table", "load_record", "load_dataset", "same_period",
+           "split_index"]
 
 
 @dataclass(frozen=True)
@@ -263,10 +264,19 @@ def load_record(
     )
 
 
+#: Relative difference of two sample periods taken as one period (clocks of two files, of a model and a file).
+PERIOD_TOLERANCE = 1e-3
+
+
+def same_period(a_ns: int, b_ns: int) -> bool:
+    """Whether two sample periods are one, within :data:`PERIOD_TOLERANCE` (a NARX model's lags count samples)."""
+    return abs(a_ns - b_ns) <= PERIOD_TOLERANCE * max(a_ns, b_ns)
+
+
 def _same_period(est: Record, val: Record) -> None:
     """Refuse a validation file sampled at another rate than the estimation file (when both have clocks)."""
     a, b = est.period_ns, val.period_ns
-    if a and b and abs(a - b) > 1e-3 * max(a, b):
+    if a and b and not same_period(a, b):
         raise DataError(
             f"the validation file {val.path} samples every {b / 1e6:.6g} ms but {est.path} every {a / 1e6:.6g} ms: "
             f"a NARX model's lags count samples, so both must have one sample period (resample one of them)"
