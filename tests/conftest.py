@@ -27,7 +27,10 @@ from pathlib import Path
 
 import pytest
 
+from alone import is_alone, lock_dir_for_run, machine, worker_lock_dir
 from streamid.transport import Bus, ZenohSettings
+
+_LOCK_DIR = pytest.StashKey["Path | None"]()
 
 DATA_DIR = Path(__file__).parent / "data"
 #: argv prefix that runs the ``streamid`` CLI in a subprocess.
@@ -116,6 +119,9 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", f"needs(*what): skip unless these system packages are present (one of {', '.join(SYSTEM_NEEDS)})"
     )
+    config.addinivalue_line("markers", "alone: run with no other test beside it when the suite runs in several "
+                            "processes (tests/alone.py)")
+    config.stash[_LOCK_DIR] = lock_dir_for_run(config)  # before the workers start: they inherit its name
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
@@ -186,3 +192,20 @@ def bus_pair(zenoh_listen: ZenohSettings, zenoh_connect: ZenohSettings) -> Itera
     finally:
         b.close()
         a.close()
+
+
+# --------------------------------------------------------------------------- tests that run alone (tests/alone.py)
+def pytest_unconfigure(config: pytest.Config) -> None:
+    path = config.stash.get(_LOCK_DIR, None)
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    path = worker_lock_dir(item.config)
+    if path is None:
+        yield
+        return
+    with machine(path, alone=is_alone(item)):
+        yield

@@ -14,7 +14,7 @@ Checked: the watcher gets models of both streams; every model of a stream comes 
 it (``origin.daemon`` in the documents vs. the id the daemon prints at start); the publishers had a
 subscriber (``--require-subscriber``); the router listens on its own address only, nobody else listens
 anywhere; every process stops cleanly on Ctrl-C.  Figure printed: time from the publishers' start to
-the first model of each stream at the watcher (``pytest -s``).
+the first model of each stream at the watcher (``pytest -s -n 0``: in one process, so that the prints reach the terminal).
 """
 
 from __future__ import annotations

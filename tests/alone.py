@@ -1,0 +1,86 @@
+"""Tests that need the machine to themselves, when the suite runs in several processes (pytest-xdist).
+
+The suite runs in two worker processes (``-n 2`` in ``pyproject.toml``): most of its time is real
+sessions, processes and files waiting on each other, and about one core is used on average (measured:
+565 s of CPU in 582 s of wall time without the load test).  Some tests measure time or bind fixed
+things, and would measure the other worker instead:
+
+* latencies, real-time replay timing or a load's backlog (``test_load``, the attack plans of
+  ``test_daemon_bounds``, ``test_reliability_*``, ...);
+* the README's recipes as printed (Zenoh's default port 7447) and network namespaces of fixed names.
+
+Those are marked ``alone`` (by module in :data:`ALONE_MODULES`, or ``@pytest.mark.alone``).  Around
+each test (its setup, so a module's fixture too, its call and its teardown) a worker holds a lock on a
+file shared by the run's workers: *shared* for any test, *exclusive* for one marked ``alone``, which
+so runs with no other test beside it.  A turnstile file taken first keeps a waiting ``alone`` test
+from being overtaken by the other worker's next tests (writer preference).  In one process (``-n 0``,
+``-p no:xdist``) there is nothing to lock.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+#: test modules (file stems) whose every test runs alone (see the module docstring for why)
+ALONE_MODULES = frozenset({
+    "test_load",  # two minutes of nine streams into one daemon: the backlog and memory are measured
+    "test_daemon_bounds",  # timed attack plans: the healthy stream's latency per phase
+    "test_daemon_faults",  # a timed fault plan
+    "test_reliability_bad_input",  # a timed plan of every bad input at once
+    "test_reliability_faults",  # kills and restarts; a stop within 2 s
+    "test_record_replay",  # real-time 20 kHz replay timing
+    "test_rrd_files",  # a SIGKILLed writer loses at most 1 s
+    "test_readme",  # the recipes as printed: port 7447, network namespaces
+    "test_multihost",  # network namespaces
+    "test_engine_parallel",  # the faster of two evaluation paths is chosen by timing them
+})
+
+#: the environment variable naming the run's lock directory (set by the controller, inherited by the workers)
+LOCK_DIR_ENV = "STREAMID_TEST_LOCK_DIR"
+
+
+def is_alone(item: pytest.Item) -> bool:
+    """Whether ``item`` must run with no other test beside it."""
+    return item.get_closest_marker("alone") is not None or item.path.stem in ALONE_MODULES
+
+
+@contextmanager
+def machine(lock_dir: Path, *, alone: bool) -> Iterator[None]:
+    """Hold the run's lock: exclusive if ``alone``, else shared (a readers-writer lock with a turnstile)."""
+    with open(lock_dir / "turnstile", "a+b") as gate, open(lock_dir / "tests", "a+b") as tests:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(tests, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        finally:
+            if not alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(tests, fcntl.LOCK_UN)
+            if alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+
+
+def lock_dir_for_run(config: pytest.Config) -> Path | None:
+    """In the controller of a run with workers: make the lock directory and name it to the workers."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return None
+    path = Path(tempfile.mkdtemp(prefix="streamid-tests-lock-"))
+    os.environ[LOCK_DIR_ENV] = str(path)
+    return path
+
+
+def worker_lock_dir(config: pytest.Config) -> Path | None:
+    """In a worker: the run's lock directory (None in a run without workers)."""
+    if not hasattr(config, "workerinput"):
+        return None
+    value = os.environ.get(LOCK_DIR_ENV)
+    return Path(value) if value else None
