@@ -11,7 +11,8 @@ never saw),
 :class:`EvalHelper`.  The streaming half: :class:`OnlineIdentifier` (a stream's
 online identification as a library), :class:`Daemon` with :class:`DaemonConfig` and
 :class:`StreamConfig`, :class:`SampleBatch` (the samples on the wire), and on the
-client side :class:`ModelSubscriber` and :func:`latest_model`.
+client side :class:`ModelSubscriber` and :func:`latest_model`, and :class:`Predictor` (a received model run
+sample by sample in a control loop).
 
 Every name is imported on first use, so ``import streamid`` stays light (no numpy,
 Zenoh, Rerun or MCAP) for the command line and the daemon's start.
@@ -33,6 +34,7 @@ if TYPE_CHECKING:
     from streamid.engine.identification import Result, identify
     from streamid.engine.model import Model
     from streamid.engine.parallel import EvalHelper
+    from streamid.engine.predictor import Predictor
     from streamid.engine.settings import CoEAConfig
     from streamid.engine.validation import assess, validate
     from streamid.online.identifier import OnlineIdentifier
@@ -56,6 +58,7 @@ _EXPORTS = {
     "identify": "streamid.engine.identification",
     "validate": "streamid.engine.validation",
     "assess": "streamid.engine.validation",
+    "Predictor": "streamid.engine.predictor",
     # streaming
     "OnlineIdentifier": "streamid.online.identifier",
     "Daemon": "streamid.daemon.service",
@@ -79,6 +82,7 @@ __all__ = [
     "identify",
     "validate",
     "assess",
+    "Predictor",
     # streaming
     "OnlineIdentifier",
     "Daemon",

@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import endpoint, free_tcp_port, require
@@ -220,6 +221,21 @@ def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> N
         from streamid import Model
 
         assert Model.load(work / "mr_damper_live.json").output_name == "force_N"
+        loop = subprocess.run([sys.executable, "-c", _block_after("### Use the served model in a control loop")],
+                              cwd=work, capture_output=True, text=True, timeout=90)
+        assert loop.returncode == 0, loop.stderr
+        # what it printed is the received model's own one-step prediction and free run on those samples
+        live = Model.load(work / "mr_damper_live.json")
+        data = np.loadtxt(ROOT / "examples" / "data" / "mr_damper.csv", delimiter=",", skiprows=1)
+        u, y = data[:, 1], data[:, 2]
+        osa = live.predict_osa(u[:401], y[:401])[-1]
+        assert f"next force {osa:.1f} N, measured {y[400]:.1f} N" in loop.stdout, loop.stdout
+        fr = live.simulate(u[400 - live.max_lag : 600], y[400 - live.max_lag : 400])[live.max_lag :]
+        r2 = 1 - np.sum((fr - y[400:600]) ** 2) / np.sum((y[400:600] - y[400:600].mean()) ** 2)
+        assert f"1 s forecast R2 {r2:.3f}" in loop.stdout, loop.stdout
+        beyond = re.findall(r"^beyond the model's range: (.+)$", loop.stdout, re.M)
+        assert beyond and (beyond[0] == "nothing" or set(re.findall(r"'([^']+)'", beyond[0])) <= {"velocity_cm_s",
+                                                                                                   "force_N"}), loop.stdout
         out, err = replay.communicate(timeout=60)
         assert replay.returncode == 0 and out.startswith("replayed 175 messages"), (out, err)
         assert "no subscriber" not in out

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from streamid.engine.identification import Result, RunSummary, identify
     from streamid.engine.model import MODEL_FORMAT, Model
     from streamid.engine.parallel import EvalHelper
+    from streamid.engine.predictor import Predictor
     from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
     from streamid.engine.validation import (CorrelationReport, RecordReport, ValidationReport, assess, correlation_tests,
                                            r2, validate)
@@ -39,6 +40,7 @@ _EXPORTS = {
     "MODEL_FORMAT": "streamid.engine.model",
     "Model": "streamid.engine.model",
     "PAPER": "streamid.engine.settings",
+    "Predictor": "streamid.engine.predictor",
     "Progress": "streamid.engine.coevolution",
     "RecordReport": "streamid.engine.validation",
     "Result": "streamid.engine.identification",
@@ -63,6 +65,7 @@ __all__ = [
     "MODEL_FORMAT",
     "Model",
     "PAPER",
+    "Predictor",
     "Progress",
     "RecordReport",
     "Result",

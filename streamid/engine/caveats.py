@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from streamid.engine.longlinear import dense_regressors
 from streamid.engine.regressors import regressor_columns
 
-__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "model_caveats", "range_caveats",
+__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "beyond_range", "model_caveats", "range_caveats",
            "record_caveats"]
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -53,11 +53,17 @@ def arx_pole_radius(u: NDArray[np.float64], y: NDArray[np.float64], order: int =
     return float(np.max(np.abs(np.roots(np.concatenate([[1.0], -np.asarray(a)])))))
 
 
-def _beyond(name: str, lo: float, hi: float, val: NDArray[np.float64]) -> str | None:
+def beyond_range(lo: float, hi: float, values: NDArray[np.float64]) -> bool:
+    """Whether ``values`` leave ``[lo, hi]`` by more than :data:`BEYOND_RANGE` of its span (never for a zero span)."""
     span = hi - lo
-    vlo, vhi = float(np.min(val)), float(np.max(val))
-    if not span > 0 or max(vhi - hi, lo - vlo) <= BEYOND_RANGE * span:
+    return bool(span > 0 and len(values) and max(float(np.max(values)) - hi, lo - float(np.min(values))) >
+                BEYOND_RANGE * span)
+
+
+def _beyond(name: str, lo: float, hi: float, val: NDArray[np.float64]) -> str | None:
+    if not beyond_range(lo, hi, val):
         return None
+    vlo, vhi = float(np.min(val)), float(np.max(val))
     share = float(np.mean((val < lo) | (val > hi)))
     return (f"the validation {name} spans [{vlo:.4g}, {vhi:.4g}], beyond the estimation range [{lo:.4g}, {hi:.4g}] "
             f"({share:.0%} of its samples outside): a Gaussian RBF network does not extrapolate, so the validation "

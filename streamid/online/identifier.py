@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine import EvalHelper, Model
+from streamid.engine.predictor import one_step
 from streamid.errors import ConfigError, DataError, ModelFormatError
 from streamid.online.acceptance import Decision, Update, decide, degraded_after
 from streamid.online.drift import DriftSettings, reference_monitor
@@ -351,12 +352,14 @@ class OnlineIdentifier(StreamIntake):
         """Every output's champion document as JSON bytes (what a query on the model key is answered with)."""
         return tuple(h.payload for h in self._heads.values() if h.payload is not None)
 
-    def predict_one(self, output: str | None = None) -> float | None:
+    def predict_one(self, output: str | None = None, u_next: ArrayLike | None = None) -> float | None:
         """One-step-ahead prediction of the next sample of ``output`` (default: the first modelled) from the newest samples.
 
         None if that output has no champion yet or fewer than ``max_lag`` complete samples are held
-        since the last gap or reset.  The model's lags start at 1, so no input at the predicted
-        instant is needed.
+        since the last gap or reset.  ``u_next``, the input at the predicted instant, is needed only by
+        a champion with direct terms (an input at lag 0, from ``feedthrough_test``): without it such a
+        champion raises :class:`~streamid.errors.DataError`.  (A controller holding a received model
+        uses :class:`~streamid.engine.predictor.Predictor`, which computes the same.)
         """
         head = self._primary() if output is None else self._heads.get(output)
         m = head.model if head is not None else None
@@ -367,10 +370,7 @@ class OnlineIdentifier(StreamIntake):
         if recent is None or head.output not in names or recent[0].shape[1] != m.n_inputs:
             return None
         u, y = recent
-        col = names.index(head.output)
-        u1 = np.vstack([u, u[-1:]])  # the row of the predicted instant: its values are never used (lags >= 1)
-        y1 = np.r_[y[:, col], y[-1, col]]
-        return float(m.predict_osa(u1, y1)[-1])
+        return one_step(m, u, y[:, names.index(head.output)], u_next)
 
     def simulate(self, u: ArrayLike, y_init: ArrayLike, output: str | None = None) -> NDArray[np.float64]:
         """Free run of an output's champion on inputs ``u`` from ``max_lag`` measured outputs ``y_init``.

@@ -1,0 +1,132 @@
+"""A received model run sample by sample (streamid.Predictor): the model's own computations, bounded, and honest."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamid import CoEAConfig, Model, Predictor, identify
+from streamid.engine.predictor import MIN_HISTORY, has_direct_terms
+from streamid.engine.regressors import Normalisation, Regressor
+from streamid.errors import DataError
+from streamid.sim import simulate_reactor
+
+
+@pytest.fixture(scope="module")
+def reactor() -> tuple[Model, np.ndarray, np.ndarray]:
+    _, u, y = simulate_reactor(1500, np.random.default_rng(1))
+    model = identify(u[:480], y[:480], CoEAConfig(neurons=6, generations=40), np.random.default_rng(0)).model
+    return model, np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+
+
+def _hand_model(lags: list[tuple[str, int]], n_inputs: int = 1) -> Model:
+    """A small network over the given (signal, lag) regressors (input 0), with fixed, non-trivial parameters."""
+    k = len(lags)
+    rng = np.random.default_rng(7)
+    return Model(regressors=tuple(Regressor(s, 0, lag) for s, lag in lags), centres=rng.uniform(-0.5, 0.5, (3, k)),
+                 widths=np.array([0.8, 1.1, 1.5]), weights=np.array([0.4, -0.3, 0.2]),
+                 normalisation=Normalisation((-2.0,) * n_inputs, (2.0,) * n_inputs, -1.0, 1.0),
+                 linear=np.r_[np.full(k, 0.1), 0.05])
+
+
+def test_one_step_and_forecasts_are_the_models_own_computations(reactor: tuple[Model, np.ndarray, np.ndarray]) -> None:
+    model, u, y = reactor
+    L = model.max_lag
+    osa = model.predict_osa(u, y)
+    p = Predictor(model)
+    checked = 0
+    for t in range(u.shape[0] - 1):  # 1,500 samples: the buffer (2 x 256) wraps several times
+        p.learn_one(u[t], y[t])
+        if t + 1 < L:
+            assert not p.ready
+            with pytest.raises(DataError, match=f"needs the newest {L} samples"):
+                p.predict_one()
+            continue
+        assert p.predict_one() == pytest.approx(osa[t + 1], rel=1e-12, abs=1e-12)
+        if t % 97 == 0 and t + 51 <= u.shape[0]:
+            want = model.simulate(u[t + 1 - L : t + 51], y[t + 1 - L : t + 1])[L:]
+            got = p.forecast(u[t + 1 : t + 51])
+            assert got.shape == (50,) and np.allclose(got, want, rtol=1e-12, atol=1e-12)
+            checked += 1
+    assert checked >= 10
+
+
+def test_the_buffer_is_bounded_and_reset_forgets(reactor: tuple[Model, np.ndarray, np.ndarray]) -> None:
+    model, u, y = reactor
+    p = Predictor(model)
+    for t in range(20_000):
+        p.learn_one(u[t % 1000], y[t % 1000])
+    assert p._u.shape[0] == p._y.shape[0] == 2 * MIN_HISTORY  # noqa: SLF001 - the bound is the point
+    assert MIN_HISTORY <= p.held <= 2 * MIN_HISTORY
+    p.reset()
+    assert p.held == 0 and not p.ready
+
+
+def test_a_swapped_model_keeps_the_samples_and_a_longer_memory_waits_for_enough() -> None:
+    short, long_ = _hand_model([("y", 1), ("u", 1)]), _hand_model([("y", 1), ("u", 300)])
+    rng = np.random.default_rng(3)
+    u, y = rng.uniform(-1, 1, 400), rng.uniform(-0.5, 0.5, 400)
+    p = Predictor(short)
+    for t in range(280):
+        p.learn_one(u[t], y[t])
+    assert p.predict_one() == pytest.approx(short.predict_osa(u[:281], y[:281])[-1], rel=1e-12)
+    p.swap(long_)
+    assert p.model is long_ and p.held == 280 and not p.ready  # 280 of the 300 samples it needs
+    for t in range(280, 300):
+        p.learn_one(u[t], y[t])
+    assert p.ready
+    assert p.predict_one() == pytest.approx(long_.predict_osa(u[:301], y[:301])[-1], rel=1e-12)
+    with pytest.raises(DataError, match=r"the new model takes 2 input\(s\)"):
+        p.swap(_hand_model([("y", 1), ("u", 1)], n_inputs=2))
+    with pytest.raises(DataError, match="serves a streamid Model"):
+        p.swap({"format": "streamid.model/1"})  # type: ignore[arg-type]
+
+
+def test_direct_terms_need_the_input_at_the_predicted_instant() -> None:
+    m = _hand_model([("y", 1), ("u", 0), ("u", 2)])
+    assert has_direct_terms(m) and not has_direct_terms(_hand_model([("y", 1), ("u", 1)]))
+    rng = np.random.default_rng(4)
+    u, y = rng.uniform(-1, 1, 50), rng.uniform(-0.5, 0.5, 50)
+    p = Predictor(m)
+    for t in range(40):
+        p.learn_one(u[t], y[t])
+    with pytest.raises(DataError, match=r"direct terms .*pass u_next"):
+        p.predict_one()
+    assert p.predict_one(u_next=u[40]) == pytest.approx(m.predict_osa(u[:41], y[:41])[-1], rel=1e-12)
+    got = p.forecast(u[40:50])  # u(t+1) is used at the first step
+    assert np.allclose(got, m.simulate(u[38:50], y[38:40])[2:], rtol=1e-12)
+
+
+def test_bad_samples_are_refused_naming_the_value_and_nothing_is_added(
+        reactor: tuple[Model, np.ndarray, np.ndarray]) -> None:
+    model, u, y = reactor
+    p = Predictor(model)
+    for t in range(10):
+        p.learn_one(u[t], y[t])
+    before = (p.held, p.predict_one())
+    for args, match in (((np.nan, 1.0), "u must be finite numbers; got nan"),
+                        ((0.1, float("inf")), "y must be finite numbers; got inf"),
+                        (([0.1, 0.2], 1.0), r"u must be a number; got shape \(2,\)"),
+                        (("fast", 1.0), "u must be numbers; got 'fast'")):
+        with pytest.raises(DataError, match=match):
+            p.learn_one(*args)
+    with pytest.raises(DataError, match=r"u_plan must be an array of shape \(H,\) or \(H, 1\)"):
+        p.forecast(np.zeros((0,)))
+    with pytest.raises(DataError, match="u_plan must be finite"):
+        p.forecast([0.1, np.nan])
+    assert (p.held, p.predict_one()) == before
+
+
+def test_beyond_range_names_the_signals_a_prediction_leans_on() -> None:
+    m = _hand_model([("y", 1), ("u", 2)])  # estimated on u in [-2, 2], y in [-1, 1]
+    p = Predictor(m)
+    for _ in range(3):
+        p.learn_one(0.5, 0.2)
+    assert p.beyond_range() == ()
+    assert p.beyond_range(u_plan=[0.0, 3.5]) == ("u0",)  # 1.5 beyond a span of 4: more than a quarter
+    assert p.beyond_range(u_plan=[0.0, 2.9]) == ()  # 0.9 beyond: within the quarter the guard allows
+    p.learn_one(0.0, 1.8)
+    assert p.beyond_range() == ("y",)
+    p.learn_one(-3.5, 0.0)
+    p.learn_one(0.0, 0.0)
+    assert p.beyond_range() == ("u0",)  # the output sample at 1.8 is no longer among the newest max_lag
