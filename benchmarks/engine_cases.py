@@ -14,7 +14,9 @@ Figures and targets (issue 2)
   (G=200, M=10) and streamid's defaults (:data:`~streamid.engine.settings.DEFAULT`,
   <= 3 s wall, OSA val R^2 >= 0.996, FR val R^2 median >= 0.98, min >= 0.97);
 * piezo (first half / second half, M=13, G=100): FR val R^2 >= 0.9997;
-* scaling: seconds of one run for N = 480, 2000, 10000 and M = 10, 20, 40.
+* scaling: seconds of one run for N = 480, 2000, 10000 and M = 10, 20, 40;
+* a controller's loop (:class:`~streamid.engine.predictor.Predictor`, an MR damper model of the paper's size):
+  microseconds per sample of ``learn_one`` + ``predict_one``, and per 1 s (200-sample) ``forecast``.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ __all__ = [
     "mr_damper_paper_case",
     "piezo_case",
     "scaling_case",
+    "predictor_case",
     "reactor_lags_ok",
     "bench",
 ]
@@ -145,6 +148,35 @@ def scaling_case(
     }
 
 
+def predictor_case(seed: int) -> dict[str, Any]:
+    """A controller's loop on the bundled MR damper: a model of the paper's size (M=10, G=50) identified on
+    the first 2,000 samples, then every sample of the log through ``learn_one`` and ``predict_one``, and a
+    ``forecast`` of 200 samples (1 s) from each of 50 points (median microseconds of each)."""
+    from streamid.engine.predictor import Predictor
+
+    u, y, _, _ = mr_damper_data()
+    model = identify(u, y, MR_PAPER_CONFIG.replace(generations=50), np.random.default_rng(seed)).model
+    ua, ya = _log("mr_damper", "velocity_cm_s", "force_N")
+    p = Predictor(model)
+    step: list[float] = []
+    for k in range(ua.shape[0]):
+        t0 = time.perf_counter()
+        p.learn_one(ua[k], ya[k])
+        if p.ready:
+            p.predict_one()
+        step.append(time.perf_counter() - t0)
+    q = Predictor(model)
+    plans: list[float] = []
+    for k in range(ua.shape[0] - 200):
+        q.learn_one(ua[k], ya[k])
+        if q.ready and k % 60 == 0 and len(plans) < 50:
+            t0 = time.perf_counter()
+            q.forecast(ua[k + 1 : k + 201])
+            plans.append(time.perf_counter() - t0)
+    return {"us_per_sample": 1e6 * float(np.median(step)), "us_per_forecast_1s": 1e6 * float(np.median(plans)),
+            "max_lag": model.max_lag}
+
+
 def _rows(section: str, case: str, results: list[dict[str, Any]], metrics: Iterable[tuple[str, str, str]]) -> Iterator[Any]:
     from benchmarks.kit import Measurement
 
@@ -210,6 +242,12 @@ def _bench(options: Any, helper: EvalHelper | None) -> Iterator[Any]:
         "engine", "piezo G=100 M=13 (paper)", pz,
         [("fr_val", "R2", "target >= 0.9997 each"), ("osa_val", "R2", ""),
          ("seconds", "s", "one run, two cores (helper)" if helper is not None else "one run")],
+    )
+    pr = [predictor_case(s) for s in seeds]
+    yield from _rows(
+        "engine", "controller loop: Predictor on the MR damper (M=10)", pr,
+        [("us_per_sample", "us", "learn_one + predict_one, median over the log's 3,499 samples"),
+         ("us_per_forecast_1s", "us", "forecast of 200 samples (1 s) from the newest samples, median of 50")],
     )
     sizes = (480, 2000) if options.quick else (480, 2000, 10000)
     for n_est in sizes:
