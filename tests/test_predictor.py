@@ -130,3 +130,28 @@ def test_beyond_range_names_the_signals_a_prediction_leans_on() -> None:
     p.learn_one(-3.5, 0.0)
     p.learn_one(0.0, 0.0)
     assert p.beyond_range() == ("u0",)  # the output sample at 1.8 is no longer among the newest max_lag
+
+
+def test_an_online_champion_with_direct_terms_predicts_from_the_input_at_the_predicted_instant() -> None:
+    """OnlineIdentifier.predict_one used to put the last input in place of u(t+1) for such a champion."""
+    from streamid import OnlineIdentifier, StreamConfig
+
+    rng = np.random.default_rng(0)
+    n = 3000
+    u = rng.uniform(-1, 1, n)
+    y = np.zeros(n)
+    for t in range(1, n):  # the output responds within the sample: u(t) is a regressor of its model
+        y[t] = 0.6 * y[t - 1] + np.tanh(2 * u[t]) + 0.2 * u[t - 1]
+    t_ns = np.arange(n, dtype=np.int64) * 10_000_000
+    ident = OnlineIdentifier(StreamConfig(window_samples=1000, update_every_samples=500,
+                                          engine=(("feedthrough_test", True),)), stream="f")
+    for k in range(0, n, 100):
+        ident.learn_many(t_ns[k : k + 100], u[k : k + 100, None], y[k : k + 100, None], inputs=["u"], outputs=["y"])
+        ident.update_all()
+    m = ident.model
+    assert m is not None and has_direct_terms(m), m
+    with pytest.raises(DataError, match="pass u_next"):
+        ident.predict_one()
+    want = m.predict_osa(np.r_[u, 0.3], np.r_[y, 0.0])[-1]
+    assert ident.predict_one(u_next=0.3) == pytest.approx(want, rel=1e-12)
+    assert ident.predict_one(u_next=-0.3) != pytest.approx(want, rel=1e-3)  # u(t+1) is used, not the last input
