@@ -10,7 +10,10 @@ error, the horizon forecasts' R² and the signals beyond the model's estimation 
 
     python examples/controller.py --connect tcp/127.0.0.1:7447 --stream mr_damper --seconds 30
 
-(start a daemon and a replay first: ``streamid daemon`` and ``streamid replay mr_damper --rate 4``).
+(start a daemon and a replay first: ``streamid daemon`` and ``streamid replay mr_damper --rate 4``) prints::
+
+    t     14.60 s  v1    force_N: one-step rms 3.038, 0.2 s forecasts 4, R2 0.9811, beyond range: -
+
 ``--json`` prints one JSON object per report.  Samples on the stream's ``samples`` key are used (not
 the split ``u``/``y`` keys).
 """
@@ -81,11 +84,22 @@ class Checker:
         y = np.concatenate(self.judged) if self.judged else np.empty(0)
         sst = float(np.sum((y - y.mean()) ** 2)) if y.size else 0.0
         out = {"t_s": round(t_s, 3), "version": self.version,
+               "output": self.live.model.output_name if self.live is not None else None,
                "osa_rms": float(np.sqrt(np.mean(np.square(self.osa_err)))) if self.osa_err else None,
                "forecasts": len(self.judged), "forecast_r2": 1.0 - self.sse / sst if sst > 0 else None,
                "beyond_range": list(self.live.beyond_range()) if self.live is not None else []}
         self.osa_err, self.sse, self.judged = [], 0.0, []
         return out
+
+
+def report_line(r: dict[str, Any], horizon_s: float) -> str:
+    """One report as a line of text (``--json`` prints ``r`` itself)."""
+    def num(v: float | None, form: str) -> str:
+        return "-" if v is None else format(v, form)
+
+    return (f"t {r['t_s']:9.2f} s  v{r['version']:<4d} {r['output']}: one-step rms {num(r['osa_rms'], '.4g')}, "
+            f"{horizon_s:g} s forecasts {r['forecasts']}, R2 {num(r['forecast_r2'], '.4f')}, beyond range: "
+            f"{', '.join(r['beyond_range']) or '-'}")
 
 
 def main(settings: ZenohSettings, stream: str, *, output: str | None = None, horizon_s: float = 0.2,
@@ -152,12 +166,7 @@ def main(settings: ZenohSettings, stream: str, *, output: str | None = None, hor
                     if as_json:
                         print(json.dumps(r), flush=True)
                     else:
-                        r2 = r["forecast_r2"]
-                        print(f"t {r['t_s']:9.2f} s  v{r['version']:<4d} one-step rms "
-                              f"{r['osa_rms'] if r['osa_rms'] is not None else float('nan'):.4g}  "
-                              f"{horizon_s:g} s forecasts {r['forecasts']:4d}, R2 "
-                              f"{r2 if r2 is not None else float('nan'):.4f}  beyond range: "
-                              f"{', '.join(r['beyond_range']) or '-'}", flush=True)
+                        print(report_line(r, horizon_s), flush=True)
     if dropped[0]:
         print(f"{dropped[0]} messages dropped: this loop fell behind (the queue holds 10,000)", file=sys.stderr)
     return 0 if judged else 1

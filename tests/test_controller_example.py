@@ -7,6 +7,7 @@ served model sample by sample (``streamid.Predictor``) and judges its 0.2 s fore
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -52,3 +53,17 @@ def test_the_controller_example_follows_the_served_model_and_its_forecasts_hold(
     # 0.2 s from measured samples is held to the same floor, in every second but the loop point's
     assert r2[1] >= 0.9, r2
     print("forecast R2 per second:", [round(v, 4) for v in r2], "versions", sorted(set(versions)))
+
+
+def test_a_report_line_reads_as_the_docstring_shows() -> None:
+    spec = importlib.util.spec_from_file_location("controller_example", EXAMPLE)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    r = {"t_s": 14.6, "version": 1, "output": "force_N", "osa_rms": 3.0382, "forecasts": 4, "forecast_r2": 0.98114,
+         "beyond_range": []}
+    shown = [ln.strip() for ln in mod.__doc__.splitlines() if ln.strip().startswith("t ")]
+    assert mod.report_line(r, 0.2) == shown[0] == ("t     14.60 s  v1    force_N: one-step rms 3.038, 0.2 s forecasts 4, "
+                                                   "R2 0.9811, beyond range: -")
+    r.update(osa_rms=None, forecast_r2=None, beyond_range=["velocity_cm_s"])
+    assert mod.report_line(r, 0.2).endswith("one-step rms -, 0.2 s forecasts 4, R2 -, beyond range: velocity_cm_s")
