@@ -7,7 +7,8 @@ things, and would measure the other worker instead:
 
 * latencies, real-time replay timing or a load's backlog (``test_load``, the attack plans of
   ``test_daemon_bounds``, ``test_reliability_*``, ...);
-* the README's recipes as printed (Zenoh's default port 7447) and network namespaces of fixed names.
+* network namespaces of fixed names (the several-hosts tests; the README's recipe in namespaces, whose
+  port is the printed 7447 inside them).
 
 Those are marked ``alone`` (by module in :data:`ALONE_MODULES`, or ``@pytest.mark.alone``).  Around
 each test (its setup, so a module's fixture too, its call and its teardown) a worker holds a lock on a
@@ -31,13 +32,13 @@ import pytest
 #: test modules (file stems) whose every test runs alone (see the module docstring for why)
 ALONE_MODULES = frozenset({
     "test_load",  # two minutes of nine streams into one daemon: the backlog and memory are measured
+    "test_demo",  # the README's first command: the 20 kHz piezo in real time
     "test_daemon_bounds",  # timed attack plans: the healthy stream's latency per phase
     "test_daemon_faults",  # a timed fault plan
     "test_reliability_bad_input",  # a timed plan of every bad input at once
     "test_reliability_faults",  # kills and restarts; a stop within 2 s
     "test_record_replay",  # real-time 20 kHz replay timing
     "test_rrd_files",  # a SIGKILLed writer loses at most 1 s
-    "test_readme",  # the recipes as printed: port 7447, network namespaces
     "test_multihost",  # network namespaces
     "test_engine_parallel",  # the faster of two evaluation paths is chosen by timing them
 })

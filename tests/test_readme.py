@@ -34,7 +34,7 @@ MODEL_LINE = r"^(\S+) v\d+ (?:cold|warm) G="
 
 #: Shell blocks the tests do not run, and why (every other block is run below).
 NOT_RUN = {
-    "pip install . && streamid demo": "a minute of real time; CI runs the demo's own test and the command parses",
+    "pip install . && streamid demo": "a minute of real time; tests/test_demo.py runs it with --loops 1 (about 30 s)",
     "pip install '.[test]' && pytest": "the test suite itself (CI runs it in a fresh virtual environment)",
     "pip install '.[peers]' && streamid bench --peers --repeat 5": "minutes of benchmarks",
 }
@@ -286,7 +286,7 @@ def _published(argv: list[str]) -> str:
     return names[0] if names else argv[2]
 
 
-@pytest.mark.parametrize("kind", ["loopback", "netns"])
+@pytest.mark.parametrize("kind", ["loopback", pytest.param("netns", marks=pytest.mark.alone)])  # fixed namespaces
 def test_several_machines_recipe_runs_as_printed(kind: str, tmp_path: Path) -> None:
     """The README's router recipe (TLS + access control) with every machine a directory of its own holding
     examples/zenoh/ (on loopback, or each in its own network namespace): only ROUTER and the port replaced."""
