@@ -41,6 +41,7 @@ ALONE_MODULES = frozenset({
     "test_rrd_files",  # a SIGKILLed writer loses at most 1 s
     "test_multihost",  # network namespaces
     "test_engine_parallel",  # the faster of two evaluation paths is chosen by timing them
+    "test_daemon_helper",  # the helper runs under SCHED_IDLE: beside another test it gets no CPU, never offered work
 })
 
 #: the environment variable naming the run's lock directory (set by the controller, inherited by the workers)
