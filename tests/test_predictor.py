@@ -104,15 +104,15 @@ def test_bad_samples_are_refused_naming_the_value_and_nothing_is_added(
     for t in range(10):
         p.learn_one(u[t], y[t])
     before = (p.held, p.predict_one())
-    for args, match in (((np.nan, 1.0), "u must be finite numbers; got nan"),
-                        ((0.1, float("inf")), "y must be finite numbers; got inf"),
+    for args, match in (((np.nan, 1.0), r"u must contain only finite numbers \(no NaN or inf\); got nan"),
+                        ((0.1, float("inf")), "y must contain only finite numbers .*; got inf"),
                         (([0.1, 0.2], 1.0), r"u must be a number; got shape \(2,\)"),
                         (("fast", 1.0), "u must be numbers; got 'fast'")):
         with pytest.raises(DataError, match=match):
             p.learn_one(*args)
     with pytest.raises(DataError, match=r"u_plan must be an array of shape \(H,\) or \(H, 1\)"):
         p.forecast(np.zeros((0,)))
-    with pytest.raises(DataError, match="u_plan must be finite"):
+    with pytest.raises(DataError, match="u_plan must contain only finite numbers .*; got nan at sample 1"):
         p.forecast([0.1, np.nan])
     assert (p.held, p.predict_one()) == before
 

@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.caveats import beyond_range
 from streamid.engine.model import Model
+from streamid.engine.regressors import check_finite
 from streamid.errors import DataError
 
 __all__ = ["Predictor", "has_direct_terms", "one_step"]
@@ -80,13 +81,7 @@ def _inputs(name: str, value: ArrayLike, n_inputs: int, *, many: bool = False) -
         if a.ndim != 2 or a.shape[0] < 1 or a.shape[1] != n_inputs:
             form = "(H,) or (H, 1)" if n_inputs == 1 else f"(H, {n_inputs})"
             raise DataError(f"{name} must be an array of shape {form}, H >= 1 samples; got shape {a.shape}")
-    return _finite(name, a)
-
-
-def _finite(name: str, a: NDArray[np.float64]) -> NDArray[np.float64]:
-    if not np.all(np.isfinite(a)):
-        bad = float(a[~np.isfinite(a)].ravel()[0])
-        raise DataError(f"{name} must be finite numbers; got {bad!r} (nothing was added)")
+    check_finite(name, a)  # names the first NaN or inf: its sample (and column)
     return a
 
 
