@@ -36,7 +36,8 @@ def test_one_step_and_forecasts_are_the_models_own_computations(reactor: tuple[M
     p = Predictor(model)
     checked = 0
     for t in range(u.shape[0] - 1):  # 1,500 samples: the buffer (2 x 256) wraps several times
-        p.learn_one(u[t], y[t])
+        # a float (checked in Python) or any other form (checked by numpy) every other sample: the same values
+        p.learn_one(float(u[t]), float(y[t])) if t % 2 else p.learn_one([u[t]], np.array(y[t]))
         if t + 1 < L:
             assert not p.ready
             with pytest.raises(DataError, match=f"needs the newest {L} samples"):
@@ -51,12 +52,58 @@ def test_one_step_and_forecasts_are_the_models_own_computations(reactor: tuple[M
     assert checked >= 10
 
 
+
+def _net(regs: list[tuple[str, int, int]], *, linear: str = "", seed: int = 0, scale: float = 2.0) -> Model:
+    """A network over (signal, input index, lag) regressors of 2 inputs; ``linear``: "" none, "own" on its
+    regressors, "long" a long linear part of its own; ``scale``: the normalisation's half range."""
+    k = len(regs)
+    rng = np.random.default_rng(seed)
+    long_regs = tuple(Regressor(s, i, lag) for s, i, lag in (("y", 0, 1), ("y", 0, 7), ("u", 1, 4), ("u", 0, 12)))
+    lin = {"": None, "own": rng.normal(0, 0.1, k + 1), "long": rng.normal(0, 0.1, len(long_regs) + 1)}[linear]
+    return Model(regressors=tuple(Regressor(s, i, lag) for s, i, lag in regs), centres=rng.uniform(-0.6, 0.6, (5, k)),
+                 widths=rng.uniform(0.6, 1.4, 5), weights=rng.normal(0, 0.5, 5),
+                 normalisation=Normalisation((-scale, -1.0), (scale, 3.0), -1.5 * scale, scale), linear=lin,
+                 linear_regressors=long_regs if linear == "long" else None)
+
+
+def test_every_kind_of_model_predicts_its_own_one_step_across_swaps_and_wraps() -> None:
+    """Networks with and without a linear part (on their regressors, or long: its own), of two inputs, an
+    ensemble of them, and a direct term: ``predict_one`` is ``predict_osa``'s last value at every sample,
+    including right after a swap to a model of another normalisation and across the buffer's wraps."""
+    from streamid.engine.ensemble import ensemble_of
+
+    a = _net([("y", 0, 1), ("u", 0, 1), ("u", 1, 3), ("y", 0, 2)])
+    b = _net([("u", 1, 2), ("y", 0, 3), ("u", 0, 5)], linear="own", seed=1, scale=3.0)
+    c = _net([("y", 0, 1), ("u", 0, 2)], linear="long", seed=2, scale=1.0)
+    e = ensemble_of([a, b, c])
+    d = _net([("y", 0, 1), ("u", 0, 0), ("u", 1, 1)], linear="own", seed=3)  # u0(t): a direct term
+    rng = np.random.default_rng(5)
+    n = 1400
+    u, y = rng.uniform(-1.5, 1.5, (n, 2)), rng.uniform(-1.0, 1.0, n)
+    plan = [(0, a), (200, b), (330, c), (600, e), (1000, d), (1200, a)]
+    p = Predictor(a)
+    served, checked = a, 0
+    for t in range(n - 1):
+        for at, m in plan:
+            if t == at and m is not served:
+                p.swap(m)
+                served = m
+        p.learn_one(u[t], y[t])
+        if not p.ready:
+            continue
+        want = served.predict_osa(u[: t + 2], np.r_[y[: t + 1], 0.0])[-1]
+        got = p.predict_one(u_next=u[t + 1]) if has_direct_terms(served) else p.predict_one()
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (t, served)
+        checked += 1
+    assert checked > n - 30 and p._n <= 2 * MIN_HISTORY  # noqa: SLF001 - the buffer wrapped, still bounded
+
 def test_the_buffer_is_bounded_and_reset_forgets(reactor: tuple[Model, np.ndarray, np.ndarray]) -> None:
     model, u, y = reactor
     p = Predictor(model)
     for t in range(20_000):
         p.learn_one(u[t % 1000], y[t % 1000])
-    assert p._u.shape[0] == p._y.shape[0] == 2 * MIN_HISTORY  # noqa: SLF001 - the bound is the point
+    # noqa: SLF001 - the bound is the point: 2 x 256 samples, raw and normalised, and one slot for u_next
+    assert p._u.shape[0] == p._y.shape[0] == p._un.shape[0] == p._yn.shape[0] == 2 * MIN_HISTORY + 1
     assert MIN_HISTORY <= p.held <= 2 * MIN_HISTORY
     p.reset()
     assert p.held == 0 and not p.ready

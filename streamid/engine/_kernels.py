@@ -14,6 +14,9 @@ first time, then 5.6-6.1 s); later processes load them from ``__pycache__`` in a
 * :func:`free_run_sensitivities`: one network's free run and its derivatives by the output weights (and a
   linear part's coefficients) along it, for the output-error refinement (:mod:`streamid.engine.refine`,
   which prepares its arguments).
+* :func:`one_row`: one network's one-step-ahead prediction at one instant, for :class:`~streamid.engine.predictor.
+  Predictor`, a control loop's sample by sample (numpy spent about 20 us of call overhead on its dozen small
+  arrays; compiled on a predictor's first use, not by :func:`warm_up_kernels`: the daemon never calls it).
 * :func:`exp2_rows` and :func:`gram_rows`: the population's activations' ``exp2`` and the batched Gram of
   :class:`~streamid.engine.batch.BatchEvaluator`, used where ``rbf.NUMPY_PATH`` is false.
 
@@ -33,7 +36,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["exp2_rows", "free_run_sensitivities", "gram_rows", "recursion", "warm_up_kernels"]
+__all__ = ["exp2_rows", "free_run_sensitivities", "gram_rows", "one_row", "recursion", "warm_up_kernels"]
 
 
 F64 = NDArray[np.float64]
@@ -284,6 +287,44 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
         for m in range(P):
             S[t, m] = v[m]
     return Y, S
+
+
+@njit(cache=True, nogil=True)
+def one_row(un: F64, yn: F64, n: int, y_lags: NDArray[np.int64], u_lags: NDArray[np.int64], u_cols: NDArray[np.int64],
+            centres: F64, two_w2: F64, weights: F64, lin: F64, lin_const: float, ly_lags: NDArray[np.int64],
+            lu_lags: NDArray[np.int64], lu_cols: NDArray[np.int64], lin_own: bool) -> float:
+    """One network's normalised output at instant ``n`` of the normalised samples ``un`` (rows, inputs) and
+    ``yn`` (rows,): its regressors ``yn[n - y_lags]`` then ``un[n - u_lags, u_cols]`` (the centres' columns in
+    that order), ``sum_m weights[m] exp(-|r - centres[m]|^2 / two_w2[m])``, plus the linear part ``lin . r' +
+    lin_const`` when ``lin`` is not empty (``r'`` gathered by ``ly_lags``, ``lu_lags``, ``lu_cols`` if
+    ``lin_own``, else ``r``). The arithmetic of :meth:`Model.predict_osa <streamid.engine.model.Model.predict_osa>`
+    for one row, its sums in another order (equal to rounding)."""
+    ky, ku = y_lags.shape[0], u_lags.shape[0]
+    r = np.empty(ky + ku)
+    for j in range(ky):
+        r[j] = yn[n - y_lags[j]]
+    for j in range(ku):
+        r[ky + j] = un[n - u_lags[j], u_cols[j]]
+    out = 0.0
+    for m in range(centres.shape[0]):
+        d2 = 0.0
+        for j in range(ky + ku):
+            d = r[j] - centres[m, j]
+            d2 += d * d
+        out += weights[m] * math.exp(-d2 / two_w2[m])
+    if lin.shape[0]:
+        acc = lin_const
+        if lin_own:
+            qy = ly_lags.shape[0]
+            for j in range(qy):
+                acc += lin[j] * yn[n - ly_lags[j]]
+            for j in range(lu_lags.shape[0]):
+                acc += lin[qy + j] * un[n - lu_lags[j], lu_cols[j]]
+        else:
+            for j in range(ky + ku):
+                acc += lin[j] * r[j]
+        out += acc
+    return out
 
 
 def warm_up_kernels() -> None:

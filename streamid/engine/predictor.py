@@ -19,19 +19,30 @@ plan) that leave the model's estimation range by more than
 :data:`~streamid.engine.caveats.BEYOND_RANGE` of its span: a Gaussian RBF network does not
 extrapolate, so a prediction there is not backed by anything the model saw.
 
+Each sample costs the same small, fixed work: the predictor keeps the samples also in the served model's
+normalised units and prepares each network once (:class:`_Network`: where each regressor sits in the buffer,
+the centres and widths in the order it gathers them), so :meth:`~Predictor.predict_one` gathers one row and
+evaluates one Gaussian layer, with none of :meth:`Model.predict_osa
+<streamid.engine.model.Model.predict_osa>`'s checks of whole arrays (``streamid bench --only engine``, "controller
+loop").
+
 Pure numerics: no clock, no I/O, no threads.  A ``ModelSubscriber`` calls back on a Zenoh thread;
 hand its model to the control loop (a queue, or one attribute assignment) and call :meth:`swap` there.
 """
 
 from __future__ import annotations
 
+from math import isfinite
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from streamid.engine._kernels import one_row
 from streamid.engine.caveats import beyond_range
+from streamid.engine.ensemble import members_of
 from streamid.engine.model import Model
+from streamid.engine.regressors import Normalisation, Regressor
 from streamid.engine.regressors import check_finite
 from streamid.errors import DataError
 
@@ -43,8 +54,13 @@ MIN_HISTORY = 256
 
 def has_direct_terms(model: Model) -> bool:
     """Whether ``model`` uses an input at the predicted instant (a regressor ``u(t)``, lag 0)."""
-    nets = getattr(model, "members", None) or (model,)  # an ensemble: any of its networks
-    return any(r.signal == "u" and r.lag == 0 for m in nets for r in (*m.regressors, *(m.linear_regressors or ())))
+    return any(r.signal == "u" and r.lag == 0
+               for m in members_of(model) for r in (*m.regressors, *(m.linear_regressors or ())))
+
+
+def _u_next_missing(model: Model) -> DataError:
+    return DataError(f"this model has direct terms (an input at lag 0: {model.lags_text()}); pass u_next, "
+                     "the input at the predicted instant")
 
 
 def one_step(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], u_next: ArrayLike | None = None) -> float:
@@ -54,8 +70,7 @@ def one_step(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], u_nex
     """
     if u_next is None:
         if has_direct_terms(model):
-            raise DataError(f"this model has direct terms (an input at lag 0: {model.lags_text()}); pass u_next, "
-                            "the input at the predicted instant")
+            raise _u_next_missing(model)
         nxt = u[-1:] if len(u) else np.zeros((1, model.n_inputs))  # never used: every input lag is >= 1
     else:
         nxt = _inputs("u_next", u_next, model.n_inputs).reshape(1, -1)
@@ -85,6 +100,48 @@ def _inputs(name: str, value: ArrayLike, n_inputs: int, *, many: bool = False) -
     return a
 
 
+class _Network:
+    """One network of a served model, prepared for one row at a time (what ``predict_osa`` computes for it).
+
+    Its regressors are gathered y's first, then the inputs' (the centres' columns and the linear coefficients
+    permuted to match: a sum in another order, equal to rounding); a lag ``l`` reads the sample ``l`` before
+    the predicted instant, so a direct term (``l`` = 0) reads the slot after the newest sample, where
+    :meth:`Predictor.predict_one` puts ``u_next``.
+    """
+
+    __slots__ = ("y_lags", "u_lags", "u_cols", "centres", "two_w2", "weights", "lin", "lin_const", "lin_own",
+                 "ly_lags", "lu_lags", "lu_cols")
+
+    def __init__(self, net: Model) -> None:
+        self.y_lags, self.u_lags, self.u_cols, order = self._gather(net.regressors)
+        self.centres = np.ascontiguousarray(net.centres[:, order])
+        self.two_w2 = 2.0 * net.widths**2  # predict_osa's denominator, computed as it does
+        self.weights = np.ascontiguousarray(net.weights)
+        self.lin = np.empty(0)  # no linear part
+        self.lin_const = 0.0
+        self.lin_own = net.linear_regressors is not None
+        self.ly_lags, self.lu_lags, self.lu_cols = self.y_lags, self.u_lags, self.u_cols
+        if net.linear is not None:
+            lin_order = order
+            if net.linear_regressors is not None:
+                self.ly_lags, self.lu_lags, self.lu_cols, lin_order = self._gather(net.linear_regressors)
+            self.lin, self.lin_const = np.ascontiguousarray(net.linear[:-1][lin_order]), float(net.linear[-1])
+
+    @staticmethod
+    def _gather(regs: tuple[Regressor, ...]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
+                                                       NDArray[np.intp]]:
+        ys = [j for j, r in enumerate(regs) if r.signal == "y"]
+        us = [j for j, r in enumerate(regs) if r.signal == "u"]
+        return (np.array([regs[j].lag for j in ys], dtype=np.int64), np.array([regs[j].lag for j in us], dtype=np.int64),
+                np.array([regs[j].index for j in us], dtype=np.int64), np.array(ys + us, dtype=np.intp))
+
+    def yn(self, un: NDArray[np.float64], yn: NDArray[np.float64], n: int) -> float:
+        """The network's normalised output at the instant ``n`` (samples ``n - lag`` of ``un`` and ``yn``)."""
+        return float(one_row(un, yn, n, self.y_lags, self.u_lags, self.u_cols, self.centres, self.two_w2,
+                             self.weights, self.lin, self.lin_const, self.ly_lags, self.lu_lags, self.lu_cols,
+                             self.lin_own))
+
+
 class Predictor:
     """A model run sample by sample from the newest measured samples (see the module docstring).
 
@@ -93,16 +150,19 @@ class Predictor:
     model
         The model served (any :class:`~streamid.engine.model.Model`: loaded, received, or identified here).
 
-    Holds at most ``2 * max(256, the largest max_lag of the models it served)`` samples.
+    Holds at most ``2 * max(256, the largest max_lag of the models it served)`` samples.  The first
+    predictor of a process loads the compiled one-step kernel (about 0.2 s; about 1 s once per install, when
+    numba compiles it), so a control loop built after it pays nothing of that at its first sample.
     """
 
     def __init__(self, model: Model) -> None:
         self._model = self._checked(model, None)
         self._cap = max(MIN_HISTORY, model.max_lag)
-        self._u = np.empty((2 * self._cap, model.n_inputs))
-        self._y = np.empty(2 * self._cap)
         self._n = 0  # samples in the buffer (the newest at _n - 1): between _cap and 2 _cap once it has wrapped
         self._held = 0  # samples learnt since the start or the last reset
+        self._alloc(model.n_inputs)
+        self._serve(model)
+        self._nets[0].yn(self._un, self._yn, self._lag)  # load (or compile) the kernel now; the value is unused
 
     # ------------------------------------------------------------------ state
     @property
@@ -128,12 +188,12 @@ class Predictor:
         """Serve ``model`` from now on, keeping the samples (the model must take the same number of inputs)."""
         model = self._checked(model, self._model)
         if model.max_lag > self._cap:  # a longer memory: keep what is held, in a larger buffer
-            u, y = self._recent(self.held)
+            u, y = (a.copy() for a in self._recent(self.held))
             self._cap = model.max_lag
-            self._u, self._y = np.empty((2 * self._cap, model.n_inputs)), np.empty(2 * self._cap)
+            self._alloc(model.n_inputs)
             self._n = len(y)
             self._u[: self._n], self._y[: self._n] = u, y
-        self._model = model
+        self._serve(model)
 
     # ------------------------------------------------------------------ verbs
     def learn_one(self, u: ArrayLike, y: float) -> None:
@@ -144,13 +204,25 @@ class Predictor:
         DataError
             If a value is not a finite number or ``u`` does not hold one value per input; nothing is added.
         """
-        ua = _inputs("u", u, self._model.n_inputs)
-        ya = _inputs("y", y, 1)[0]
-        if self._n == 2 * self._cap:  # full: the newest half moves to the front (amortised O(1) a sample)
-            self._u[: self._cap], self._y[: self._cap] = self._u[self._cap :], self._y[self._cap :]
-            self._n = self._cap
-        self._u[self._n], self._y[self._n] = ua, ya
-        self._n += 1
+        # one input given as a float (the common loop) is checked in Python, anything else by _inputs: the same
+        # values either way, and a refused sample changes nothing
+        u_row: float | NDArray[np.float64]
+        if self._scalar_u and isinstance(u, float) and isinstance(y, float) and isfinite(u) and isfinite(y):
+            u_row, un_row = u, 2.0 * (u - self._u_low0) / self._u_span0 - 1.0  # Normalisation.u, by sample
+        else:
+            u_row = _inputs("u", u, self._model.n_inputs)
+            un_row = 2.0 * (u_row - self._u_low) / self._u_span - 1.0
+            y = _inputs("y", y, 1)[0]
+        n = self._n
+        if n == 2 * self._cap:  # full: the newest half moves to the front (amortised O(1) a sample)
+            c = self._cap
+            for a in (self._u, self._y, self._un, self._yn):
+                a[:c] = a[c : 2 * c]
+            self._n = n = c
+        self._u[n], self._un[n] = u_row, un_row
+        self._y[n] = y
+        self._yn[n] = 2.0 * (y - self._y_low) / self._y_span - 1.0
+        self._n = n + 1
         self._held += 1
 
     def predict_one(self, u_next: ArrayLike | None = None) -> float:
@@ -164,8 +236,17 @@ class Predictor:
         DataError
             If fewer than ``max_lag`` samples are held, or the model needs ``u_next`` and it is missing or bad.
         """
-        u, y = self._needed()
-        return one_step(self._model, u, y, u_next)
+        n = self._n
+        if min(self._held, n) < self._lag:
+            self._needed()  # raises, saying how many samples are missing
+        if u_next is not None:  # the slot after the newest sample: only a direct term (lag 0) reads it
+            self._un[n] = 2.0 * (_inputs("u_next", u_next, self._model.n_inputs) - self._u_low) / self._u_span - 1.0
+        elif self._direct:
+            raise _u_next_missing(self._model)
+        total = 0.0
+        for net in self._nets:  # an ensemble's prediction is its members' mean (in output units, as predict_osa's)
+            total += (net.yn(self._un, self._yn, n) + 1.0) * self._y_half + self._y_low
+        return total / len(self._nets)
 
     def forecast(self, u_plan: ArrayLike) -> NDArray[np.float64]:
         """``yhat(t+1) .. yhat(t+H)``: the free run from the newest samples for the planned inputs.
@@ -210,6 +291,26 @@ class Predictor:
             raise DataError(f"the new model takes {model.n_inputs} input(s) {model.input_names}, the served one "
                             f"{current.n_inputs} {current.input_names}: a Predictor's samples fit one input count")
         return model
+
+    def _alloc(self, n_inputs: int) -> None:
+        """Buffers of 2 _cap samples and one slot more (``u_next``'s), raw and in the served model's units."""
+        rows = 2 * self._cap + 1
+        self._u, self._y = np.zeros((rows, n_inputs)), np.zeros(rows)
+        self._un, self._yn = np.zeros((rows, n_inputs)), np.zeros(rows)
+
+    def _serve(self, model: Model) -> None:
+        """Prepare ``model``'s networks and re-express the samples held in its normalisation."""
+        norm: Normalisation = model.normalisation
+        self._u_low, self._u_span = np.asarray(norm.u_low), np.asarray(norm.u_high) - np.asarray(norm.u_low)
+        self._y_low, self._y_span, self._y_half = norm.y_low, norm.y_high - norm.y_low, norm.y_half_range
+        self._un[: self._n] = 2.0 * (self._u[: self._n] - self._u_low) / self._u_span - 1.0
+        self._yn[: self._n] = 2.0 * (self._y[: self._n] - self._y_low) / self._y_span - 1.0
+        self._u_low0, self._u_span0 = float(self._u_low[0]), float(self._u_span[0])
+        self._scalar_u = model.n_inputs == 1
+        self._nets = [_Network(m) for m in members_of(model)]
+        self._direct = has_direct_terms(model)
+        self._lag = model.max_lag
+        self._model = model
 
     def _recent(self, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return self._u[self._n - k : self._n], self._y[self._n - k : self._n]
