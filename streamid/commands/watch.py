@@ -162,10 +162,8 @@ def status_events(memory: dict[tuple[str, str], Any], st: dict[str, Any]) -> lis
     return out
 
 
-def _stream_time(t_ns: int | None) -> str:
+def _stream_time(t_ns: int) -> str:
     """A stream's time for a reader: UTC if it looks like a wall clock (after 1973), else seconds from its start."""
-    if t_ns is None:
-        return "an unknown time"
     if t_ns > 10**17:
         try:
             when = datetime.datetime.fromtimestamp(t_ns / 1e9, tz=datetime.timezone.utc)
@@ -185,9 +183,10 @@ def format_event(ev: dict[str, Any]) -> str:
     else:
         more = f"{ev['new']} new, " if ev["new"] > 1 else ""
         served = f"the served model {v}" if v else "the served model"
-        text = (f"{ev['stream']} DRIFT on {ev['output']}: {served} no longer fits the incoming data (stream time "
-                f"{_stream_time(ev['drift_t_ns'])}; {more}{ev['drifts']} so far); the next identification starts "
-                "from the change")
+        t = ev["drift_t_ns"]
+        when = "change time not given" if t is None else f"change estimated at stream time {_stream_time(t)}"
+        text = (f"{ev['stream']} DRIFT on {ev['output']}: {served} no longer fits the incoming data ({when}; "
+                f"{more}{ev['drifts']} so far); the next identification starts from the change")
     return printable(text, 2000)
 
 

@@ -80,7 +80,7 @@ def forward_events(st: StreamSlot, viz: Any | None) -> None:
             _log.info("%s", ev.message)
     if viz is not None and shown:
         for ev in shown[-20:]:
-            level = "WARN" if ev.kind.startswith(("bad", "reset", "gap", "unaligned")) else "INFO"
+            level = "WARN" if ev.kind.startswith(("bad", "reset", "gap", "unaligned", "drift")) else "INFO"
             viz.log_event(name, ev.message, level=level, t_ns=ev.t_ns)  # stream time of the event
         if len(shown) > 20:
             viz.log_event(name, f"... and {len(shown) - 20} more events", level="WARN")
