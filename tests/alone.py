@@ -14,7 +14,8 @@ Those are marked ``alone`` (by module in :data:`ALONE_MODULES`, or ``@pytest.mar
 each test (its setup, so a module's fixture too, its call and its teardown) a worker holds a lock on a
 file shared by the run's workers: *shared* for any test, *exclusive* for one marked ``alone``, which
 so runs with no other test beside it.  A turnstile file taken first keeps a waiting ``alone`` test
-from being overtaken by the other worker's next tests (writer preference).  In one process (``-n 0``,
+from being overtaken by the other worker's next tests (writer preference); :class:`Holder` keeps the
+exclusive lock across consecutive ``alone`` tests (a module's).  In one process (``-n 0``,
 ``-p no:xdist``) there is nothing to lock.
 """
 
@@ -24,7 +25,7 @@ import fcntl
 import os
 import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import pytest
@@ -69,6 +70,33 @@ def machine(lock_dir: Path, *, alone: bool) -> Iterator[None]:
             fcntl.flock(tests, fcntl.LOCK_UN)
             if alone:
                 fcntl.flock(gate, fcntl.LOCK_UN)
+
+
+class Holder:
+    """A worker's hold on the run's lock, test by test, kept across a run of consecutive ``alone`` tests.
+
+    Released between two ``alone`` tests, the lock would let the other worker slip one of its tests in, and
+    the next ``alone`` test would wait for it: its time would be spent with one worker idle, once per
+    ``alone`` test (111 of them).  With ``--dist loadfile`` a module's tests come to one worker in a row, so
+    an ``alone`` module keeps the machine from its first test to its last.
+    """
+
+    def __init__(self, lock_dir: Path) -> None:
+        self.lock_dir = lock_dir
+        self._held: ExitStack | None = None
+
+    def before(self, alone: bool) -> None:
+        """Before a test: take the lock (exclusive if ``alone``) unless the run of ``alone`` tests holds it."""
+        if self._held is None:
+            held = ExitStack()
+            held.enter_context(machine(self.lock_dir, alone=alone))
+            self._held = held
+
+    def after(self, alone: bool, next_alone: bool) -> None:
+        """After a test: keep the lock if this test and the next both run alone, else give it back."""
+        if not (alone and next_alone) and self._held is not None:
+            self._held.close()
+            self._held = None
 
 
 def lock_dir_for_run(config: pytest.Config) -> Path | None:

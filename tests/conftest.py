@@ -27,10 +27,11 @@ from pathlib import Path
 
 import pytest
 
-from alone import is_alone, lock_dir_for_run, machine, worker_lock_dir
+from alone import Holder, is_alone, lock_dir_for_run, worker_lock_dir
 from streamid.transport import Bus, ZenohSettings
 
 _LOCK_DIR = pytest.StashKey["Path | None"]()
+_HOLDER = pytest.StashKey["Holder"]()
 
 DATA_DIR = Path(__file__).parent / "data"
 #: argv prefix that runs the ``streamid`` CLI in a subprocess.
@@ -207,5 +208,12 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     if path is None:
         yield
         return
-    with machine(path, alone=is_alone(item)):
+    holder = item.config.stash.get(_HOLDER, None)
+    if holder is None:
+        holder = item.config.stash[_HOLDER] = Holder(path)
+    alone = is_alone(item)
+    holder.before(alone)
+    try:
         yield
+    finally:
+        holder.after(alone, nextitem is not None and is_alone(nextitem))

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from alone import ALONE_MODULES, is_alone, machine
+from alone import ALONE_MODULES, Holder, is_alone, machine
 
 WAIT_S = 1.0  # for a thread to reach its flock call (ordering, not a measurement)
 
@@ -67,3 +67,25 @@ def test_the_modules_named_alone_exist_and_a_marker_makes_a_test_alone(request: 
     assert not is_alone(request.node)
     request.node.add_marker(pytest.mark.alone)
     assert is_alone(request.node)
+
+
+def test_a_run_of_alone_tests_keeps_the_machine_until_its_last(tmp_path: Path) -> None:
+    """Between two alone tests of a module the other worker's test waits; it goes in after the last one."""
+    order: list[str] = []
+    holder = Holder(tmp_path)
+    holder.before(True)
+    order.append("in first")
+    holder.after(True, next_alone=True)  # the next test runs alone too: the lock is kept
+    c = _enter(tmp_path, "c", False, order)
+    time.sleep(WAIT_S)
+    holder.before(True)
+    order.append("in second")
+    time.sleep(WAIT_S)
+    holder.after(True, next_alone=False)
+    c.join(30)
+    assert order == ["in first", "in second", "in c", "out c"]
+    holder.before(False)  # an ordinary test beside another ordinary one
+    d = _enter(tmp_path, "d", False, order)
+    d.join(30)
+    holder.after(False, next_alone=True)
+    assert order[-2:] == ["in d", "out d"]
