@@ -14,8 +14,14 @@ error, the horizon forecasts' R² and the signals beyond the model's estimation 
 
     t     14.60 s  v1    force_N: one-step rms 3.038, 0.2 s forecasts 4, R2 0.9811, beyond range: -
 
-``--json`` prints one JSON object per report.  Samples on the stream's ``samples`` key are used (not
-the split ``u``/``y`` keys).
+It also prints what the stream's status says bears on trusting the model (``on_event``: a ``drift``,
+the served model no longer fitting the incoming data, until a new champion is swapped in; ``degraded``,
+``healthy``)::
+
+    mr_damper DRIFT on force_N: the served model v3 no longer fits the incoming data (change estimated at ...
+
+``--json`` prints one JSON object per report, and each event as its ``streamid.status-event/1``
+document.  Samples on the stream's ``samples`` key are used (not the split ``u``/``y`` keys).
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from streamid.transport.client import ModelSubscriber
 from streamid.transport.updates import ModelUpdate
 from streamid.errors import CodecError
 from streamid.wire.codec import SampleBatch, decode
+from streamid.wire.status_events import StatusEvent
 
 
 class Checker:
@@ -126,7 +133,7 @@ def main(settings: ZenohSettings, stream: str, *, output: str | None = None, hor
     checker: Checker | None = None
     pending: list[ModelUpdate] = []
     judged, next_report_ns = 0, None
-    with Bus(settings) as bus, ModelSubscriber(bus, stream, on_model):
+    with Bus(settings) as bus, ModelSubscriber(bus, stream, on_model, on_event=lambda ev: put(("event", ev))):
         bus.subscribe(f"streamid/{stream}/samples", lambda _k, p: put(("samples", p)))
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
@@ -136,6 +143,10 @@ def main(settings: ZenohSettings, stream: str, *, output: str | None = None, hor
                 continue
             if kind == "model":
                 pending.append(item)  # swapped in before the next batch's samples
+                continue
+            if kind == "event":  # a controller would hold back on a drifted model until the next one
+                ev: StatusEvent = item
+                print(json.dumps(ev.to_dict()) if as_json else ev.text(), flush=True)
                 continue
             try:
                 batch: SampleBatch = decode(item)

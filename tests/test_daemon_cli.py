@@ -9,6 +9,7 @@ whole state files only, and a restart resumes warm with increasing versions.
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import threading
@@ -108,7 +109,11 @@ def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
     verify = subprocess.run([RERUN, "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60)
     assert "1 file verified without error" in verify.stdout + verify.stderr  # the footer was written
     state = json.loads((tmp_path / "state" / "mr_damper.json").read_text())
-    assert state["version"] == last and state["coea_state"]
+    # the state saved at SIGTERM is the last model published (the windows queued when the replay ended may
+    # have published versions after `last` was read: seen beside other tests, 5 against 4)
+    published = [int(v) for v in re.findall(r"model v(\d+) published", err)]
+    assert state["version"] == max(published) >= last and state["coea_state"]
+    last = state["version"]
 
     # SIGKILL in the middle of a run: state files stay whole, versions keep increasing after restart
     ep2 = endpoint()

@@ -7,7 +7,8 @@ better than v12 (FR R2 0.9370 on the same data) by 0.013"); with ``--rejected`` 
 not; with ``--every S`` the age of the current models is re-printed every S
 seconds.  From the streams' status it also says when a stream becomes degraded or healthy again, and when
 an output's served model no longer fits the incoming data (a drift: the next identification then starts from the
-change); with ``--json`` these are JSON lines too (``"format": "streamid.watch-event/1"``).  Stops on Ctrl-C,
+change); with ``--json`` these are JSON lines too (``"format": "streamid.status-event/1"``,
+:mod:`streamid.wire.status_events`).  Stops on Ctrl-C,
 after ``--count`` updates or after ``--duration``.  Names and reasons that came
 from the network are shown escaped (control, format and bidi characters as \\uXXXX).
 """
@@ -115,84 +116,10 @@ def format_origin(up: Any, first: bool) -> str:
                      f" (versions count from v{up.version} again)"), 500)
 
 
-#: The format of the lines ``--json`` prints for what the status says (a model update has its own format).
-WATCH_EVENT_FORMAT = "streamid.watch-event/1"
-#: Streams and outputs whose last status is remembered (the status comes from the network: bounded).
-MAX_REMEMBERED = 10_000
-#: Outputs of one status looked at (a daemon models at most a few; a forged status may list more).
-MAX_OUTPUTS_LOOKED_AT = 64
-
-
-def _count(v: Any) -> int | None:
-    """``v`` if it is a count or a time as the daemon writes them (an integer in [0, 2**63)), else None."""
-    return v if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**63 else None
-
-
-def status_events(memory: dict[tuple[str, str], Any], st: dict[str, Any]) -> list[dict[str, Any]]:
-    """What a stream's status says has changed since its last one: ``degraded``, ``healthy`` again, or a
-    ``drift`` on an output (its drift count rose).  ``memory`` keeps what was seen last (at most
-    :data:`MAX_REMEMBERED` entries).  At a stream's first status only ``degraded`` is said: the drifts before
-    are history.
-    Values that came from the network are checked here, escaped by :func:`format_event`."""
-    name = str(st.get("stream", ""))
-    out: list[dict[str, Any]] = []
-
-    def remember(key: tuple[str, str], now: Any) -> tuple[bool, Any]:
-        """(whether ``key`` is remembered now, what it was before: None at first sight)."""
-        if key not in memory and len(memory) >= MAX_REMEMBERED:
-            return False, None
-        before, memory[key] = memory.get(key), now
-        return True, before
-
-    bad = bool(st.get("degraded"))
-    kept, was_bad = remember((name, ""), bad)
-    if kept and bad != bool(was_bad):  # a stream degraded at its first status is said at once
-        out.append({"format": WATCH_EVENT_FORMAT, "event": "degraded" if bad else "healthy", "stream": name,
-                    "reason": str(st.get("degraded_reason", "")), "version": _count(st.get("version"))})
-    models = st.get("models")
-    for output, m in list(models.items())[:MAX_OUTPUTS_LOOKED_AT] if isinstance(models, dict) else ():
-        n = _count(m.get("drifts")) if isinstance(m, dict) else None
-        if n is None:
-            continue
-        kept, before = remember((name, str(output)), n)
-        if kept and before is not None and n > before:  # (at first sight, the drifts before are history)
-            out.append({"format": WATCH_EVENT_FORMAT, "event": "drift", "stream": name, "output": str(output),
-                        "version": _count(m.get("version")), "drifts": n, "new": n - before,
-                        "drift_t_ns": _count(m.get("drift_t_ns"))})
-    return out
-
-
-def _stream_time(t_ns: int) -> str:
-    """A stream's time for a reader: UTC if it looks like a wall clock (after 1973), else seconds from its start."""
-    if t_ns > 10**17:
-        try:
-            when = datetime.datetime.fromtimestamp(t_ns / 1e9, tz=datetime.timezone.utc)
-            return when.isoformat(timespec="milliseconds")
-        except (OverflowError, OSError, ValueError):
-            pass
-    return f"{t_ns / 1e9:.3f} s"
-
-
-def format_event(ev: dict[str, Any]) -> str:
-    """The line of one :func:`status_events` event (escaped: names and reasons came from the network)."""
-    v = f"v{ev['version']}" if ev.get("version") is not None else ""
-    if ev["event"] == "degraded":
-        text = f"{ev['stream']} DEGRADED: {ev['reason']}"
-    elif ev["event"] == "healthy":
-        text = f"{ev['stream']} healthy again" + (f" (model {v})" if v else "")
-    else:
-        more = f"{ev['new']} new, " if ev["new"] > 1 else ""
-        served = f"the served model {v}" if v else "the served model"
-        t = ev["drift_t_ns"]
-        when = "change time not given" if t is None else f"change estimated at stream time {_stream_time(t)}"
-        text = (f"{ev['stream']} DRIFT on {ev['output']}: {served} no longer fits the incoming data ({when}; "
-                f"{more}{ev['drifts']} so far); the next identification starts from the change")
-    return printable(text, 2000)
-
-
 def run(args: argparse.Namespace) -> int:
     from streamid.transport.client import ModelSubscriber
     from streamid.wire.documents import parse_status
+    from streamid.wire.status_events import StatusChanges
     from streamid.errors import ModelFormatError
     from streamid.wire.keys import PREFIX, status_key
     from streamid.commands.zenoh_flags import settings_from_args
@@ -205,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--every must be a number of seconds >= 0; got {args.every}")
     stop = threading.Event()
     seen = [0]
-    remembered: dict[tuple[str, str], Any] = {}
+    changes = StatusChanges()
     origins: dict[str, Any] = {}
     out_lock = threading.Lock()
 
@@ -229,8 +156,8 @@ def run(args: argparse.Namespace) -> int:
         except ModelFormatError:
             return
         st.setdefault("stream", key)
-        for ev in status_events(remembered, st):
-            emit(json.dumps(ev) if args.json else format_event(ev))
+        for ev in changes.update(st):
+            emit(json.dumps(ev.to_dict()) if args.json else ev.text())
 
     settings = settings_from_args(args)
     where = ", ".join(settings.connect) or ", ".join(f"listening on {e}" for e in settings.listen) or "the --zenoh-config endpoints"

@@ -41,6 +41,7 @@ from streamid.transport.zenoh_bus import Bus, ZenohSettings, _Handle
 from streamid.wire.documents import parse_status
 from streamid.wire.keys import PREFIX, check_stream_name, model_key, parse_key, rejected_key, status_key
 from streamid.wire.names import printable
+from streamid.wire.status_events import StatusChanges, StatusEvent
 
 __all__ = [
     "ModelSubscriber",
@@ -104,7 +105,8 @@ class _Skips:
             self._last_warn[reason] = now
             quiet = self._quiet.pop(reason, 0)
         more = f" ({quiet} more skipped since the last warning)" if quiet else ""
-        _log.warning("model update on %s skipped (%s): %s%s", printable(key, 200), reason, message, more)
+        what = "status" if reason.endswith("_status") or key.endswith("/status") else "model update"
+        _log.warning("%s on %s skipped (%s): %s%s", what, printable(key, 200), reason, message, more)
 
     def snapshot(self) -> dict[str, int]:
         with self._lock:
@@ -178,6 +180,12 @@ class ModelSubscriber:
     max_models
         Bound on the (stream, output) pairs kept: a model of a new pair beyond it is skipped
         (``too_many``), so publishers inventing names cannot make the subscriber grow without end.
+    on_event
+        ``on_event(event: StatusEvent)``, called on a Zenoh thread with each change the streams' status
+        shows that bears on trusting their models (:mod:`streamid.wire.status_events`): ``drift`` (an
+        output's served model no longer fits the incoming data), ``degraded``, ``healthy``.  None: the
+        status is not subscribed to.  An exception it raises is logged, never propagated; a status that is
+        not a valid document is skipped (``malformed_status``).
 
     Attributes
     ----------
@@ -187,7 +195,7 @@ class ModelSubscriber:
         Documents skipped per reason: ``malformed`` (not a valid model update),
         ``key_mismatch`` (naming another stream than its key), ``kind_mismatch``
         (an accepted model on the rejected key or the other way round), ``too_many`` (beyond
-        ``max_models``).
+        ``max_models``), ``malformed_status`` (with ``on_event``: not a valid status document).
     stale : int
         Valid updates not newer than the current one of their output (e.g. a query reply
         that repeats a version already received).
@@ -206,6 +214,7 @@ class ModelSubscriber:
         include_rejected: bool = False,
         warn_every_s: float = 10.0,
         max_models: int = 4096,
+        on_event: Callable[[StatusEvent], object] | None = None,
     ) -> None:
         if stream != "*":
             check_stream_name(stream)
@@ -224,9 +233,14 @@ class ModelSubscriber:
         self._cond = threading.Condition(self._lock)
         self._order = threading.RLock()
         self._subs: list[_Handle] = []
+        self.on_event = on_event
+        self._changes = StatusChanges()
         self._bus, self._owned = _open(settings)
         key = f"{PREFIX}/*/model" if stream == "*" else model_key(stream)
         try:
+            if on_event is not None:  # first: a status saying "degraded" comes before the models are fetched
+                skey = f"{PREFIX}/*/status" if stream == "*" else status_key(stream)
+                self._subs.append(self._bus.subscribe(skey, self._on_status))
             self._subs.append(self._bus.subscribe(key, self._on_payload))
             if include_rejected:
                 rkey = f"{PREFIX}/*/rejected" if stream == "*" else rejected_key(stream)
@@ -280,6 +294,27 @@ class ModelSubscriber:
                 self._skips.skip("too_many", key, f"already {self.max_models} (stream, output) pairs kept (max_models)")
                 return
             self._deliver(up)
+
+    def _on_status(self, key: str, payload: bytes) -> None:
+        try:
+            st = parse_status(payload)
+        except ModelFormatError as exc:
+            self._skips.skip("malformed_status", key, str(exc))
+            return
+        try:
+            stream, _ = parse_key(key)
+        except ConfigError as exc:
+            self._skips.skip("malformed_status", key, str(exc))
+            return
+        if st.get("stream", stream) != stream:
+            self._skips.skip("key_mismatch", key, f"a status naming stream {printable(str(st['stream']), 80)}")
+            return
+        with self._order:  # one delivery at a time (events and models), in the order the statuses came
+            for ev in self._changes.update({**st, "stream": stream}):
+                try:
+                    self.on_event(ev)  # type: ignore[misc]  # set: the status is subscribed only then
+                except Exception:  # noqa: BLE001 - the user's callback must not kill zenoh's thread
+                    _log.exception("ModelSubscriber on_event failed on %s", ev.text())
 
     def latest_per_output(self, stream: str | None = None) -> dict[str, ModelUpdate]:
         """The newest accepted model of each output of ``stream`` (default: the subscribed one), by output name."""
