@@ -48,6 +48,10 @@ def test_one_step_and_forecasts_are_the_models_own_computations(reactor: tuple[M
             want = model.simulate(u[t + 1 - L : t + 51], y[t + 1 - L : t + 1])[L:]
             got = p.forecast(u[t + 1 : t + 51])
             assert got.shape == (50,) and np.allclose(got, want, rtol=1e-12, atol=1e-12)
+            plans = np.stack([u[t + 1 : t + 51] * g for g in (1.0, 0.5, -0.8)])  # candidate plans, at once
+            many = p.forecast_many(plans)
+            assert many.shape == (3, 50) and np.allclose(many[0], want, rtol=1e-12, atol=1e-12)
+            assert all(np.allclose(many[k], p.forecast(plans[k]), rtol=1e-12, atol=1e-12) for k in (1, 2))
             checked += 1
     assert checked >= 10
 
@@ -95,6 +99,13 @@ def test_every_kind_of_model_predicts_its_own_one_step_across_swaps_and_wraps() 
         got = p.predict_one(u_next=u[t + 1]) if has_direct_terms(served) else p.predict_one()
         assert got == pytest.approx(want, rel=1e-12, abs=1e-12), (t, served)
         checked += 1
+        if t in (300, 700, 1100):  # the free runs too: two plans at once, each the model's own simulate
+            L = served.max_lag
+            plans = np.stack([u[t + 1 : t + 41], -u[t + 1 : t + 41]])
+            many = p.forecast_many(plans)
+            for k in range(2):
+                want_run = served.simulate(np.vstack([u[t + 1 - L : t + 1], plans[k]]), y[t + 1 - L : t + 1])[L:]
+                assert np.allclose(many[k], want_run, rtol=1e-12, atol=1e-12), (t, k, served)
     assert checked > n - 30 and p._n <= 2 * MIN_HISTORY  # noqa: SLF001 - the buffer wrapped, still bounded
 
 def test_the_buffer_is_bounded_and_reset_forgets(reactor: tuple[Model, np.ndarray, np.ndarray]) -> None:
@@ -161,6 +172,10 @@ def test_bad_samples_are_refused_naming_the_value_and_nothing_is_added(
         p.forecast(np.zeros((0,)))
     with pytest.raises(DataError, match="u_plan must contain only finite numbers .*; got nan at sample 1"):
         p.forecast([0.1, np.nan])
+    with pytest.raises(DataError, match=r"u_plans\[1\] must contain only finite numbers .*; got inf at sample 0"):
+        p.forecast_many([[0.1, 0.2], [np.inf, 0.0]])
+    with pytest.raises(DataError, match=r"u_plans must be an array of shape \(P, H\) or \(P, H, 1\), .*got shape \(2,\)"):
+        p.forecast_many([0.1, 0.2])
     assert (p.held, p.predict_one()) == before
 
 
