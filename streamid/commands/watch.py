@@ -48,7 +48,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="exit after S seconds (with code 1 if no model was received by then)")
     p.add_argument("--rejected", action="store_true",
                    help="also print the rejected challengers (streamid/<stream>/rejected) and why")
-    p.add_argument("--json", action="store_true", help="print each update as one JSON line")
+    p.add_argument("--json", action="store_true",
+                   help="print each update, and each status event (drift, degraded, healthy), as one JSON line")
     p.set_defaults(func=run)
 
 
