@@ -106,11 +106,11 @@ def test_the_daemon_drift_reaches_a_subscriber_and_streamid_watch_as_a_line_and_
                                                                         on_event=seen.append) as sub:
             pub = bus.publisher("streamid/piezo/samples", block=True)
             assert pub.wait_for_subscribers(10.0)
+            for w in watchers:  # their sessions are up: they say what changes from the status they hear first
+                assert "waiting for models on 'piezo'" in _stderr_line(w, 30.0)
             bus.put("streamid/piezo/status", b"{not json")  # a broken and a forged status: skipped, counted
             bus.put("streamid/piezo/status", json.dumps({"format": "streamid.status/1", "stream": "other",
                                                           "degraded": True}).encode())
-            for w in watchers:  # their sessions are up: they say what changes from the status they hear first
-                assert "waiting for models on 'piezo'" in _stderr_line(w, 30.0)
             for seq, k in enumerate(range(0, t.size, 2000)):
                 pub.put(encode(SampleBatch("piezo", seq, int(t[k]), int(t[1] - t[0]), None, {"v": u[k : k + 2000]},
                                            {"x": y[k : k + 2000]})))
@@ -129,13 +129,16 @@ def test_the_daemon_drift_reaches_a_subscriber_and_streamid_watch_as_a_line_and_
     finally:
         for w in watchers:
             w.terminate()
-        outs = [w.communicate(timeout=30)[0] for w in watchers]
+        outs = [w.communicate(timeout=30) for w in watchers]
         daemon.stop()
-    text, as_json = outs
+    (text, text_err), (as_json, json_err) = outs
+    for err in (text_err, json_err):  # the watchers skipped them too, and say so on exit
+        assert "skipped 2 invalid status messages (malformed_status: 1, status_key_mismatch: 1)" in err, err
+    assert not any("DEGRADED" in ln and "other" in ln for ln in text.splitlines()), text
     drift_seen = [ev for ev in seen if ev.kind == "drift"]
     assert drift_seen and sum(ev.new for ev in drift_seen) == drifts and drift_seen[0].output == "x", seen
     assert all(ev.kind != "degraded" or ev.stream == "piezo" for ev in seen)  # the forged "other" never delivered
-    assert skipped.get("malformed_status") == 1 and skipped.get("key_mismatch") == 1, skipped
+    assert skipped.get("malformed_status") == 1 and skipped.get("status_key_mismatch") == 1, skipped
     lines = [ln for ln in text.splitlines() if " DRIFT on x: " in ln]
     assert 1 <= len(lines) <= drifts and all("no longer fits the incoming data" in ln for ln in lines), text
     docs = [json.loads(ln) for ln in as_json.splitlines()]

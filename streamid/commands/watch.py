@@ -118,11 +118,8 @@ def format_origin(up: Any, first: bool) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from streamid.transport.client import ModelSubscriber
-    from streamid.wire.documents import parse_status
-    from streamid.wire.status_events import StatusChanges
-    from streamid.errors import ModelFormatError
-    from streamid.wire.keys import PREFIX, status_key
+    from streamid.transport.client import STATUS_SKIPS, ModelSubscriber
+    from streamid.wire.status_events import StatusEvent
     from streamid.commands.zenoh_flags import settings_from_args
 
     if args.count is not None and args.count < 1:
@@ -133,7 +130,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--every must be a number of seconds >= 0; got {args.every}")
     stop = threading.Event()
     seen = [0]
-    changes = StatusChanges()
     origins: dict[str, Any] = {}
     out_lock = threading.Lock()
 
@@ -151,14 +147,8 @@ def run(args: argparse.Namespace) -> int:
         if args.count is not None and seen[0] >= args.count:
             stop.set()
 
-    def on_status(key: str, payload: bytes) -> None:
-        try:
-            st = parse_status(payload)
-        except ModelFormatError:
-            return
-        st.setdefault("stream", key)
-        for ev in changes.update(st):
-            emit(json.dumps(ev.to_dict()) if args.json else ev.text())
+    def on_event(ev: StatusEvent) -> None:  # what the streams' status says has changed (ModelSubscriber's)
+        emit(json.dumps(ev.to_dict()) if args.json else ev.text())
 
     settings = settings_from_args(args)
     where = ", ".join(settings.connect) or ", ".join(f"listening on {e}" for e in settings.listen) or "the --zenoh-config endpoints"
@@ -176,9 +166,8 @@ def run(args: argparse.Namespace) -> int:
                 if not bus.wait_connected(wait):
                     print(f"streamid watch: nothing reachable at {where} yet (no daemon or router there); still trying",
                           file=sys.stderr, flush=True)
-                skey = f"{PREFIX}/*/status" if args.stream == "*" else status_key(args.stream)
-                bus.subscribe(skey, on_status)
-                with ModelSubscriber(bus, args.stream, on_update, include_rejected=args.rejected) as sub:
+                with ModelSubscriber(bus, args.stream, on_update, include_rejected=args.rejected,
+                                     on_event=on_event) as sub:
                     if not sub.latest:
                         print(f"streamid watch: waiting for models on {args.stream!r} ...", file=sys.stderr, flush=True)
                     next_age = time.monotonic() + args.every if args.every else None
@@ -196,9 +185,11 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-    if skipped:
-        print(f"streamid watch: skipped {sum(skipped.values())} invalid model updates ("
-              + ", ".join(f"{k}: {v}" for k, v in skipped.items()) + ")", file=sys.stderr, flush=True)
+    for what, counts in (("model updates", {k: v for k, v in skipped.items() if k not in STATUS_SKIPS}),
+                         ("status messages", {k: v for k, v in skipped.items() if k in STATUS_SKIPS})):
+        if counts:
+            print(f"streamid watch: skipped {sum(counts.values())} invalid {what} ("
+                  + ", ".join(f"{k}: {v}" for k, v in counts.items()) + ")", file=sys.stderr, flush=True)
     if timed_out and seen[0] == 0:
         print(f"streamid watch: no model received from {where} in {args.duration:g} s", file=sys.stderr, flush=True)
         return 1

@@ -209,7 +209,8 @@ class Predictor:
         # values either way, and a refused sample changes nothing
         u_row: float | NDArray[np.float64]
         if self._scalar_u and isinstance(u, float) and isinstance(y, float) and isfinite(u) and isfinite(y):
-            u_row, un_row = u, 2.0 * (u - self._u_low0) / self._u_span0 - 1.0  # Normalisation.u, by sample
+            # Normalisation.u and .y, sample by sample (the same operations: the same values)
+            u_row, un_row = u, 2.0 * (u - self._u_low0) / self._u_span0 - 1.0
         else:
             u_row = _inputs("u", u, self._model.n_inputs)
             un_row = 2.0 * (u_row - self._u_low) / self._u_span - 1.0
@@ -335,8 +336,7 @@ class Predictor:
         norm: Normalisation = model.normalisation
         self._u_low, self._u_span = np.asarray(norm.u_low), np.asarray(norm.u_high) - np.asarray(norm.u_low)
         self._y_low, self._y_span, self._y_half = norm.y_low, norm.y_high - norm.y_low, norm.y_half_range
-        self._un[: self._n] = 2.0 * (self._u[: self._n] - self._u_low) / self._u_span - 1.0
-        self._yn[: self._n] = 2.0 * (self._y[: self._n] - self._y_low) / self._y_span - 1.0
+        self._un[: self._n], self._yn[: self._n] = norm.u(self._u[: self._n]), norm.y(self._y[: self._n])
         self._u_low0, self._u_span0 = float(self._u_low[0]), float(self._u_span[0])
         self._scalar_u = model.n_inputs == 1
         self._nets = [_Network(m) for m in members_of(model)]

@@ -44,6 +44,7 @@ from streamid.wire.names import printable
 from streamid.wire.status_events import StatusChanges, StatusEvent
 
 __all__ = [
+    "STATUS_SKIPS",
     "ModelSubscriber",
     "ModelUpdate",
     "NoDaemonError",
@@ -84,6 +85,10 @@ def _where(bus: Bus) -> str:
     return ", ".join(s.connect) or ", ".join(f"listening on {e}" for e in s.listen) or "the --zenoh-config endpoints"
 
 
+#: The reasons :attr:`ModelSubscriber.skipped` counts for status messages (``on_event``), not model updates.
+STATUS_SKIPS = frozenset({"malformed_status", "status_key_mismatch"})
+
+
 class _Skips:
     """Skipped documents: counted per reason, one warning per reason at most every ``every_s`` seconds."""
 
@@ -105,7 +110,7 @@ class _Skips:
             self._last_warn[reason] = now
             quiet = self._quiet.pop(reason, 0)
         more = f" ({quiet} more skipped since the last warning)" if quiet else ""
-        what = "status" if reason.endswith("_status") or key.endswith("/status") else "model update"
+        what = "status" if reason in STATUS_SKIPS else "model update"
         _log.warning("%s on %s skipped (%s): %s%s", what, printable(key, 200), reason, message, more)
 
     def snapshot(self) -> dict[str, int]:
@@ -195,7 +200,8 @@ class ModelSubscriber:
         Documents skipped per reason: ``malformed`` (not a valid model update),
         ``key_mismatch`` (naming another stream than its key), ``kind_mismatch``
         (an accepted model on the rejected key or the other way round), ``too_many`` (beyond
-        ``max_models``), ``malformed_status`` (with ``on_event``: not a valid status document).
+        ``max_models``); with ``on_event``, ``malformed_status`` (not a valid status document) and
+        ``status_key_mismatch`` (a status naming another stream than its key) (:data:`STATUS_SKIPS`).
     stale : int
         Valid updates not newer than the current one of their output (e.g. a query reply
         that repeats a version already received).
@@ -307,7 +313,7 @@ class ModelSubscriber:
             self._skips.skip("malformed_status", key, str(exc))
             return
         if st.get("stream", stream) != stream:
-            self._skips.skip("key_mismatch", key, f"a status naming stream {printable(str(st['stream']), 80)}")
+            self._skips.skip("status_key_mismatch", key, f"a status naming stream {printable(str(st['stream']), 80)}")
             return
         with self._order:  # one delivery at a time (events and models), in the order the statuses came
             for ev in self._changes.update({**st, "stream": stream}):
