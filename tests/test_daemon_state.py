@@ -95,7 +95,7 @@ def test_readers_never_see_a_partial_document(tmp_path: Path) -> None:
     [
         ("{not json", "must be JSON"),
         ('{"format": "other"}', "expected a document with format"),
-        ('{"format": "streamid.daemon-state/1", "stream": "s", "version": -1}', "'version' must be an integer >= 0"),
+        ('{"format": "streamid.daemon-state/1", "stream": "s", "version": -1}', "'version' must be an integer in \\[0, 2\\*\\*53\\)"),
         ('{"format": "streamid.daemon-state/1", "stream": "t", "version": 1}', "holds the state of stream 't'"),
         ('{"format": "streamid.daemon-state/1", "stream": "s", "version": 1, "coea_state": 5}', "'coea_state' a string"),
     ],

@@ -22,16 +22,25 @@ from __future__ import annotations
 
 import glob
 import os
+import stat
 import tempfile
 import time
 from pathlib import Path
 
 from streamid.errors import ConfigError, ModelFormatError
-from streamid.online.snapshot import STATE_FORMAT, StreamState
+from streamid.online.snapshot import MAX_VERSION, STATE_FORMAT, StreamState
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
-__all__ = ["KEEP_QUARANTINED", "STATE_FORMAT", "StreamState", "StateStore", "atomic_write_text"]
+__all__ = ["KEEP_QUARANTINED", "MAX_STATE_BYTES", "RECORD_COMPACT_BYTES", "RECORD_READ_BYTES", "STATE_FORMAT",
+           "StreamState", "StateStore", "atomic_write_text", "read_regular_file"]
 _SUFFIX = ".json"
+_RECORD = ".versions"
+#: Largest state file read (a state with populations is a few MB; the MR damper's ~96 kB).
+MAX_STATE_BYTES = 32 * 1024 * 1024
+#: A version record longer than this is rewritten to its highest version.
+RECORD_COMPACT_BYTES = 4096
+#: Bytes of a version record read.
+RECORD_READ_BYTES = 64 * 1024
 _CORRUPT = ".corrupt-"
 #: Quarantined files kept per stream (the oldest beyond this are deleted when another is moved aside).
 KEEP_QUARANTINED = 8
@@ -63,6 +72,41 @@ def atomic_write_text(path: Path, text: str) -> None:
         pass
     finally:
         os.close(dfd)
+
+
+def read_regular_file(path: str | Path, max_bytes: int, *, head: bool = False) -> bytes:
+    """The bytes of ``path`` if it is a regular file of at most ``max_bytes`` (else ``ValueError`` saying why).
+
+    ``head``: a larger regular file gives its first ``max_bytes`` instead of the error.
+
+    Opened without blocking (a FIFO does not hang the reader) and checked on the open descriptor
+    (what is read is what was checked); at most ``max_bytes`` are ever read.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no such file.
+    OSError
+        If it cannot be opened or read.
+    ValueError
+        If it is not a regular file, or larger than ``max_bytes``.
+    """
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{path} is not a regular file (mode {stat.filemode(st.st_mode)}); only regular files are read")
+        if st.st_size > max_bytes and not head:
+            raise ValueError(f"{path} holds {st.st_size} bytes, more than the {max_bytes} read at most")
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            raw = fh.read(max_bytes + 1)
+        if len(raw) > max_bytes:
+            if head:
+                return raw[:max_bytes]
+            raise ValueError(f"{path} holds more than the {max_bytes} bytes read at most")
+        return raw
+    finally:
+        os.close(fd)
 
 
 class StateStore:
@@ -118,10 +162,10 @@ class StateStore:
         """
         p = self.path(stream)
         try:
-            text = p.read_text(encoding="utf-8")
+            text = read_regular_file(p, MAX_STATE_BYTES).decode("utf-8")
         except FileNotFoundError:
             return None
-        except (OSError, UnicodeDecodeError) as exc:
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
             raise ModelFormatError(f"{p}: cannot read the daemon state ({exc})") from exc
         st = StreamState.from_json(text, source=str(p))
         if st.stream != stream:
@@ -133,6 +177,49 @@ class StateStore:
         p = self.path(state.stream)
         atomic_write_text(p, state.to_json())
         return p
+
+    def record_path(self, stream: str) -> Path:
+        """The version record of ``stream`` (see the module docstring)."""
+        return self.path(stream).with_name(f"{stream}{_RECORD}")
+
+    def record_version(self, stream: str, version: int) -> None:
+        """Append ``version`` to the stream's version record (fsync'ed); compact it when it is long.
+
+        Raises
+        ------
+        OSError
+            If it cannot be written (the caller treats it as a failed save).
+        """
+        p = self.record_path(stream)
+        fd = os.open(p, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        try:
+            os.write(fd, f"{int(version)}\n".encode())
+            os.fsync(fd)
+            size = os.fstat(fd).st_size
+        finally:
+            os.close(fd)
+        if size > RECORD_COMPACT_BYTES:
+            best = max(self.recorded_version(stream) or 0, int(version))
+            atomic_write_text(p, f"{best}\n")
+
+    def recorded_version(self, stream: str) -> int | None:
+        """The highest version in the stream's record (None: no record, or no credible line in it).
+
+        Lines that are not an integer in [0, 2**53) are ignored; a record that is not a regular
+        file is ignored (a warning is the caller's).
+        """
+        try:  # a record larger than the bound (it is compacted long before): its head still counts
+            raw = read_regular_file(self.record_path(stream), RECORD_READ_BYTES, head=True)
+        except (OSError, ValueError):
+            return None
+        best: int | None = None
+        for line in raw.split(b"\n"):
+            line = line.strip()
+            if line.isdigit() and len(line) <= 19:
+                v = int(line)
+                if v < MAX_VERSION and (best is None or v > best):
+                    best = v
+        return best
 
     def quarantine(self, stream: str) -> Path | None:
         """Move an unreadable state file aside (``.corrupt-<ns>``); returns the new path.

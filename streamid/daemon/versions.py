@@ -12,6 +12,10 @@ unheard.  :class:`VersionKeeper` is what the daemon does about it:
   highest version still readable in the quarantined files is found by a plain
   scan of their bytes for ``"version": <digits>`` (valid JSON or not:
   :func:`highest_version_in`).  The next version is above it.
+* **Version record.**  :meth:`VersionKeeper.persist` appends each version to
+  ``<stream>.versions`` before the state carrying it is saved, and :meth:`VersionKeeper.resume`
+  numbers above the record's highest version: a state file emptied, deleted or replaced by
+  an older one never makes a version number be used twice.
 * **No state.**  Before the first model of a stream that had no usable state,
   :meth:`VersionKeeper.settle` asks the network for that stream's current model
   (``streamid/<stream>/model``, bounded by ``query_timeout_s``, 1 s by default)
@@ -35,8 +39,9 @@ each quarantined file is scanned up to :data:`SCAN_MAX_BYTES`, at most
 :data:`~streamid.daemon.state_store.KEEP_QUARANTINED` files per stream; one
 network query per stream and daemon life, at most ``query_timeout_s``, at most
 :data:`MAX_REPLIES` replies of at most :data:`MAX_REPLY_BYTES` each read; a
-version above :data:`MAX_VERSION` (2**53, the largest integer every JSON reader
-keeps exactly) is ignored as not credible.
+version at or above :data:`MAX_VERSION` (2**53, the largest integer every JSON reader
+keeps exactly) is ignored as not credible (a state file holding one is refused and quarantined);
+only regular files are scanned.
 """
 
 from __future__ import annotations
@@ -49,10 +54,10 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from streamid.daemon.identity import IDENTITY_FILE, Origin, save_identity
-from streamid.daemon.state_store import StateStore
+from streamid.daemon.state_store import StateStore, read_regular_file
 from streamid.errors import ModelFormatError, StreamidError
 from streamid.online.snapshot import StreamState
-from streamid.wire.documents import parse_model_update_fields
+from streamid.wire.documents import MAX_VERSION, parse_model_update_fields
 from streamid.wire.keys import model_key
 
 __all__ = ["MAX_REPLIES", "MAX_REPLY_BYTES", "MAX_UNSAVED", "MAX_VERSION", "SCAN_MAX_BYTES", "VersionKeeper",
@@ -65,8 +70,6 @@ SCAN_MAX_BYTES = 64 * 1024 * 1024
 #: Replies of the network query that are read, and the size of each.
 MAX_REPLIES = 64
 MAX_REPLY_BYTES = 16 * 1024 * 1024
-#: Versions above this are not credible (damaged digits, a forger): ignored.
-MAX_VERSION = 2**53
 #: Streams whose unsaved version is remembered in memory (one small tuple each; the oldest is forgotten first).
 MAX_UNSAVED = 100_000
 _VERSION_RE = re.compile(rb'"version"\s*:\s*(\d{1,19})(?![\d.eE])')
@@ -92,17 +95,16 @@ def highest_version_in(path: str | Path, max_bytes: int = SCAN_MAX_BYTES) -> int
 
     A damaged state document (cut short, bytes flipped, not JSON any more) usually still
     holds its ``"version"`` fields; that is all this reads.  Versions above
-    :data:`MAX_VERSION` are ignored.
+    :data:`MAX_VERSION` are ignored; a file that is not a regular file is not read.
     """
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(max_bytes)
-    except OSError:
+        raw = read_regular_file(path, max_bytes, head=True)
+    except (OSError, ValueError):
         return None
     best: int | None = None
     for m in _VERSION_RE.finditer(raw):
         v = int(m.group(1))
-        if v <= MAX_VERSION and (best is None or v > best):
+        if v < MAX_VERSION and (best is None or v > best):
             best = v
     return best
 
@@ -120,7 +122,7 @@ def highest_version_on_network(bus: _Querier, stream: str, timeout_s: float) -> 
         except (ModelFormatError, ValueError):
             continue
         v = fields.get("version")
-        if fields.get("stream") != stream or not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= MAX_VERSION:
+        if fields.get("stream") != stream or not isinstance(v, int) or isinstance(v, bool) or not 0 <= v < MAX_VERSION:
             continue
         best = v if best is None else max(best, v)
     return best
@@ -170,6 +172,9 @@ class VersionKeeper:
                     _log.warning("stream %s: %s", name, warning)
                 _log.info("stream %s: resumed at version %d from %s", name, saved.version, self.store.path(name))
             floor, where = self._quarantined_floor(name)
+            recorded = self.store.recorded_version(name)
+            if recorded is not None and (floor is None or recorded > floor):
+                floor, where = recorded, str(self.store.record_path(name))
             with self._lock:
                 unsaved = self._unsaved.get(name)
             if unsaved is not None and (floor is None or unsaved[1] > floor):
@@ -244,6 +249,7 @@ class VersionKeeper:
             return
         name = state.stream
         try:
+            self.store.record_version(name, state.version)  # first: a state older than the record is never trusted
             self.store.save(state)
         except (OSError, ValueError) as exc:
             error = str(exc)[:300] or type(exc).__name__

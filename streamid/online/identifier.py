@@ -66,7 +66,7 @@ from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome, StopFlag, UpdateJob, cut_window
 from streamid.online.watch import watch_blocks
 from streamid.online.window_types import Window
-from streamid.wire.documents import encode_json, model_update_message
+from streamid.wire.documents import MAX_VERSION, encode_json, model_update_message
 from streamid.wire.keys import check_stream_name
 
 __all__ = ["OnlineIdentifier", "Update", "Persist", "EVENTS_KEPT"]
@@ -178,7 +178,9 @@ class OnlineIdentifier(StreamIntake):
             self._job = None
 
     def raise_version_floor(self, version: int) -> None:
-        """Hand out only versions above ``version`` from now on (e.g. the highest seen on the network after lost state)."""
+        """Hand out only versions above ``version`` (< 2**53) from now on (e.g. the highest seen on the network)."""
+        if not 0 <= int(version) < MAX_VERSION:
+            raise ValueError(f"a version floor must be in [0, 2**53); got {version!r}")
         self._floor = max(self._floor, int(version))
 
     def finish(self, job: UpdateJob, outcome: Outcome, *, now_ns: int = 0, persist: Persist | None = None) -> Update:

@@ -24,9 +24,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from streamid.errors import ModelFormatError
+from streamid.wire.documents import MAX_VERSION
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
-__all__ = ["STATE_FORMAT", "StreamState"]
+__all__ = ["MAX_VERSION", "STATE_FORMAT", "StreamState"]
 
 STATE_FORMAT = "streamid.daemon-state/1"
 
@@ -103,8 +104,8 @@ class StreamState:
         stream, version = doc.get("stream"), doc.get("version")
         if not is_valid_stream_name(stream):
             raise ModelFormatError(f"{source}: 'stream' must be a stream name ({STREAM_NAME_RULE}); got {stream!r}")
-        if isinstance(version, bool) or not isinstance(version, int) or version < 0:
-            raise ModelFormatError(f"{source}: 'version' must be an integer >= 0; got {version!r}")
+        _check_version(version, "'version'", source)
+        assert isinstance(version, int)
         sig, msg, co = doc.get("signature", {}), doc.get("model_message"), doc.get("coea_state")
         if not isinstance(sig, dict) or not (msg is None or isinstance(msg, dict)) or not (co is None or isinstance(co, str)):
             raise ModelFormatError(
@@ -116,9 +117,22 @@ class StreamState:
         others = doc.get("others", {})
         if not isinstance(others, dict) or not all(isinstance(v, dict) for v in others.values()):
             raise ModelFormatError(f"{source}: 'others' must be an object of per-output objects; got {others!r:.200}")
+        for where, part in [("", doc), *((f"others[{k!r:.80}].", v) for k, v in others.items())]:
+            if where:
+                _check_version(part.get("version", 0), f"'{where}version'", source)
+            m = part.get("model_message")
+            if isinstance(m, dict) and "version" in m:
+                _check_version(m["version"], f"'{where}model_message.version'", source)
         return cls(
             str(stream), version, sig, msg, co,
             saved if isinstance(saved, int) and not isinstance(saved, bool) else 0,
             fails if isinstance(fails, int) and not isinstance(fails, bool) and fails >= 0 else 0,
             {str(k): dict(v) for k, v in others.items()},
         )
+
+
+def _check_version(v: Any, what: str, source: str) -> None:
+    """A version read from a state: an integer in [0, MAX_VERSION) (the next one must still fit), else refused."""
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < MAX_VERSION:
+        raise ModelFormatError(f"{source}: {what} must be an integer in [0, 2**53) (below {MAX_VERSION}, so the next "
+                               f"version still fits); got {v!r:.40}")

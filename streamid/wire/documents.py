@@ -40,6 +40,7 @@ from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 from streamid.wire.names import MAX_NAME_BYTES, UNSAFE_RULE, printable, unsafe_char
 
 __all__ = [
+    "MAX_VERSION",
     "MODEL_UPDATE_FORMAT",
     "STATUS_FORMAT",
     "MAX_DOCUMENT_BYTES",
@@ -59,6 +60,9 @@ STATUS_FORMAT = "streamid.status/1"
 MAX_DOCUMENT_BYTES = 8 * 1024 * 1024
 #: Longest decision reason, in characters.
 MAX_REASON_CHARS = 4096
+#: Highest version a document may carry (2**53, the largest integer every JSON reader keeps exactly): the daemon
+#: never numbers above it and reads no version above it, from a file, a handed-over state or the network.
+MAX_VERSION = 2**53
 _I64_MAX = (1 << 63) - 1
 _CODE_RE = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 _WINDOW_INTS = ("t0_ns", "t_end_ns", "period_ns", "n_samples", "n_estimation", "n_validation", "number")
@@ -263,7 +267,7 @@ def _decision(v: object, accepted: bool) -> Decision:
         cw = "model update decision champion"
         if not isinstance(champ, dict):
             raise ModelFormatError(f"{what} 'champion' must be a JSON object or null; got {_shown(champ)}")
-        champion = Champion(version=_int(champ, "version", cw, lo=1),
+        champion = Champion(version=_int(champ, "version", cw, lo=1, hi=MAX_VERSION),
                             r2_fr_val=_num(champ, "r2_fr_val", cw, nullable=True, default=None),
                             r2_osa_val=_num(champ, "r2_osa_val", cw, nullable=True, default=None))
     return Decision(accepted=acc, code=code, reason=reason, margin=margin, champion=champion)
@@ -318,7 +322,7 @@ def parse_model_update_fields(payload: bytes | str) -> ModelUpdateFields:
     if not is_valid_stream_name(stream):
         raise ModelFormatError(f"model update 'stream' must be a stream name, {STREAM_NAME_RULE}; got {_shown(stream)}")
     accepted = _bool(doc, "accepted", what, default=True)
-    version = _int(doc, "version", what, lo=1 if accepted else 0)
+    version = _int(doc, "version", what, lo=1 if accepted else 0, hi=MAX_VERSION)
     model = _obj(doc, "model", what)
     model_output = model.get("output")
     output = _name(_get(doc, "output", what, model_output if model_output is not None else "y"),
@@ -371,7 +375,7 @@ def parse_status(payload: bytes | str) -> dict[str, Any]:
         raise ModelFormatError(f"status message 'stream' must be a stream name, {STREAM_NAME_RULE}; "
                                f"got {_shown(doc['stream'])}")
     if "version" in doc:
-        _int(doc, "version", what)
+        _int(doc, "version", what, hi=MAX_VERSION)
     if "degraded" in doc:
         _bool(doc, "degraded", what)
     reason = doc.get("degraded_reason", "")

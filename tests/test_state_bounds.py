@@ -1,0 +1,155 @@
+"""State files and versions under hostile or damaged input (issue 39, item 1).
+
+Real files in a temporary directory, a real :class:`OnlineIdentifier` identifying the simulated MR
+damper, the real :class:`VersionKeeper`; one real ``streamid daemon`` process for the state file
+that is a symlink to ``/dev/zero``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from conftest import STREAMID, endpoint
+
+from streamid.daemon.identity import Origin
+from streamid.daemon.state_store import MAX_STATE_BYTES, RECORD_COMPACT_BYTES, StateStore
+from streamid.daemon.versions import MAX_VERSION, VersionKeeper
+from streamid.errors import ModelFormatError
+from streamid.online import OnlineIdentifier, StreamConfig
+from streamid.online.snapshot import StreamState
+from streamid.sim import get_device
+
+SMALL = StreamConfig(window_s=2.0, update_every_s=2.0, cold_generations=5, warm_generations=2, neurons=3,
+                     max_lag_y=2, max_lag_u=2, population=8, min_r2_osa=-1e9, min_r2_fr=-1e9, challenger_margin=0.0)
+
+
+def _first_accepted_version(ident: OnlineIdentifier) -> int:
+    t_ns, u, y = get_device("mr_damper").simulate_seconds(4.0, seed=1)
+    ident.learn_many(t_ns, u, y, inputs=["velocity"], outputs=["force"])
+    ups = [up for up in ident.update_all() if up.accepted]
+    assert ups, "no accepted model"
+    return ups[0].version
+
+
+def _life(store: StateStore, caplog: pytest.LogCaptureFixture) -> tuple[OnlineIdentifier, VersionKeeper]:
+    keeper = VersionKeeper(store, Origin("d1", time.time_ns()))
+    ident = OnlineIdentifier(SMALL, stream="s", origin=keeper.origin_doc)
+    with caplog.at_level(logging.WARNING):
+        keeper.resume(ident)
+    return ident, keeper
+
+
+def _persisted_lives(store: StateStore, n: int) -> int:
+    """Run identifications whose states are persisted through the keeper; returns the last version saved."""
+    keeper = VersionKeeper(store, Origin("d0", 1))
+    ident = OnlineIdentifier(SMALL, stream="s", origin=keeper.origin_doc)
+    keeper.resume(ident)
+    t_ns, u, y = get_device("mr_damper").simulate_seconds(2.0 * n + 2.0, seed=4)
+    ident.learn_many(t_ns, u, y, inputs=["velocity"], outputs=["force"])
+    for up in ident.update_all():
+        if up.accepted:
+            keeper.persist(ident.state())
+    return ident.version
+
+
+@pytest.mark.parametrize("version", [2**63 - 1, MAX_VERSION, 10**30])
+def test_a_state_beyond_the_version_bound_is_quarantined_naming_value_and_file(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, version: int) -> None:
+    store = StateStore(tmp_path)
+    text = StreamState("s", 3).to_json().replace('"version":3', f'"version":{version}')
+    store.path("s").write_text(text)
+    with pytest.raises(ModelFormatError, match=rf"'version' must be an integer in \[0, 2\*\*53\).*got {version}"):
+        store.load("s")
+    ident, _ = _life(store, caplog)
+    assert str(version) in caplog.text and str(store.path("s")) in caplog.text
+    assert not store.path("s").exists() and len(store.quarantined("s")) == 1
+    assert _first_accepted_version(ident) == 1  # was: 2**63, refused by every client, the stream silenced
+
+
+def test_a_handed_over_state_beyond_the_bound_and_a_bad_champion_version_are_refused() -> None:
+    for doc in ({"version": 2**63 - 1}, {"version": 1, "model_message": {"version": 2**63}},
+                {"version": 1, "others": {"g": {"version": 2**60}}}):
+        text = json.dumps({"format": "streamid.daemon-state/1", "stream": "s", **doc})
+        with pytest.raises(ModelFormatError, match=r"2\*\*53"):
+            StreamState.from_json(text, source="the state handed over on streamid/@state/s")
+    with pytest.raises(ValueError, match=r"2\*\*53"):
+        OnlineIdentifier(SMALL, stream="s").raise_version_floor(2**63 - 1)
+
+
+@pytest.mark.parametrize("damage", ["emptied", "deleted", "older"])
+def test_versions_are_never_reused_after_the_state_file_is_emptied_deleted_or_replaced_by_an_older_one(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, damage: str) -> None:
+    store = StateStore(tmp_path)
+    top = _persisted_lives(store, 3)
+    assert top >= 2 and store.recorded_version("s") == top
+    p = store.path("s")
+    if damage == "emptied":
+        p.write_bytes(b"")
+    elif damage == "deleted":
+        p.unlink()
+    else:
+        p.write_text(StreamState("s", 1).to_json())
+    ident, _ = _life(store, caplog)
+    assert f"versions continue above v{top}" in caplog.text and "s.versions" in caplog.text
+    assert _first_accepted_version(ident) == top + 1  # was: 1 (emptied, deleted) or 2 (older)
+
+
+def test_the_version_record_is_compacted_and_ignores_what_is_not_a_version(tmp_path: Path) -> None:
+    store = StateStore(tmp_path)
+    for v in range(1, 1500):
+        store.record_version("s", v)
+    assert store.record_path("s").stat().st_size <= RECORD_COMPACT_BYTES + 20
+    assert store.recorded_version("s") == 1499
+    store.record_path("s").write_bytes(b"12\n%d\nxx\n-5\n7.5\n%d\n40\n" % (MAX_VERSION, 2**63 - 1))
+    assert store.recorded_version("s") == 40
+    store.record_path("s").unlink()
+    os.symlink("/dev/zero", store.record_path("s"))
+    assert store.recorded_version("s") is None  # not a regular file: not read
+
+
+@pytest.mark.parametrize("kind", ["dev-zero", "fifo", "directory", "too-large"])
+def test_only_regular_state_files_under_the_size_bound_are_read(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, kind: str) -> None:
+    store = StateStore(tmp_path)
+    p = store.path("s")
+    if kind == "dev-zero":
+        os.symlink("/dev/zero", p)
+    elif kind == "fifo":
+        os.mkfifo(p)
+    elif kind == "directory":
+        p.mkdir()
+    else:
+        with open(p, "wb") as fh:  # sparse: costs no disk
+            fh.truncate(MAX_STATE_BYTES + 1)
+    rule = "more than the" if kind == "too-large" else "not a regular file"
+    with pytest.raises(ModelFormatError, match=rule):
+        store.load("s")
+    if kind != "directory":
+        ident, _ = _life(store, caplog)
+        assert rule in caplog.text and str(p) in caplog.text
+        assert _first_accepted_version(ident) == 1
+
+
+def test_daemon_with_a_state_file_linked_to_dev_zero_starts_warns_and_stops_on_time(tmp_path: Path) -> None:
+    """Was: the daemon printed nothing, ignored --duration and read /dev/zero until the OOM killer (24 GB)."""
+    state = tmp_path / "state"
+    state.mkdir()
+    os.symlink("/dev/zero", state / "s.json")
+    proc = subprocess.Popen([*STREAMID, "daemon", "--listen", endpoint(), "--state-dir", str(state), "--stream", "s",
+                             "--no-rerun", "--duration", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        _, err = proc.communicate(timeout=60)  # a deadline for a stuck daemon, not a measure of speed
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+        raise AssertionError(f"the daemon did not stop: {err[-2000:]}") from None
+    assert proc.returncode == 0, err[-2000:]
+    assert "not a regular file" in err and "s.json" in err, err[-2000:]
+    assert [q.name.split(".corrupt-")[0] for q in state.glob("s.json.corrupt-*")] == ["s.json"]
