@@ -26,6 +26,7 @@ from streamid.errors import StreamidError
 BUILTIN_COMMANDS: tuple[str, ...] = (
     "streamid.commands.identify",
     "streamid.commands.validate",
+    "streamid.commands.export",
     "streamid.commands.daemon",
     "streamid.commands.watch",
     "streamid.commands.status",
