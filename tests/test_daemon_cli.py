@@ -100,7 +100,8 @@ def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
         assert "stream mr_damper: configured" in err or "stream mr_damper: discovered" in err, err[-2000:]
         assert "stream mr_damper: window 1 identified, model v1 published (cold, R² validation OSA 0." in err
         assert "model v2 published (warm, R² validation OSA" in err
-        assert stopped and float(stopped[0].split("stopped in")[1].split()[0]) < 2.0
+        # it stopped, whole: every thread joined (no "still running"), nothing left behind; how fast is the bench's
+        assert stopped and "threads still running at shutdown" not in err, err[-2000:]
     finally:
         for p in (daemon, watch):
             if p.poll() is None:

@@ -308,9 +308,7 @@ def test_no_state_asks_the_network_once_and_counts_only_the_streams_own_replies(
         keeper = VersionKeeper(StateStore(tmp_path), Origin("d2", 2), query_timeout_s=1.0)
         ident = OnlineIdentifier(SMALL, stream="s", origin=keeper.origin_doc)
         keeper.resume(ident)
-        t0 = time.monotonic()
         assert keeper.settle(ident, client, threading.Lock()) == 41
-        assert time.monotonic() - t0 < 1.5
         assert keeper.settle(ident, client) is None and not keeper.needs_settle("s")  # once per stream and life
         assert _first_accepted_version(ident) == 42
     # a stream with saved state does not ask

