@@ -48,8 +48,14 @@ static const double u_start[NI > 0 ? NI : 1] = @USTART@;
 
 static void say(instance_t *c, fmi2Status status, const char *category, const char *message)
 {
+    /* the message is the format itself (no '%' in it: a logger that does not format, as some masters', reads
+       the text as it is) */
+    char text[256];
+    size_t i;
+    for (i = 0; message[i] != '\0' && i + 1 < sizeof text; ++i) text[i] = message[i] == '%' ? '#' : message[i];
+    text[i] = '\0';
     if (c->cb.logger != NULL && (c->logging || status >= fmi2Warning))
-        c->cb.logger(c->cb.componentEnvironment, c->name, status, category, "%s", message);
+        c->cb.logger(c->cb.componentEnvironment, c->name, status, category, text);
 }
 
 static fmi2Status fail(instance_t *c, const char *message)
@@ -83,8 +89,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (fmuType != fmi2CoSimulation || fmuGUID == NULL || strcmp(fmuGUID, GUID) != 0) {
         if (functions->logger != NULL)
             functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError",
-                              "%s", fmuType != fmi2CoSimulation ? "@N@ is a co-simulation FMU only"
-                                                                : "the GUID does not match this FMU's");
+                              fmuType != fmi2CoSimulation ? "@N@ is a co-simulation FMU only"
+                                                          : "the GUID does not match this FMU's");
         return NULL;
     }
     c = (instance_t *)functions->allocateMemory(1, sizeof(instance_t));

@@ -1,0 +1,100 @@
+"""streamid export --c: the C99 code compiles with gcc -std=c99 -Wall -Wextra -Werror, calls nothing but
+``exp`` (no allocation), documents itself, and its step function equals ``Model.simulate`` from the same
+constant initial history to 1e-6 of the output's range at every sample, for every model kind (a small C
+driver, compiled and run, prints the outputs)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from export_models import INPUTS, kinds, record, second_output
+from streamid.engine.model import Model
+from streamid.export import write_c
+
+KINDS = [*kinds(), "two_outputs"]
+STREAMID = [sys.executable, "-m", "streamid"]
+GCC = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+
+DRIVER = r"""#include <stdio.h>
+#include "@N@.h"
+int main(void)
+{
+    @N@_state s;
+    double u[@N_UP@_N_INPUTS], y[@N_UP@_N_OUTPUTS], initial[@N_UP@_N_OUTPUTS];
+    int i;
+    for (i = 0; i < @N_UP@_N_OUTPUTS; ++i)
+        if (scanf("%lf", &initial[i]) != 1) return 1;
+    @N@_init(&s, initial);
+    for (;;) {
+        for (i = 0; i < @N_UP@_N_INPUTS; ++i)
+            if (scanf("%lf", &u[i]) != 1) return 0;
+        @N@_step(&s, u, y);
+        for (i = 0; i < @N_UP@_N_OUTPUTS; ++i) printf("%.17g%c", y[i], i + 1 < @N_UP@_N_OUTPUTS ? ' ' : '\n');
+    }
+}
+"""
+
+
+def gcc() -> str:
+    found = shutil.which("gcc")
+    if found is None:
+        pytest.skip("needs gcc (Debian package gcc)")
+    return found
+
+
+def models_of(kind: str) -> list[Model]:
+    return [kinds()["direct"], second_output()] if kind == "two_outputs" else [kinds()[kind]]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_c_step_function_equals_model_simulate(kind: str, tmp_path: Path) -> None:
+    cc = gcc()
+    models, u = models_of(kind), record()
+    h, c = write_c(models, tmp_path, name=kind)
+    (tmp_path / "driver.c").write_text(DRIVER.replace("@N_UP@", kind.upper()).replace("@N@", kind))
+    obj = tmp_path / f"{kind}.o"
+    subprocess.run([cc, *GCC, "-c", "-o", str(obj), str(c)], check=True, capture_output=True, text=True)
+    # no allocation, no I/O: the model's object file calls exp and nothing else
+    if shutil.which("nm") is None:
+        pytest.skip("needs nm (Debian package binutils)")
+    undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True, check=True).stdout.split()
+    assert [s for s in undefined if s != "U"] == ["exp"], undefined
+    exe = tmp_path / "drive"
+    subprocess.run([cc, *GCC, "-O2", "-I", str(tmp_path), "-o", str(exe), str(tmp_path / "driver.c"), str(obj), "-lm"],
+                   check=True, capture_output=True, text=True)
+    init = [m.normalisation.y_low + 0.7 * (m.normalisation.y_high - m.normalisation.y_low) for m in models]
+    feed = " ".join(repr(v) for v in init) + "\n" + "\n".join(" ".join(repr(float(v)) for v in row) for row in u)
+    out = subprocess.run([str(exe)], input=feed, capture_output=True, text=True, check=True, timeout=30).stdout
+    got = np.array([[float(v) for v in ln.split()] for ln in out.splitlines()])
+    assert got.shape == (len(u), len(models))
+    for j, m in enumerate(models):
+        want = m.simulate(u, np.full(m.max_lag, init[j]))
+        span = m.normalisation.y_high - m.normalisation.y_low
+        assert np.max(np.abs(got[:, j] - want)) <= 1e-6 * span, (kind, m.output_name)
+        assert np.allclose(got[: m.max_lag, j], init[j])  # the initial history, as Model.simulate's y_init
+
+
+def test_the_header_documents_inputs_outputs_units_period_and_timing(tmp_path: Path) -> None:
+    h, _ = write_c(models_of("two_outputs"), tmp_path, name="plant")
+    text = h.read_text()
+    for needed in (*INPUTS, "pos_mm", "temp_C", "Sample period: 0.01 s", "Units:", "Timing convention",
+                   "inputs of samples 0..k", "direct term", "plant_step", "plant_init", "plant_state",
+                   "direct terms in force_N", "direct terms in valve", "max lag 4"):
+        assert needed in text, needed
+
+
+def test_cli_writes_the_c_files(tmp_path: Path) -> None:
+    m = kinds()["ensemble_long_linear"].save(tmp_path / "my-model.json")
+    r = subprocess.run([*STREAMID, "export", str(m), "--c", str(tmp_path / "c")], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "c" / "my_model.h").is_file() and (tmp_path / "c" / "my_model.c").is_file()
+    r = subprocess.run([*STREAMID, "export", str(m), "--c", str(tmp_path / "d"), "--name", "9bad"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "--name must be a C identifier" in r.stderr and not (tmp_path / "d").exists()
