@@ -8,7 +8,9 @@ not; with ``--every S`` the age of the current models is re-printed every S
 seconds.  From the streams' status it also says when a stream becomes degraded or healthy again, and when
 an output's served model no longer fits the incoming data (a drift: the next identification then starts from the
 change); with ``--json`` these are JSON lines too (``"format": "streamid.status-event/1"``,
-:mod:`streamid.wire.status_events`).  Stops on Ctrl-C,
+:mod:`streamid.wire.status_events`).  With ``--save-fmu DIR`` each newly served champion is also written as an
+FMI 2.0 co-simulation FMU (``streamid export``'s), ``DIR/<stream>-v<version>.fmu``, and the newest as
+``DIR/<stream>.fmu``, each replaced whole, for a simulation rig to pick up.  Stops on Ctrl-C,
 after ``--count`` updates or after ``--duration``.  Names and reasons that came
 from the network are shown escaped (control, format and bidi characters as \\uXXXX).
 """
@@ -50,6 +52,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="also print the rejected challengers (streamid/<stream>/rejected) and why")
     p.add_argument("--json", action="store_true",
                    help="print each update, and each status event (drift, degraded, healthy), as one JSON line")
+    p.add_argument("--save-fmu", metavar="DIR",
+                   help="write each newly served champion as DIR/<stream>-v<version>.fmu (an FMI 2.0 co-simulation "
+                        "FMU of the stream's current model of every output, streamid export's) and the newest also as "
+                        "DIR/<stream>.fmu, each file replaced whole, for a simulation rig to pick up")
     p.set_defaults(func=run)
 
 
@@ -128,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration must be a number of seconds > 0; got {args.duration}")
     if not args.every >= 0:
         raise ConfigError(f"--every must be a number of seconds >= 0; got {args.every}")
+    saver = FmuSaver(args.save_fmu) if args.save_fmu else None
     stop = threading.Event()
     seen = [0]
     origins: dict[str, Any] = {}
@@ -143,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
             origins[up.stream] = up.origin
             emit(format_origin(up, prev is None))
         emit(json.dumps(up.document) if args.json else format_update(up))  # json.dumps escapes non-ASCII
+        if saver is not None and up.accepted:
+            saver.offer(up)
         seen[0] += 1
         if args.count is not None and seen[0] >= args.count:
             stop.set()
@@ -172,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
                         print(f"streamid watch: waiting for models on {args.stream!r} ...", file=sys.stderr, flush=True)
                     next_age = time.monotonic() + args.every if args.every else None
                     while not stop.wait(0.1):
+                        if saver is not None:
+                            saver.save_pending()
                         now = time.monotonic()
                         if end is not None and now >= end:
                             timed_out = True
@@ -182,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
                                 for up in sub.latest_per_output(name).values():
                                     emit(format_update(up))
                     skipped = {k: v for k, v in sub.skipped.items() if v}
+                if saver is not None:
+                    saver.save_pending()  # the updates of the last moments (--count) are written too
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -194,6 +207,66 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamid watch: no model received from {where} in {args.duration:g} s", file=sys.stderr, flush=True)
         return 1
     return 0
+
+
+class FmuSaver:
+    """``--save-fmu DIR``: each newly served champion as ``<stream>-v<version>.fmu`` and ``<stream>.fmu``.
+
+    An FMU holds the stream's current model of every output (one FMU output each; model identifier: the
+    stream's name, the same for every version, so a rig's reference to it stays valid). The updates come on
+    the subscriber's thread (:meth:`offer`); the compiling is done on the watch's own (:meth:`save_pending`).
+    A model that cannot be exported is said on standard error, once per version, and the watch goes on.
+    """
+
+    def __init__(self, directory: str) -> None:
+        from pathlib import Path
+
+        from streamid.export.compiler import find_compiler
+
+        self.dir = Path(directory)
+        if not self.dir.is_dir():
+            raise ConfigError(f"--save-fmu needs an existing folder; got {directory!r}")
+        find_compiler()  # no compiler: say what to install now, not at the first model
+        self._lock = threading.Lock()
+        self._current: dict[str, dict[str, Any]] = {}  # stream -> output -> newest accepted update
+        self._pending: list[tuple[Any, list[Any]]] = []  # (the update, the stream's models then), in order
+        self.saved = 0
+
+    def offer(self, up: Any) -> None:
+        with self._lock:
+            outputs = self._current.setdefault(up.stream, {})
+            outputs[up.output] = up
+            self._pending.append((up, [o.model for _, o in sorted(outputs.items())]))
+
+    def save_pending(self) -> None:
+        with self._lock:
+            todo, self._pending = self._pending, []
+        for up, models in todo:
+            self._save(up, models)
+
+    def _save(self, up: Any, models: list[Any]) -> None:
+        import os
+        import shutil
+
+        from streamid.errors import StreamidError
+        from streamid.export import c_identifier, write_fmu
+
+        period = up.window.get("period_ns")
+        period_s = period / 1e9 if isinstance(period, int) and not isinstance(period, bool) and period > 0 else None
+        path = self.dir / f"{up.stream}-v{up.version}.fmu"
+        try:
+            write_fmu(models, path, name=c_identifier(up.stream), period_s=period_s)
+            newest = self.dir / f"{up.stream}.fmu"
+            tmp = self.dir / f".{up.stream}.fmu.{os.getpid()}.tmp"
+            shutil.copyfile(path, tmp)
+            os.replace(tmp, newest)
+        except (StreamidError, OSError) as exc:
+            print(printable(f"streamid watch: {up.stream} v{up.version} not saved as an FMU: {exc}", 1000),
+                  file=sys.stderr, flush=True)
+            return
+        self.saved += 1
+        print(printable(f"streamid watch: {up.stream} v{up.version} saved as {path} and {newest}", 1000),
+              file=sys.stderr, flush=True)
 
 
 def _open_bus(settings: Any, stop: threading.Event, where: str, duration_s: float | None) -> Any:
