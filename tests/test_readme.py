@@ -37,6 +37,8 @@ NOT_RUN = {
     "pip install . && streamid demo": "a minute of real time; tests/test_demo.py runs it with --loops 1 (about 30 s)",
     "pip install '.[test]' && pytest": "the test suite itself (CI runs it in a fresh virtual environment)",
     "pip install '.[peers]' && streamid bench --peers --repeat 5": "minutes of benchmarks",
+    "streamid identify mr_damper --generations 20 --model damper_model.json": "run as printed, with the fmpy "
+    "block after it, by tests/test_export_readme.py",
 }
 
 
