@@ -67,6 +67,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--suite", action="store_true",
                    help="only the system suite: per system, free-run validation R2 over 5 seeds of the paper's "
                         "settings and the defaults (with --peers also SysIdentPy FROLS), seconds per identification")
+    p.add_argument("--systems", metavar="A,B",
+                   help="with --suite: only these systems (comma-separated; benchmarks/suite.py lists them)")
     p.add_argument("--only", action="append", metavar="SECTION",
                    help=f"run only this section (repeatable); sections: {', '.join(section_names())}")
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
@@ -79,8 +81,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.repeat < 1:
         raise ConfigError(f"--repeat must be a whole number >= 1, got {args.repeat}")
+    systems = tuple(s.strip() for s in (args.systems or "").split(",") if s.strip())
     options = BenchOptions(
-        repeat=1 if args.quick else args.repeat, quick=args.quick, peers=args.peers, seed=args.seed
+        repeat=1 if args.quick else args.repeat, quick=args.quick, peers=args.peers, seed=args.seed, systems=systems
     )
     found = providers()
     wanted = list(found) if not args.only else args.only

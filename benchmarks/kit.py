@@ -44,12 +44,15 @@ class BenchOptions:
         Also fit the same data with the peer tools (SysIdentPy) in the same run.
     seed : int
         First seed; repetition ``i`` uses ``seed + i``.
+    systems : tuple of str
+        ``--suite`` only: the systems to run (empty: all).
     """
 
     repeat: int = 5
     quick: bool = False
     peers: bool = False
     seed: int = 0
+    systems: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -103,7 +103,8 @@ def offline_r2(u: np.ndarray, y: np.ndarray, n_est: int, scfg: StreamConfig, see
     out = []
     for s in seeds:
         res = identify(u[:n_est], y[:n_est], scfg.coea_config(cold=True), np.random.default_rng(s))
-        out.append(validate(res.model, u[:n_est], y[:n_est], u[n_est:], y[n_est:]).fr_val)
+        fr = validate(res.model, u[:n_est], y[:n_est], u[n_est:], y[n_est:]).fr_val
+        out.append(float("-inf") if fr is None else fr)  # None: the free run diverged
     return out
 
 

@@ -17,16 +17,35 @@ def test_every_system_of_the_suite_loads_with_its_split() -> None:
         "ball_and_beam": (500, 500), "heat_exchanger": (2000, 2000), "robot_arm": (512, 512),
         "cstr:concentration_mol_l": (3750, 3750), "cstr:temperature_K": (3750, 3750),
         "f16_gvt:accel1_au": (8192, 8192), "mr_damper": (2000, 1499), "reactor": (480, 480),
-        "bouc_wen": (10_000, 153_000),
+        "bouc_wen [sweep]": (10_000, 153_000), "bouc_wen [multisine]": (10_000, 8192), "rlc [id->test]": (10_000, 10_000),
     }
-    got = {t.name: t for t in targets(tuple(n for n in SYSTEMS if n != "piezo_p885"))}
+    sims = ("piezo_sim", "mr_damper_sim", "bouc_wen_sim", "reactor_sim")
+    got = {t.name: t for t in targets(tuple(n for n in SYSTEMS if n not in ("piezo_p885", *sims)))}
     for name, (n_est, n_val) in want.items():
         t = got[name]
         assert (len(t.y_est), len(t.y_val)) == (n_est, n_val), name
         assert t.u_est.shape == (n_est, 1) and np.all(np.isfinite(t.u_val)) and np.ptp(t.y_est) > 0
     assert sum(1 for n in got if n.startswith("f16_gvt:")) == 3 and got["f16_gvt:accel2_au"].periodic_val
     # The Bouc-Wen validation is the benchmark's sine sweep (40 N), not the estimation multisine.
-    assert float(np.max(np.abs(got["bouc_wen"].u_val))) == pytest.approx(40.0, abs=1e-6)
+    assert float(np.max(np.abs(got["bouc_wen [sweep]"].u_val))) == pytest.approx(40.0, abs=1e-6)
+    assert got["bouc_wen [multisine]"].periodic_val and got["f16_gvt:accel1_au"].kind == "two-experiment"
+    assert got["mr_damper"].kind == "half" and got["rlc [id->test]"].kind == "two-experiment"
+
+
+def test_every_simulated_device_has_pairs_on_another_experiment() -> None:
+    """Issue 37: each simulator estimated on one excitation and validated on another, two pairs inside the
+    estimation range and one a step beyond it."""
+    from benchmarks.experiments import PAIRS
+
+    for system, load in PAIRS.items():
+        pairs = load()
+        assert len(pairs) == 3 and sum(p.beyond for p in pairs) == 1, system
+        for p in pairs:
+            assert p.u_est.shape[1] == 1 and np.all(np.isfinite(p.y_est)) and np.all(np.isfinite(p.y_val))
+            assert not np.allclose(p.u_est[: len(p.u_val)], p.u_val[: len(p.u_est)])  # another excitation
+            est_peak = float(np.max(np.abs(p.u_est - p.u_est.mean())))
+            val_peak = float(np.max(np.abs(p.u_val - p.u_est.mean())))
+            assert (val_peak > 1.1 * est_peak) == p.beyond, (system, p.label, est_peak, val_peak)
 
 
 def test_periodic_validation_scores_the_second_pass() -> None:

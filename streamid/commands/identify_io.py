@@ -21,8 +21,13 @@ from streamid.logs.datafile import Dataset, load_dataset, load_table
 if TYPE_CHECKING:
     from streamid.engine.coevolution import Progress
 
-__all__ = ["Bar", "add_reading_flags", "reading", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd", "emit_report",
+__all__ = ["r2_text", "Bar", "add_reading_flags", "reading", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd", "emit_report",
            "json_safe"]
+
+
+def r2_text(v: float | None, digits: int = 5, width: int = 0) -> str:
+    """An R² for the reports: ``digits`` decimals, or "diverged" for a free run that left the numbers (None)."""
+    return f"{'diverged' if v is None else format(v, f'.{digits}f'):>{width}}"
 
 
 class Bar:
@@ -202,7 +207,7 @@ def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, gene
     for i, r in enumerate(runs):
         r2 = r["r2"]
         events.append(("INFO", f"run {i} (seed {r['seed']}){' kept' if i == best else ''}: R² est OSA {r2['osa_est']:.4f} "
-                               f"FR {r2['fr_est']:.4f} · val OSA {r2['osa_val']:.4f} FR {r2['fr_val']:.4f}, "
+                               f"FR {r2_text(r2['fr_est'], 4)} · val OSA {r2['osa_val']:.4f} FR {r2_text(r2['fr_val'], 4)}, "
                                f"{r['seconds']:.2f} s"))
     note = f"run {best} of {len(runs)} (seed {b['seed']}), kept by the identification's own rule on the estimation data"
     up = identify_update_report(stream, model, rep, u_val=ds.u_val, y_val=ds.y_val, n_est=ds.n_est, clock=clock,

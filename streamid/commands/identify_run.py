@@ -11,7 +11,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit_report, load, read_text,
+from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit_report, load, r2_text, read_text,
                                            split_text)
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import CoEAConfig
@@ -23,7 +23,7 @@ from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.validation import CorrelationTest, validate
 
-__all__ = ["identify_command", "identify_runs"]
+__all__ = ["identify_command", "identify_runs", "validated_run"]
 
 
 def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
@@ -41,20 +41,29 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
         window=ds.window(),
         helper=helper,
     )
-    rep = validate(res.model, ds.u_est, ds.y_est, ds.u_val, ds.y_val)
-    model = res.model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
+    return validated_run(res.model, ds, seed=job["seed"], seconds=res.seconds, evaluations=res.evaluations,
+                         fitness=res.fitness, history=[float(f) for f in res.fitness_history])
+
+
+def validated_run(model: Model, ds: Dataset, *, seed: int, seconds: float, evaluations: int, fitness: float,
+                  history: list[float]) -> dict[str, Any]:
+    """A run's row of the report: ``model`` validated on the data set (JSON-able). A free run that diverges is
+    a row with its R² None and the sample it diverged at (``diverged``), never an error (issue 37)."""
+    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val)
+    model = model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
     return {
-        "seed": job["seed"],
-        "seconds": res.seconds,
-        "evaluations": res.evaluations,
-        "fitness": res.fitness,
+        "seed": seed,
+        "seconds": seconds,
+        "evaluations": evaluations,
+        "fitness": fitness,
         "lags": model.lags,
         "regressors": model.labels(),
-        "r2": rep.r2_dict(),
+        "r2": rep.r2_dict(),  # a free run that diverged: None (null), its first non-finite sample in "diverged"
+        "diverged": rep.diverged(),
         "correlation": {"est": rep.correlation_est.to_dict(), "val": rep.correlation_val.to_dict()},
         "selection_score": model.metrics.get("selection_score"),
         "model": model.to_json(indent=None),
-        "history": [float(f) for f in res.fitness_history],
+        "history": history,
     }
 
 
@@ -85,9 +94,14 @@ def identify_runs(
     return fan_out(_one, jobs, workers, helper=helper, on_result=progress)
 
 
-def _stats(values: list[float]) -> dict[str, float]:
-    a = np.asarray(values, dtype=np.float64)
+def _stats(values: list[float | None]) -> dict[str, float | int | None]:
+    """min/max/mean/std/median of the values that exist (None: a free run that diverged, counted in "diverged")."""
+    a = np.asarray([v for v in values if v is not None], dtype=np.float64)
+    diverged = len(values) - a.size
+    if a.size == 0:
+        return {"min": None, "max": None, "mean": None, "std": None, "median": None, "diverged": diverged}
     return {
+        **({"diverged": diverged} if diverged else {}),
         "min": float(a.min()),
         "max": float(a.max()),
         "mean": float(a.mean()),
@@ -100,8 +114,8 @@ def _best_index(runs: list[dict[str, Any]], cfg: CoEAConfig) -> int:
     """The run whose model is kept: the identification's own rule (never the validation data)."""
     if cfg.selection == "fitness":
         return int(np.argmin([r["fitness"] for r in runs]))
-    if cfg.selection == "fr_est":
-        return int(np.argmax([r["r2"]["fr_est"] for r in runs]))
+    if cfg.selection == "fr_est":  # a run whose estimation free run diverged (None) is never kept over one that did not
+        return int(np.argmax([-np.inf if r["r2"]["fr_est"] is None else r["r2"]["fr_est"] for r in runs]))
     return int(np.argmax([r["selection_score"] for r in runs]))
 
 
@@ -176,7 +190,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         r2d = r["r2"]
         w(
             f"{i:>3}{m} {r['seed']:>6} {r['seconds']:>8.2f} {r['evaluations']:>7} {r['fitness']:>11.5g} "
-            f"{r2d['osa_est']:>9.5f} {r2d['osa_val']:>9.5f} {r2d['fr_est']:>9.5f} {r2d['fr_val']:>9.5f}  "
+            f"{r2d['osa_est']:>9.5f} {r2d['osa_val']:>9.5f} {r2_text(r2d['fr_est'], 5, 9)} {r2_text(r2d['fr_val'], 5, 9)}  "
             f"{_lags_text(r)}\n"
         )
     if len(runs) > 1:
@@ -184,7 +198,10 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         fr = _stats([r["r2"]["fr_val"] for r in runs])
         w("\nfitness over runs (OSA MSE on estimation data, output units^2; as the paper's Table 4):\n")
         w(f"  min {st['min']:.6g}  max {st['max']:.6g}  mean {st['mean']:.6g}  std {st['std']:.4g}\n")
-        w(f"FR R^2 on validation over runs: min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}\n")
+        gone = f"; diverged in {fr['diverged']} of {len(runs)} runs" if fr.get("diverged") else ""
+        w("FR R^2 on validation over runs: " + (f"min {fr['min']:.5f}  median {fr['median']:.5f}  max {fr['max']:.5f}"
+                                                 if fr["min"] is not None else "none (every free run diverged)")
+          + f"{gone}\n")
     b = runs[best]
     kept = Model.from_json(b["model"])  # parsed once; its metrics hold the evidence below
     k = len(members_of(kept))
@@ -283,7 +300,8 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
     best = _best_index(runs, cfg)
     wall = time.perf_counter() - t0
     rrd_files = draw_rrd(args.rrd, ds, runs, best, cfg.generations) if args.rrd is not None else []
-    caveats = model_caveats(runs[best]["r2"], ds.u_est, ds.y_est, ds.u_val, ds.y_val, ds.input_names, ds.output_name)
+    caveats = model_caveats(runs[best]["r2"], ds.u_est, ds.y_est, ds.u_val, ds.y_val, ds.input_names, ds.output_name,
+                            runs[best].get("diverged"))
     if not args.json:
         _print_report(sys.stdout, ds, cfg, runs, best, wall, caveats)
         if rrd_files:

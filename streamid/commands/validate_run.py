@@ -129,6 +129,9 @@ def _print(out: TextIO, args: argparse.Namespace, model: Model, rec: Record, rep
       + f"; R² over the {rep.n_scored} after the first {model.max_lag}, which start the predictions\n\n")
     w(f"  {'':16} {'R²':>9} {'fit %':>8} {'RMSE':>11}\n")
     for name, r2v, rmse in (("free run", rep.fr, rep.rmse_fr), ("one step ahead", rep.osa, rep.rmse_osa)):
+        if r2v is None or rmse is None:  # a diverged free run: no R² (the caveat names the sample)
+            w(f"  {name:16} {'diverged':>9} {'-':>8} {'-':>11}\n")
+            continue
         w(f"  {name:16} {r2v:>9.5f} {fit_percent(r2v):>8.2f} {rmse:>11.5g}\n")
     for n in notes:
         w(f"note: {n}\n")
@@ -181,15 +184,16 @@ def validate_command(args: argparse.Namespace) -> int:
         raise DataError(f"{rec.path} has {len(rec.y)} samples; judging a model of max lag {model.max_lag} needs at "
                         f"least {model.max_lag + 22} (its first {model.max_lag} start the predictions)")
     rep = assess(model, rec.u, rec.y)
-    caveats = record_caveats(model, rep.osa, rep.fr, rec.u, rec.y)
-    passed = None if args.min_r2_fr is None else bool(rep.fr >= args.min_r2_fr)
+    caveats = record_caveats(model, rep.osa, rep.fr, rec.u, rec.y, rep.fr_diverged_at)
+    passed = None if args.min_r2_fr is None else bool(rep.fr is not None and rep.fr >= args.min_r2_fr)
     files = _draw(args.rrd, model, rec, rep, notes, caveats) if args.rrd is not None else []
     if not args.json:
         _print(sys.stdout, args, model, rec, rep, notes, caveats, span)
         if files:
             print(f"rrd: {', '.join(files)} (streamid view {args.rrd}; --screenshot PNG renders it)")
         if passed is not None:
-            print(f"{'passed' if passed else 'FAILED'}: free-run R² {rep.fr:.5f} "
+            print(f"{'passed' if passed else 'FAILED'}: free-run R² "
+                  f"{'diverged' if rep.fr is None else format(rep.fr, '.5f')} "
                   f"{'>=' if passed else '<'} --min-r2-fr {args.min_r2_fr:g}")
     if args.json or args.report:
         report = {

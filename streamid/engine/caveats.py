@@ -13,6 +13,8 @@ model and writes to its report (``caveats``).  Each caveat names the figure that
   (the ball and beam: poles at 0.998; docs/engine-results.md, round 3).
 * **no free run of its own record** -- the estimation free-run R^2 is below 0: the model does not simulate even
   the data it was fitted to.
+* **a free run that diverged** -- the simulation left the numbers (inf or NaN) at a named sample: it has no
+  free-run R^2 there (null in the reports, never an error that takes the report down; issue 37).
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ from numpy.typing import NDArray
 from streamid.engine.longlinear import dense_regressors
 from streamid.engine.regressors import regressor_columns
 
-__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "beyond_range", "model_caveats", "range_caveats",
-           "record_caveats"]
+__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "beyond_range", "divergence_caveat",
+           "model_caveats", "range_caveats", "record_caveats"]
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
 #: estimation span (the free-run range guard of the final choice allows 0.25 of it; docs/method.md).
@@ -86,9 +88,20 @@ def range_caveats(u_range: tuple[tuple[float, ...], tuple[float, ...]], y_range:
     return [n for n in notes if n]
 
 
-def _simulator_caveat(osa: float, fr: float, u: NDArray[np.float64], y: NDArray[np.float64], data: str) -> list[str]:
-    """'A one-step predictor, not a simulator', with the likely reason read from ``u``/``y`` (``data`` names them)."""
-    if not (osa >= OSA_GOOD and fr < 0.0):
+def divergence_caveat(data: str, at: int | None) -> list[str]:
+    """'Its free run diverged' on ``data`` (e.g. "validation data") from sample ``at`` (None: it did not)."""
+    if at is None:
+        return []
+    return [f"its free run on the {data} diverged (no longer a finite number from sample {at}): it has no free-run "
+            f"R2 there (null in the report); the model is unstable under this excitation: do not use it to simulate "
+            f"it, and estimate on data that span it"]
+
+
+def _simulator_caveat(osa: float, fr: float | None, u: NDArray[np.float64], y: NDArray[np.float64],
+                      data: str) -> list[str]:
+    """'A one-step predictor, not a simulator', with the likely reason read from ``u``/``y`` (``data`` names them);
+    nothing for a diverged free run (``fr`` None: :func:`divergence_caveat` says it)."""
+    if fr is None or not (osa >= OSA_GOOD and fr < 0.0):
         return []
     why = ""
     radius = arx_pole_radius(u, y)
@@ -100,36 +113,43 @@ def _simulator_caveat(osa: float, fr: float, u: NDArray[np.float64], y: NDArray[
             f"free run {_fmt(fr)} (worse than the data's mean){why}"]
 
 
-def model_caveats(r2: dict[str, float], u_est: NDArray[np.float64], y_est: NDArray[np.float64],
+def model_caveats(r2: dict[str, float | None], u_est: NDArray[np.float64], y_est: NDArray[np.float64],
                   u_val: NDArray[np.float64] | None, y_val: NDArray[np.float64] | None,
-                  input_names: tuple[str, ...] = (), output_name: str = "y") -> list[str]:
-    """Caveats on a kept model from its R^2 (``osa_est``, ``fr_est``, ``osa_val``, ``fr_val``: nan when absent) and
-    the data (see the module docstring); an empty list when there is nothing to say."""
+                  input_names: tuple[str, ...] = (), output_name: str = "y",
+                  diverged: dict[str, int] | None = None) -> list[str]:
+    """Caveats on a kept model from its R^2 (``osa_est``, ``fr_est``, ``osa_val``, ``fr_val``: nan when absent,
+    None for a free run that diverged, ``diverged`` naming its first non-finite sample per part ``"est"``/``"val"``)
+    and the data (see the module docstring); an empty list when there is nothing to say."""
     out: list[str] = []
     ue = np.asarray(u_est, dtype=np.float64).reshape(len(y_est), -1)
     ye = np.asarray(y_est, dtype=np.float64)
     if y_val is not None and u_val is not None:
         out += range_caveats((tuple(ue.min(axis=0)), tuple(ue.max(axis=0))), (float(ye.min()), float(ye.max())),
                              u_val, y_val, input_names, output_name)
-    out += _simulator_caveat(r2.get("osa_val", float("nan")), r2.get("fr_val", float("nan")), ue, ye,
+    osa_val = r2.get("osa_val", float("nan"))
+    out += _simulator_caveat(float("nan") if osa_val is None else osa_val, r2.get("fr_val", float("nan")), ue, ye,
                              "estimation data")
+    for part, data in (("est", "estimation data"), ("val", "validation data")):
+        out += divergence_caveat(data, (diverged or {}).get(part))
     fr_est = r2.get("fr_est", float("nan"))
-    if fr_est < 0.0:
+    if fr_est is not None and fr_est < 0.0:
         out.append(f"its free run does not explain even its estimation record (free-run R2 {_fmt(fr_est)}): do not "
                    f"use it to simulate this device")
     return out
 
 
-def record_caveats(model: Any, osa: float, fr: float, u: NDArray[np.float64], y: NDArray[np.float64]) -> list[str]:
+def record_caveats(model: Any, osa: float, fr: float | None, u: NDArray[np.float64], y: NDArray[np.float64],
+                   diverged_at: int | None = None) -> list[str]:
     """Caveats on ``model`` judged on a record it never saw (``streamid validate``): the record's signals beyond
-    the model's estimation range (its normalisation keeps that range), and a one-step predictor that does not
-    simulate (the likely reason read from the record itself)."""
+    the model's estimation range (its normalisation keeps that range), a one-step predictor that does not
+    simulate (the likely reason read from the record itself), and a free run that diverged (``fr`` None, from
+    sample ``diverged_at``)."""
     n = model.normalisation
     u2 = np.asarray(u, dtype=np.float64).reshape(len(y), -1)
     y1 = np.asarray(y, dtype=np.float64)
     return (range_caveats((n.u_low, n.u_high), (n.y_low, n.y_high), u2, y1, tuple(model.input_names),
                           model.output_name)
-            + _simulator_caveat(osa, fr, u2, y1, "data"))
+            + _simulator_caveat(osa, fr, u2, y1, "data") + divergence_caveat("record", diverged_at))
 
 
 def _fmt(v: Any) -> str:

@@ -51,6 +51,9 @@ __all__ = [
     "TESTS",
     "correlation_test_name",
     "r2",
+    "r2_or_none",
+    "diverged_at",
+    "DIVERGED_ABOVE",
     "ccf",
     "correlation_tests",
     "CorrelationTest",
@@ -107,6 +110,28 @@ def r2(y: ArrayLike, yhat: ArrayLike) -> float:
         raise DataError(f"r2 is undefined for a constant measured signal (all values {ya[0]!r})")
     with np.errstate(over="ignore"):  # a finite but huge prediction (a diverged free run): R^2 = -inf, said once
         return 1.0 - float(np.sum((ya - yh) ** 2)) / ss
+
+
+#: A free run beyond this magnitude has diverged: its squared errors would overflow a double's sums.
+DIVERGED_ABOVE = 1e150
+
+
+def diverged_at(sim: ArrayLike) -> int | None:
+    """The first sample at which a free run has diverged (not finite, or beyond :data:`DIVERGED_ABOVE` in
+    magnitude), or None."""
+    a = np.asarray(sim, dtype=np.float64).reshape(-1)
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(a) <= DIVERGED_ABOVE)  # NaN compares False: counted
+    return int(np.argmax(bad)) if bad.any() else None
+
+
+def r2_or_none(y: ArrayLike, sim: ArrayLike) -> float | None:
+    """R^2 of a free run against ``y``; None when the free run diverged (:func:`diverged_at`).
+
+    A diverged free run has no R^2: reports show it as null and name the sample (:func:`diverged_at`)
+    instead of failing the whole report (issue 37). A finite, far-off run gets its (very negative) R^2.
+    """
+    return None if diverged_at(sim) is not None else r2(y, sim)
 
 
 def ccf(a: NDArray[np.float64], b: NDArray[np.float64], lags: NDArray[np.int64]) -> NDArray[np.float64]:
@@ -297,13 +322,14 @@ class ValidationReport:
 
     R^2 is computed over ``t >= model.max_lag`` (the samples the model predicts);
     free runs start from the first ``max_lag`` measured samples of each data set.
-    The correlation tests use the one-step-ahead residuals.
+    The correlation tests use the one-step-ahead residuals. A free run that diverged (a value not finite)
+    has R^2 None (null in JSON); :meth:`diverged` names the sample.
     """
 
     osa_est: float
     osa_val: float
-    fr_est: float
-    fr_val: float
+    fr_est: float | None
+    fr_val: float | None
     correlation_est: CorrelationReport
     correlation_val: CorrelationReport
     extra: dict[str, Any] = field(default_factory=dict)
@@ -311,8 +337,17 @@ class ValidationReport:
     #: ``osa_est``, ``fr_est``, ``osa_val``, ``fr_val``. Not part of :meth:`to_dict`.
     predictions: dict[str, NDArray[np.float64]] = field(default_factory=dict, repr=False)
 
-    def r2_dict(self) -> dict[str, float]:
+    def r2_dict(self) -> dict[str, float | None]:
         return {"osa_est": self.osa_est, "osa_val": self.osa_val, "fr_est": self.fr_est, "fr_val": self.fr_val}
+
+    def diverged(self) -> dict[str, int]:
+        """``{"est" | "val": first non-finite sample}`` of the free runs that diverged (empty: none did)."""
+        out = {}
+        for part in ("est", "val"):
+            k = diverged_at(self.predictions[f"fr_{part}"]) if f"fr_{part}" in self.predictions else None
+            if k is not None:
+                out[part] = k
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -322,13 +357,13 @@ class ValidationReport:
         }
 
 
-def fit_percent(r2_value: float) -> float:
+def fit_percent(r2_value: float | None) -> float:
     """The normalised-RMSE fit of System Identification Toolbox users, ``100 (1 - |y - yhat| / |y - mean y|)``.
 
     It is ``100 (1 - sqrt(1 - R^2))``: R^2 0.99 is a fit of 90 %, 0.75 of 50 %; a prediction worse than the
-    data's mean (R^2 < 0) has a negative fit, and a non-finite R^2 gives nan.
+    data's mean (R^2 < 0) has a negative fit, and a non-finite or absent (diverged) R^2 gives nan.
     """
-    if not np.isfinite(r2_value):
+    if r2_value is None or not np.isfinite(r2_value):
         return float("nan")
     return float(100.0 * (1.0 - np.sqrt(max(0.0, 1.0 - float(r2_value)))))
 
@@ -338,25 +373,29 @@ class RecordReport:
     """A model on one record that was not used to fit it: :func:`assess`'s result.
 
     R^2 and RMSE are over ``t >= model.max_lag`` (``n_scored`` samples); the free run starts from the record's
-    first ``max_lag`` measured outputs; the correlation tests use the one-step-ahead residual.
+    first ``max_lag`` measured outputs; the correlation tests use the one-step-ahead residual. A free run that
+    diverged has ``fr`` None and ``fr_diverged_at`` its first non-finite sample.
     """
 
     n: int
     n_scored: int
     osa: float
-    fr: float
+    fr: float | None
     rmse_osa: float
-    rmse_fr: float
+    rmse_fr: float | None
     correlation: CorrelationReport
     #: full-length ``osa`` and ``fr`` predictions (the first ``max_lag`` values measured); not in :meth:`to_dict`
     predictions: dict[str, NDArray[np.float64]] = field(default_factory=dict, repr=False)
+    #: the first sample at which the free run is not finite (None: it did not diverge)
+    fr_diverged_at: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "n": self.n,
             "n_scored": self.n_scored,
             "r2": {"osa": self.osa, "fr": self.fr},
-            "fit_percent": {"osa": fit_percent(self.osa), "fr": fit_percent(self.fr)},
+            "fr_diverged_at": self.fr_diverged_at,
+            "fit_percent": {"osa": fit_percent(self.osa), "fr": None if self.fr is None else fit_percent(self.fr)},
             "rmse": {"osa": self.rmse_osa, "fr": self.rmse_fr},
             "correlation": self.correlation.to_dict(),
         }
@@ -370,9 +409,9 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], fr: ND
         rmse_fr = float(np.sqrt(np.mean((y[L:] - fr[L:]) ** 2)))
     return RecordReport(
         n=int(y.shape[0]), n_scored=int(y.shape[0] - L), osa=osa_r2, fr=fr_r2,
-        rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else float("inf"),
+        rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
         correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
-        predictions={"osa": osa, "fr": fr},
+        predictions={"osa": osa, "fr": fr}, fr_diverged_at=diverged_at(fr),
     )
 
 
@@ -391,24 +430,28 @@ def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20) -> Re
     if ua.shape[1] != model.n_inputs:
         raise DataError(f"the model has {model.n_inputs} input(s) {list(model.input_names)}; the data give "
                         f"{ua.shape[1]}: pass one input column per model input, in the model's order")
-    return _record(model, ua, ya, model.simulate(ua, ya[: model.max_lag]), max_lag)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (fr None), not warned about
+        fr = model.simulate(ua, ya[: model.max_lag])
+    return _record(model, ua, ya, fr, max_lag)
 
 
-def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, float, NDArray[np.float64]]:
-    """``(osa_r2, fr_r2, osa_residual)`` of a model on one data set (over ``t >= max_lag``)."""
+def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, float | None, NDArray[np.float64]]:
+    """``(osa_r2, fr_r2, osa_residual)`` of a model on one data set (over ``t >= max_lag``; ``fr_r2`` None: the
+    free run diverged)."""
     osa_r2, fr_r2, res, _, _ = _predictions(model, u, y)
     return osa_r2, fr_r2, res
 
 
 def _predictions(
     model: Model, u: ArrayLike, y: ArrayLike, fr: NDArray[np.float64] | None = None
-) -> tuple[float, float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[float, float | None, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
     L = model.max_lag
     osa = model.predict_osa(ua, ya)
     if fr is None:
-        fr = model.simulate(ua, ya[:L])
-    return r2(ya[L:], osa[L:]), r2(ya[L:], fr[L:]), ya[L:] - osa[L:], osa, fr
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported, not warned about
+            fr = model.simulate(ua, ya[:L])
+    return r2(ya[L:], osa[L:]), r2_or_none(ya[L:], fr[L:]), ya[L:] - osa[L:], osa, fr
 
 
 def validate(
@@ -438,7 +481,8 @@ def validate(
     L = model.max_lag
     ue, ye = as_data(u_est, y_est, min_samples=L + 2)
     uv, yv = as_data(u_val, y_val, min_samples=L + 2)
-    p_fr_e, p_fr_v = model.simulate_many([(ue, ye[:L]), (uv, yv[:L])])  # both free runs in one recursion
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (R^2 None), not warned about
+        p_fr_e, p_fr_v = model.simulate_many([(ue, ye[:L]), (uv, yv[:L])])  # both free runs in one recursion
     e, v = _record(model, ue, ye, p_fr_e, max_lag), _record(model, uv, yv, p_fr_v, max_lag)
     return ValidationReport(
         osa_est=e.osa,

@@ -30,6 +30,7 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from streamid.engine import Model
+from streamid.engine.validation import diverged_at
 from streamid.online.recalibrate import describe
 from streamid.online.stream_config import StreamConfig
 from streamid.online.update import Outcome
@@ -125,7 +126,9 @@ def judge(outcome: Outcome, cfg: StreamConfig) -> list[str]:
     m = s.metrics
     reasons = []
     if not s.finite:
-        reasons.append("non-finite predictions or metrics")
+        at = diverged_at(s.fr_val)
+        reasons.append("non-finite predictions or metrics" if at is None else
+                       f"its free run on the held-out data diverged (not finite from sample {at}): never published")
     if not m.get("r2_osa_val", -np.inf) >= cfg.min_r2_osa:
         reasons.append(f"validation R² OSA {m.get('r2_osa_val', float('nan')):.4g} < min_r2_osa {cfg.min_r2_osa:g}")
     if not m.get("r2_fr_val", -np.inf) >= cfg.min_r2_fr:

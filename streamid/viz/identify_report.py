@@ -82,7 +82,7 @@ def record_update_report(stream: str, model: Model, report: RecordReport, *, u: 
 
 
 def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: NDArray[np.float64],
-                   correlation: CorrelationReport, r2: dict[str, float], u_val: NDArray[np.float64],
+                   correlation: CorrelationReport, r2: dict[str, float | None], u_val: NDArray[np.float64],
                    y_val: NDArray[np.float64], n_est: int, clock: Clock, fitness_history: Sequence[float],
                    generations: int, seconds: float, note: str, judged_only: bool = False) -> UpdateReport:
     n_val = len(y_val)
@@ -107,7 +107,7 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
         fitness=np.asarray(fitness_history, dtype=np.float64),
         correlations=first_input_tests(tuple(correlation.tests)),
         lags=model.lags,
-        metrics={f"r2_{k}": float(v) for k, v in r2.items()},
+        metrics={f"r2_{k}": (float("nan") if v is None else float(v)) for k, v in r2.items()},  # None: diverged
         identification_s=float(seconds),
         note=note,
         input_names=tuple(model.input_names),
