@@ -98,3 +98,23 @@ def test_cli_writes_the_c_files(tmp_path: Path) -> None:
     r = subprocess.run([*STREAMID, "export", str(m), "--c", str(tmp_path / "d"), "--name", "9bad"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--name must be a C identifier" in r.stderr and not (tmp_path / "d").exists()
+
+
+def test_models_that_do_not_go_together_are_refused_in_one_line(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    a = kinds()["network"].save(tmp_path / "a.json")
+    other_inputs = replace(second_output(), input_names=("volts", "valve")).save(tmp_path / "b.json")
+    no_period = replace(kinds()["linear"], window={}).save(tmp_path / "c.json")
+    same_output = kinds()["direct"].save(tmp_path / "d.json")
+    for models, said in (([a, other_inputs], "must take the same inputs in the same order"),
+                         ([no_period], "records no sample period (its window has no period_ns): give it with --period"),
+                         ([a, same_output], "two models of output 'pos_mm': give one model file per output")):
+        r = subprocess.run([*STREAMID, "export", *map(str, models), "--c", str(tmp_path / "out")],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and said in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert not (tmp_path / "out").exists()
+    r = subprocess.run([*STREAMID, "export", str(no_period), "--c", str(tmp_path / "out"), "--period", "0.002"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "Sample period: 0.002 s" in (tmp_path / "out" / "c.h").read_text()

@@ -147,8 +147,9 @@ def plan_of(models: Sequence[Model], name: str, period_s: float | None = None) -
                               f"{m.output_name!r} takes {list(m.input_names)}, {models[0].output_name!r} {list(inputs)}")
         if any(o.name == m.output_name for o in outputs):
             raise ConfigError(f"two models of output {m.output_name!r}: give one model file per output")
-        if m.output_name in inputs:
-            raise ConfigError(f"output {m.output_name!r} is also an input's name: names must be distinct")
+        if m.output_name in inputs or f"initial_{m.output_name}" in inputs:
+            raise ConfigError(f"output {m.output_name!r} (or its parameter initial_{m.output_name}) is also an input's "
+                              "name: the FMU's variable names must be distinct")
         nm = m.normalisation
         spans = [nm.y_high - nm.y_low, *(h - lo for lo, h in zip(nm.u_low, nm.u_high))]
         if not all(math.isfinite(s) and s > 0 for s in spans):
