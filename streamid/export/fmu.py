@@ -91,7 +91,7 @@ def model_description(plan: ExportPlan, guid: str, *, source_files: Sequence[str
   description={quoteattr(plan.description + ". " + CONVENTION)}
   generationTool="streamid {__version__}" generationDateAndTime="{now}" variableNamingConvention="flat"
   numberOfEventIndicators="0">
-  <CoSimulation modelIdentifier="{plan.name}" canHandleVariableCommunicationStepSize="true"
+  <CoSimulation modelIdentifier="{plan.name}" canHandleVariableCommunicationStepSize="false"
     canInterpolateInputs="false" maxOutputDerivativeOrder="0" canRunAsynchronuously="false"
     canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"
     canGetAndSetFMUstate="false" canSerializeFMUstate="false" providesDirectionalDerivative="false">
