@@ -100,3 +100,36 @@ def test_watch_saves_each_served_champion_as_an_fmu(tmp_path: Path) -> None:
     want = model.simulate(u, np.full(model.max_lag, mid))
     span = model.normalisation.y_high - model.normalisation.y_low
     assert np.max(np.abs(res[model.output_name] - want)) <= 1e-6 * span
+
+
+def test_the_saver_puts_every_output_of_a_stream_in_one_fmu(tmp_path: Path) -> None:
+    """The part of ``--save-fmu`` that needs no network, on real parsed model updates of a two-output stream:
+    each accepted update makes an FMU of the stream's current model of every output."""
+    if shutil.which("cc") is None and shutil.which("gcc") is None:
+        pytest.skip("needs a C compiler (Debian package gcc)")
+    from fmpy.model_description import read_model_description
+
+    from export_models import kinds, second_output
+    from streamid.commands.watch import FmuSaver
+    from streamid.transport.updates import parse_model_update
+    from streamid.wire.documents import encode_json, model_update_message
+
+    def update(model: Model, version: int) -> object:
+        return parse_model_update(encode_json(model_update_message(
+            stream="rig", version=version, model=model.to_dict(), window={"period_ns": 10_000_000}, metrics={},
+            warm=False, generations=1, identification_s=0.1, window_closed_unix_ns=1, published_unix_ns=1,
+            output=model.output_name, accepted=True)))
+
+    saver = FmuSaver(str(tmp_path))
+    saver.offer(update(kinds()["ensemble"], 1))
+    saver.offer(update(second_output(), 2))
+    saver.save_pending()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig-v1.fmu", "rig-v2.fmu", "rig.fmu"]
+    assert saver.saved == 2
+    assert (tmp_path / "rig.fmu").read_bytes() == (tmp_path / "rig-v2.fmu").read_bytes()
+    outputs = {1: ["pos_mm"], 2: ["pos_mm", "temp_C"]}
+    for v, names in outputs.items():
+        md = read_model_description(str(tmp_path / f"rig-v{v}.fmu"))
+        assert [x.name for x in md.modelVariables if x.causality == "output"] == names
+        assert md.coSimulation.modelIdentifier == "rig"  # the same in every version: a rig's reference holds
+        assert validate_fmu(str(tmp_path / f"rig-v{v}.fmu")) == []
