@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.model import (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, Model, _finite_array,
                                    initial_outputs)
+from streamid.engine.model_limits import check_model_document
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.errors import ModelFormatError
 
@@ -258,6 +259,7 @@ class EnsembleModel(Model):
         if fmt not in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR):
             raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT_ENSEMBLE!r} or {MODEL_FORMAT_ENSEMBLE_LONG_LINEAR!r} "
                                    f"for an ensemble; got {fmt!r}")
+        check_model_document(d)  # neurons, regressors, lags, parameters: before any array is built
         raw = d.get("members")
         if not isinstance(raw, list) or not 2 <= len(raw) <= MAX_MEMBERS:
             got = f"{len(raw)} member(s)" if isinstance(raw, list) else repr(raw)[:200]

@@ -47,6 +47,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.freerun import free_run
+from streamid.engine.bounded_files import read_regular_file
+from streamid.engine.model_limits import MAX_MODEL_BYTES, MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
 from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
 from streamid.errors import DataError, ModelFormatError
 
@@ -150,8 +152,10 @@ class Model:
         object.__setattr__(self, "centres", _finite_array("centres", self.centres, (m, k)))
         object.__setattr__(self, "widths", _finite_array("widths", self.widths, (m,)))
         object.__setattr__(self, "weights", _finite_array("weights", self.weights, (m,)))
-        if np.any(self.widths <= 0):
-            raise ModelFormatError(f"model widths must be > 0; got {self.widths.tolist()}")
+        if np.any(self.widths < MIN_WIDTH):
+            bad = int(np.argmin(self.widths))
+            raise ModelFormatError(f"model widths must be > 0, at least {MIN_WIDTH:g} (1 / (2 w^2) must be a finite float64); "
+                                   f"got {float(self.widths[bad])!r} at neuron {bad}")
         n_in = self.normalisation.n_inputs
         if self.linear_regressors is not None and self.linear is None:
             raise ModelFormatError("model linear_regressors need a linear part (their coefficients, then the constant)")
@@ -299,8 +303,9 @@ class Model:
         ua, ya = self._check(u, y)
         out = ya.copy()
         L = self.max_lag
-        for a in range(L, ya.shape[0], OSA_BLOCK_ROWS):  # rows a..b-1 from samples a-L..b-1: bounded memory
-            b = min(ya.shape[0], a + OSA_BLOCK_ROWS)
+        rows = osa_block_rows(self.neurons, len(self.regressors), OSA_BLOCK_ROWS)
+        for a in range(L, ya.shape[0], rows):  # rows a..b-1 from samples a-L..b-1: bounded memory
+            b = min(ya.shape[0], a + rows)
             us, ys = ua[a - L : b], ya[a - L : b]
             r, _ = self.regressor_rows(us, ys)
             yn_hat = self._phi(r) @ self.weights
@@ -430,6 +435,7 @@ class Model:
         fmt = d.get("format")
         if fmt not in MODEL_FORMATS:
             raise ModelFormatError(f"model 'format' must be one of {list(MODEL_FORMATS)}; got {fmt!r}")
+        check_model_document(d)  # neurons, regressors, lags, parameters: before any array is built
         if fmt in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR):  # the mean of several networks (a Model too)
             from streamid.engine.ensemble import EnsembleModel
 
@@ -470,12 +476,8 @@ class Model:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> Model:
-        """Parse a ``streamid.model/1`` JSON document."""
-        try:
-            d = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError, TypeError) as exc:
-            raise ModelFormatError(f"a model file must be JSON text; parsing failed: {exc}") from None
-        return cls.from_dict(d)
+        """Parse a ``streamid.model/1`` JSON document (size and nesting bounded: :mod:`~streamid.engine.model_limits`)."""
+        return cls.from_dict(parse_model_json(text, "a model file"))
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the model's JSON file (``streamid.model/1``) to ``path``; returns the path.
@@ -502,13 +504,16 @@ class Model:
         """
         p = Path(path)
         try:
-            text = p.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ModelFormatError(f"model file must be a readable streamid.model/1 JSON file; cannot read {str(p)!r}: {exc}") from None
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ModelFormatError(f"model file {str(p)!r} must be JSON text; parsing failed: {exc}") from None
+            text = read_regular_file(p, MAX_MODEL_BYTES).decode("utf-8")
+        except ValueError as exc:  # not a regular file, or too large (UnicodeDecodeError is handled below)
+            if isinstance(exc, UnicodeDecodeError):
+                raise ModelFormatError(f"model file {str(p)!r} must be UTF-8 JSON text; {exc}") from None
+            raise ModelFormatError(f"model file {str(p)!r}: {exc} (a model document is at most {MAX_MODEL_BYTES} "
+                                   "bytes, in a regular file)") from None
+        except OSError as exc:
+            raise ModelFormatError(f"model file must be a readable streamid.model/1 JSON file; cannot read {str(p)!r}: "
+                                   f"{exc}") from None
+        d = parse_model_json(text, f"model file {str(p)!r}")
         if isinstance(d, Mapping) and d.get("format") not in MODEL_FORMATS and isinstance(d.get("model"), Mapping):
             d = d["model"]
         try:

@@ -43,6 +43,7 @@ from streamid.engine._kernels import one_row
 from streamid.engine.caveats import beyond_range
 from streamid.engine.ensemble import members_of
 from streamid.engine.model import Model
+from streamid.engine.model_limits import MAX_INPUTS, MAX_LAG, MAX_NEURONS
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.engine.regressors import check_finite
 from streamid.errors import DataError
@@ -320,6 +321,12 @@ class Predictor:
         if not isinstance(model, Model):
             raise DataError(f"a Predictor serves a streamid Model (Model.load, latest_model(...).model); got "
                             f"{type(model).__name__}")
+        nets = members_of(model)
+        big = max(nets, key=lambda m: m.neurons)
+        if big.neurons > MAX_NEURONS or model.max_lag > MAX_LAG or model.n_inputs > MAX_INPUTS:
+            raise DataError(f"a Predictor serves models of at most {MAX_NEURONS} neurons per network, lags up to "
+                            f"{MAX_LAG} and {MAX_INPUTS} inputs; got {big.neurons} neurons, max_lag {model.max_lag}, "
+                            f"{model.n_inputs} inputs")
         if current is not None and model.n_inputs != current.n_inputs:
             raise DataError(f"the new model takes {model.n_inputs} input(s) {model.input_names}, the served one "
                             f"{current.n_inputs} {current.input_names}: a Predictor's samples fit one input count")

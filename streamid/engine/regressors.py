@@ -14,6 +14,7 @@ centre. Row ``k`` of the regressor matrix is the regressor at time
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from streamid.engine.model_limits import MIN_SPAN
 from streamid.errors import DataError, ModelFormatError
 
 __all__ = [
@@ -235,6 +237,10 @@ class Normalisation:
                 "normalisation must be an object with u_low, u_high (lists of numbers), y_low, y_high; "
                 f"got {d!r} ({exc})"
             ) from None
+        spans = [h - lo for lo, h in zip((*out.u_low, out.y_low), (*out.u_high, out.y_high))]
+        if any(math.isfinite(s) and 0 < s < MIN_SPAN for s in spans) or not all(math.isfinite(s) for s in spans):
+            raise ModelFormatError(f"normalisation spans (high - low) must be finite and >= {MIN_SPAN:g} for every "
+                                   f"signal (too small or too large to evaluate in float64); got {spans}"[:600])
         vals = np.array([*out.u_low, *out.u_high, out.y_low, out.y_high])
         if (
             not np.all(np.isfinite(vals))

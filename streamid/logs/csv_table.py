@@ -15,6 +15,9 @@ Rules (the ``streamid identify`` help and docs/method.md say the same):
   (any case) is read as NaN; the caller decides (:func:`streamid.logs.datafile.load_dataset`:
   an error naming the rows, ``--drop`` or ``--fill``).  Anything else that is not a
   number is an error naming the column, the file line and the value.
+* **Text**: UTF-8 (a byte-order mark is skipped); UTF-16 and UTF-32 with a byte-order mark are
+  read too; other bytes are an error naming the encoding to save in.  A line longer than
+  :data:`MAX_LINE_CHARS` is an error (the file is read line by line: memory stays bounded).
 * **Clock**: a column named like a time (``t``, ``time``, ``timestamp``, with an
   optional unit suffix ``_s``, ``_ms``, ``_us``, ``_ns``; seconds without one), whose
   values are all numbers and strictly increasing, gives the samples' times.
@@ -34,6 +37,7 @@ from streamid.errors import DataError
 __all__ = [
     "DELIMITER_NAMES",
     "MISSING_TOKENS",
+    "MAX_LINE_CHARS",
     "SNIFF_LINES",
     "parse_delimiter",
     "detect_delimiter",
@@ -42,6 +46,8 @@ __all__ = [
     "clock_of",
 ]
 
+#: Longest line read (characters); a longer one stops the file with an error (1 MiB: ~50,000 numbers).
+MAX_LINE_CHARS = 1 << 20
 #: Lines (after the header) the delimiter and decimal mark are judged on.
 SNIFF_LINES = 50
 #: Accepted delimiters and their names (``" "`` means any run of whitespace).
@@ -122,6 +128,41 @@ def clock_of(columns: dict[str, NDArray[np.float64]]) -> tuple[str, NDArray[np.i
     return None
 
 
+def _encoding(head: bytes) -> str:
+    if head.startswith((b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff")):
+        return "utf-32"
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return "utf-16"
+    return "utf-8-sig"
+
+
+def _text_lines(path: Path) -> list[str]:
+    """The file's lines (see the module's rules on text), read line by line, none longer than MAX_LINE_CHARS."""
+    try:
+        with open(path, "rb") as fb:
+            head = fb.read(64)
+        enc = _encoding(head)
+        if enc == "utf-8-sig" and b"\x00" in head:
+            raise DataError(f"{path}: holds NUL bytes, which no text CSV has (UTF-16 without a byte-order mark?): "
+                            "save it as UTF-8 (UTF-16 or UTF-32 with a byte-order mark are read too)")
+        lines: list[str] = []
+        with open(path, newline="", encoding=enc) as fh:
+            while ln := fh.readline(MAX_LINE_CHARS + 1):
+                if len(ln) > MAX_LINE_CHARS:
+                    raise DataError(f"{path}: line {len(lines) + 1} is longer than {MAX_LINE_CHARS} characters; a CSV "
+                                    "row holds one sample of every column (is this a CSV file?)")
+                lines.extend(ln.splitlines())
+    except OSError as exc:
+        raise DataError(f"cannot read CSV file {path}: {exc}") from None
+    except UnicodeDecodeError as exc:
+        bad = exc.object[exc.start : exc.start + 1].hex()
+        raise DataError(
+            f"{path}: is not {'UTF-8' if enc == 'utf-8-sig' else enc.upper()} text (byte 0x{bad} cannot be decoded): "
+            "save it as UTF-8 (UTF-16 or UTF-32 with a byte-order mark are read too)"
+        ) from None
+    return lines
+
+
 def read_delimited(
     path: Path, delimiter: str | None = None
 ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.int64], dict[str, str], dict[str, str]]:
@@ -141,11 +182,7 @@ def read_delimited(
         Unreadable file, no header or data, duplicate names, a row with another number of
         fields than the header.
     """
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            raw = fh.read().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"cannot read CSV file {path}: {exc}") from None
+    raw = _text_lines(path)
     numbered = [(i + 1, ln) for i, ln in enumerate(raw) if ln.strip()]
     if len(numbered) < 2:
         raise DataError(f"{path}: a CSV file needs a header row with column names and at least one data row")

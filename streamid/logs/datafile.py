@@ -124,8 +124,13 @@ def _read_mat(path: Path) -> Table:
         data = loadmat(str(path), squeeze_me=False)
     except NotImplementedError:
         raise DataError(f"{path}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 or export CSV") from None
-    except (OSError, ValueError, TypeError) as exc:
-        raise DataError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
+    except (MemoryError, RecursionError):
+        raise DataError(f"{path}: not a readable MATLAB .mat file (its headers ask for more memory than there is: "
+                        "damaged?)") from None
+    except Exception as exc:  # noqa: BLE001 - scipy's reader raises many kinds on a damaged file (IndexError,
+        # MatReadError, ValueError, zlib.error ...): each is this file's fault, said in one line
+        raise DataError(f"{path}: not a readable MATLAB .mat file: {type(exc).__name__}: {str(exc)[:200]} (a .mat "
+                        "of MATLAB v4-v7.2 with numeric variables is read; a cut or damaged file is not)") from None
     cols: dict[str, NDArray[np.float64]] = {}
     for name, val in data.items():
         if name.startswith("__") or not isinstance(val, np.ndarray) or val.dtype.kind not in "biuf":

@@ -282,7 +282,7 @@ class LogReader:
         text = f"{self.path}: {msg}"
         if not self.partial:
             raise LogError(
-                text + " (read what is readable with partial=True / --partial)"
+                text + " (its complete chunks are played by `streamid replay --partial`, read by LogReader(partial=True))"
             )
         if self.problem is None:
             self.problem = text
