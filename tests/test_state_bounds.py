@@ -153,3 +153,19 @@ def test_daemon_with_a_state_file_linked_to_dev_zero_starts_warns_and_stops_on_t
     assert proc.returncode == 0, err[-2000:]
     assert "not a regular file" in err and "s.json" in err, err[-2000:]
     assert [q.name.split(".corrupt-")[0] for q in state.glob("s.json.corrupt-*")] == ["s.json"]
+
+
+def test_a_state_holding_a_huge_champion_is_refused_before_building_it(tmp_path: Path) -> None:
+    """Was: a state holding a 100,000-neuron champion took the daemon to 776 MB."""
+    huge = {"format": "streamid.model/1", "inputs": ["velocity"], "output": "force",
+            "regressors": [{"signal": "y", "index": 0, "lag": 1}], "centres": [[0.0]] * 100_000,
+            "widths": [0.5] * 100_000, "weights": [0.1] * 100_000,
+            "normalisation": {"u_low": [-1.0], "u_high": [1.0], "y_low": -1.0, "y_high": 1.0}}
+    state = StreamState("s", 7, {}, {"format": "streamid.model-update/1", "stream": "s", "version": 7,
+                                     "output": "force", "model": huge})
+    text = state.to_json()
+    got = StreamState.from_json(text, source="the state handed over on streamid/@state/s")
+    ident = OnlineIdentifier(SMALL, stream="s")
+    warnings = ident.restore(got)
+    assert any("100000 neurons; a model has at most 1000" in w for w in warnings), warnings
+    assert ident.version == 7 and ident.document is None  # the version carries over, the champion does not

@@ -7,6 +7,10 @@ age and current free-run R², the drift events so far, the stream's state, and t
 streams as that daemon sees them.  A stream of several outputs (MIMO: one champion per output) gets one more
 line per output, indented, with that output's champion.  Network text is shown escaped.  Exit code 1 when
 no stream answered within ``--timeout``.
+
+Two answers for one stream (two daemons serving it, or a status forged by someone who may answer on the
+bus: without access control anyone can) are a conflict: every answer is printed, its state column says
+CONFLICT and names every daemon that answered, and a warning on standard error says so (exit code 3).
 """
 
 from __future__ import annotations
@@ -59,7 +63,20 @@ def _model_columns(version: Any, champ: dict[str, Any], drifts: Any) -> str:
             f"{_num(_table(champ, 'current').get('r2_fr_val'), '.4f'):>9} {_num(drifts, 'd'):>6}")
 
 
-def status_line(doc: dict[str, Any]) -> str:
+def _who(doc: dict[str, Any]) -> tuple[str, int]:
+    origin = _table(_table(doc, "daemon"), "origin")
+    epoch = origin.get("epoch_ns")
+    return str(origin.get("daemon", "?")), epoch if isinstance(epoch, int) and not isinstance(epoch, bool) else 0
+
+
+def conflict_text(answers: list[dict[str, Any]]) -> str:
+    """The state column of a stream answered by several daemons: CONFLICT, naming each (escaped)."""
+    names = ", ".join(f"{d} (epoch {e})" for d, e in sorted({_who(a) for a in answers}))
+    return printable(f"CONFLICT: {len(answers)} answers for this stream, from {names}: two daemons serve it, or one "
+                     "answer is forged", 400)
+
+
+def status_line(doc: dict[str, Any], conflict: str | None = None) -> str:
     """One line of the table for a parsed ``streamid.status/1`` document (escaped).
 
     A stream of several outputs shows no champion here (each output has its own: :func:`output_lines`)."""
@@ -70,6 +87,8 @@ def status_line(doc: dict[str, Any]) -> str:
     members = sharing.get("members")
     members = members if isinstance(members, list) else []
     state = "DEGRADED: " + str(doc.get("degraded_reason", "")) if doc.get("degraded") else "ok"
+    if conflict is not None:
+        state = f"{conflict}; {state}"
     text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
             f"{_model_columns(doc.get('version'), champ, doc.get('drifts'))} {len(members) or 1:>7}  {state}")
     return printable(text, 400)
@@ -110,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         settings = dataclasses.replace(settings, connect_wait_s=args.timeout)
     with Bus(settings) as bus:
         replies = bus.get(key, timeout_s=args.timeout, all_replies=True)
-    docs: dict[str, dict[str, Any]] = {}
+    docs: dict[str, dict[tuple[str, int], dict[str, Any]]] = {}  # stream -> answering daemon life -> its answer
     skipped = 0
     for _key, payload in replies[:100_000]:
         try:
@@ -118,20 +137,25 @@ def run(args: argparse.Namespace) -> int:
         except ModelFormatError:
             skipped += 1
             continue
-        docs[str(doc.get("stream"))] = doc
+        docs.setdefault(str(doc.get("stream")), {})[_who(doc)] = doc
+    conflicts = {name: conflict_text(list(a.values())) for name, a in docs.items() if len(a) > 1}
     if args.json:
         for name in sorted(docs):
-            print(json.dumps(docs[name]))
+            for _, doc in sorted(docs[name].items()):
+                print(json.dumps(doc))
     else:
         print(HEADER)
         for name in sorted(docs):
-            print(status_line(docs[name]))
-            for line in output_lines(docs[name]):
-                print(line)
+            for _, doc in sorted(docs[name].items()):
+                print(status_line(doc, conflicts.get(name)))
+                for line in output_lines(doc):
+                    print(line)
+    for name in sorted(conflicts):
+        print(f"streamid status: stream {printable(name, 80)}: {conflicts[name]} (see docs/security.md)", file=sys.stderr)
     if skipped:
         print(f"streamid status: skipped {skipped} invalid status documents", file=sys.stderr)
     if not docs:
         where = ", ".join(settings.connect) or ", ".join(settings.listen) or "the --zenoh-config endpoints"
         print(f"streamid status: no stream answered at {where} within {args.timeout:g} s", file=sys.stderr)
         return 1
-    return 0
+    return 3 if conflicts else 0

@@ -12,6 +12,13 @@ to a :class:`~streamid.transport.Bus`:
   ``examples/zenoh/router.json5``, and what they send is bounded all the same),
 * and puts this daemon's state of a stream it serves there (:meth:`hand_off`).
 
+Without access control (the trusted-network variant) anyone who reaches the router can declare a
+member or claim token and so take this daemon's streams: :meth:`start` warns when the daemon
+shares on a session whose configuration neither enforces access control nor authenticates to a
+router (the shipped recipe: ``examples/zenoh/router.json5`` + ``daemon-via-router.json5``), and
+:meth:`successor_check` makes a hand-over to a daemon that never put a state on
+``streamid/@state/*`` a WARNING naming it (a daemon that just joined, or a forged token).
+
 The daemon calls :meth:`tick` from its housekeeping thread; ``serve`` and ``release``
 actions come back to it (declare or close the stream's publishers, restore the
 handed-over state).
@@ -20,13 +27,14 @@ handed-over state).
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
-from streamid.daemon.sharing import Action, Life, Shares
+from streamid.daemon.sharing import MAX_LIVES, Action, Life, Shares
 from streamid.errors import ModelFormatError
 from streamid.online.snapshot import StreamState
 from streamid.transport import Bus
@@ -35,6 +43,22 @@ from streamid.wire.keys import CLAIMS_ALL, HANDOFF_ALL, MEMBERS_ALL, claim_key, 
 __all__ = ["ShareLink"]
 
 _log = logging.getLogger("streamid.daemon.service")
+#: The daemon id in a handed-over state's model message (``"origin": {"daemon": ...``).
+_ORIGIN_RE = re.compile(rb'"origin"\s*:\s*\{\s*"daemon"\s*:\s*"([A-Za-z0-9_.\-]{1,128})"')
+#: What the start warning and the hand-over warning name as the way to prevent a stolen stream.
+RECIPE = ("run the router with examples/zenoh/router.json5 and each daemon with examples/zenoh/daemon-via-router.json5 "
+          "(access control: only the 'daemon' user may declare streamid/@daemons, streamid/@claims and put "
+          "streamid/@state; docs/security.md, 'With a Zenoh router')")
+
+
+def unprotected(config: Any) -> bool:
+    """Whether a session configuration (a ``zenoh.Config``) neither enforces access control nor authenticates."""
+    try:
+        acl = config.get_json("access_control/enabled")
+        user = config.get_json("transport/auth/usrpwd/user")
+    except Exception:  # noqa: BLE001 - a key this Zenoh does not know: nothing configured there
+        return True
+    return acl != "true" and user in (None, "null", '""')
 
 
 class ShareLink:
@@ -53,6 +77,8 @@ class ShareLink:
         self._handoff: dict[str, bytes] = {}
         self._lock = threading.Lock()
         self._started = 0.0
+        self._stated: set[str] = set()  # daemons seen putting a state on streamid/@state/* (at most MAX_LIVES)
+        self._warned_successors: set[str] = set()
 
     @property
     def me(self) -> Life:
@@ -66,6 +92,10 @@ class ShareLink:
         self._handles.append(bus.liveliness_subscribe(CLAIMS_ALL, self._on_token))
         self._handles.append(bus.subscribe(HANDOFF_ALL, self._on_handoff, max_payload_bytes=self.max_payload_bytes,
                                            on_too_large=lambda _k, _n: self.counters.update(["handoff_too_large"])))
+        if self.shares.share and unprotected(bus.settings.to_config()):
+            _log.warning("stream sharing on a bus without access control: anyone who reaches the router can declare "
+                         "a member (streamid/@daemons/...) or a claim (streamid/@claims/...) and take this daemon's "
+                         "streams, or hand it a state; to prevent it, %s", RECIPE)
 
     def _on_token(self, key: str, alive: bool) -> None:
         parsed = parse_life_key(key)
@@ -81,6 +111,9 @@ class ShareLink:
 
     def _on_handoff(self, key: str, payload: bytes) -> None:
         stream = key.rsplit("/", 1)[-1]
+        m = _ORIGIN_RE.search(payload)
+        if m is not None and len(self._stated) < MAX_LIVES:
+            self._stated.add(m.group(1).decode("ascii"))
         if self.shares.role(stream) == "none" or self.shares.serving(stream):
             return  # not ours to take over (or our own put coming back)
         with self._lock:
@@ -149,6 +182,24 @@ class ShareLink:
             self.counters["handoff_unreadable"] += 1
             return None
         return state
+
+    def successor_check(self, stream: str) -> list[str]:
+        """At a hand-over of ``stream``: the daemons it goes to (a beating claim's, else the assigned owner) that
+        never put a state here; each is named in one WARNING per daemon life of ours (a daemon that just joined,
+        or a token anyone could declare on a bus without access control)."""
+        to = sorted({lf.daemon for lf in self.shares.claimants(stream) if lf.daemon != self.me.daemon})
+        owner = self.shares.owner(stream)
+        if not to and owner is not None and owner != self.me.daemon:
+            to = [owner]
+        fresh = [d for d in to if d not in self._stated]
+        for d in fresh:
+            self.counters["handed_to_unknown"] += 1
+            if d not in self._warned_successors and len(self._warned_successors) < MAX_LIVES:
+                self._warned_successors.add(d)
+                _log.warning("stream %s: handed over to daemon %r, which never put a state on streamid/@state/*: "
+                             "a daemon that just joined, or a member or claim token declared by someone else (on a "
+                             "bus without access control anyone can); to prevent it, %s", stream, d, RECIPE)
+        return fresh
 
     def has_successor(self) -> bool:
         """Whether another daemon may take a stream over (a state is worth putting): another member lives,

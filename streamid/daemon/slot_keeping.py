@@ -106,6 +106,7 @@ class SlotKeeping:
             if state is not None:
                 self.link.hand_off(name, state)
             self._undeclare(st)
+            self.link.successor_check(name)
         _log.info("stream %s: handed over (members: %s)", name, ", ".join(self.shares.members()) or "none")
 
     def _undeclare(self, st: _Stream) -> None:
