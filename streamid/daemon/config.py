@@ -16,6 +16,7 @@ A configuration file is optional: every setting has an embedded default, so
     max_identification_bytes = 536870912 # a stream's buffers + one identification (512 MiB)
     max_identification_s = 60.0          # one identification's own time; then stopped, counted
     stream_idle_s = 60.0                 # a discovered stream without a valid sample this long gives its slot back
+    max_batches_per_s = 5000             # intake budget shared fairly by the streams sending (see below)
     share = true                         # divide discovered streams with the other daemons on the network
     claim_settle_s = 0.3                 # a claim on a stream stands unbeaten this long before the stream is served
     join_after_s = 10.0                  # a new daemon buffers the streams it will take this long, then joins
@@ -99,6 +100,13 @@ class DaemonConfig:
     stream_idle_s
         A discovered stream that received no valid sample for this long gives
         its slot back (counted ``streams_released``; its state file stays).
+    max_batches_per_s
+        The intake budget: batches decoded per second, over all streams, while
+        two or more streams send.  Each sending stream is guaranteed an equal
+        share; a stream above its share when the budget is used up has its
+        batches dropped before decoding, counted (``intake_dropped`` on the
+        stream and the daemon): many small publishers cannot starve a healthy
+        stream (:mod:`streamid.daemon.intake_budget`).
     share
         With ``discover``: divide the streams with the other sharing daemons on
         the network (:mod:`streamid.daemon.sharing`: liveliness tokens,
@@ -130,6 +138,7 @@ class DaemonConfig:
     max_identification_bytes: int = 512 * 2**20
     max_identification_s: float = 60.0
     stream_idle_s: float = 60.0
+    max_batches_per_s: int = 5000
     share: bool = True
     claim_settle_s: float = 0.3
     join_after_s: float = 10.0
@@ -210,6 +219,7 @@ _DAEMON_KEYS: dict[str, tuple[str, str]] = {
     "max_identification_bytes": ("int", "an integer number of bytes in [1048576, 1099511627776]"),
     "max_identification_s": ("float", "a number of seconds in [0.1, 86400]"),
     "stream_idle_s": ("float", "a number of seconds in [0.5, 31536000]"),
+    "max_batches_per_s": ("int", "an integer number of batches per second in [10, 100000000]"),
     "share": ("bool", "true or false"),
     "claim_settle_s": ("float", "a number of seconds in [0.01, 60]"),
     "join_after_s": ("float", "a number of seconds in [0, 3600]"),
@@ -221,6 +231,7 @@ _BOUNDS: dict[str, tuple[float, float]] = {
     "max_identification_bytes": (2**20, 2**40),
     "max_identification_s": (0.1, 86400.0),
     "stream_idle_s": (0.5, 365 * 86400.0),
+    "max_batches_per_s": (10, 100_000_000),
     "claim_settle_s": (0.01, 60.0),
     "join_after_s": (0.0, 3600.0),
 }

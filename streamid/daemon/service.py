@@ -59,6 +59,7 @@ from streamid.daemon.slot_keeping import SlotKeeping
 from streamid.daemon.slots import EVICT_GRACE_S, evictable, forward_events
 from streamid.daemon.state_store import StateStore
 from streamid.daemon.identity import daemon_origin
+from streamid.daemon.intake_budget import IntakeBudget
 from streamid.daemon.share_link import ShareLink
 from streamid.daemon.sharing import Life, Shares
 from streamid.daemon.versions import VersionKeeper
@@ -134,6 +135,7 @@ class Daemon(SlotKeeping):
                              explicit=config.streams, settle_ns=int(config.claim_settle_s * 1e9))
         self.link = ShareLink(self.shares, join_after_s=config.join_after_s, max_streams=config.max_streams,
                               max_payload_bytes=config.max_payload_bytes)
+        self._budget = IntakeBudget(config.max_batches_per_s)  # fair intake: checked before decoding
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Daemon:
@@ -362,6 +364,16 @@ class Daemon(SlotKeeping):
             return
         st = self._streams.get(stream) or self._ensure(stream)
         if st is None:
+            return
+        if not self._budget.admit(stream):  # over its share of the intake budget: dropped undecoded, counted
+            self._global["intake_dropped"] += 1
+            with st.lock:
+                st.intake_dropped += 1
+                first = st.intake_dropped == 1
+            if first:
+                _log.warning("stream %s: batches dropped before decoding: over its share of daemon.max_batches_per_s "
+                             "= %d, shared by the streams sending (counted as intake_dropped on its status; not "
+                             "repeated)", stream, self.config.max_batches_per_s)
             return
         if len(payload) >= LARGE_PAYLOAD:
             self._large_payload.set()

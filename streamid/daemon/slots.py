@@ -38,6 +38,7 @@ class StreamSlot:
         self.bad_suppressed: dict[tuple[str, str], int] = {}
         self.identification_timeouts = 0
         self.nested_runs = 0  # jobs of this stream run between the generations of another stream's job
+        self.intake_dropped = 0  # batches dropped undecoded: over the stream's share of the intake budget
         self.samples_seen: object = 0  # samples_in at the last idleness check
         self.valid_mono = time.monotonic()  # when samples_in last grew (or the slot was made)
         self.created_mono = self.valid_mono
@@ -45,7 +46,8 @@ class StreamSlot:
 
     def counters(self) -> dict[str, int]:
         """What the daemon adds to the stream's status document."""
-        return {"identification_timeouts": self.identification_timeouts, "nested_runs": self.nested_runs}
+        return {"identification_timeouts": self.identification_timeouts, "nested_runs": self.nested_runs,
+                "intake_dropped": self.intake_dropped}
 
 
 def evictable(slots: Iterable[StreamSlot], now: float, grace_s: float) -> StreamSlot | None:
