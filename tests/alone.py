@@ -37,7 +37,7 @@ ALONE_MODULES = frozenset({
     "test_daemon_bounds",  # timed attack plans: the healthy stream's latency per phase
     "test_daemon_faults",  # a timed fault plan
     "test_reliability_bad_input",  # a timed plan of every bad input at once
-    "test_reliability_faults",  # kills and restarts; a stop within 2 s
+    "test_reliability_faults",  # kills and restarts at planned moments
     "test_record_replay",  # real-time 20 kHz replay timing
     "test_rrd_files",  # a SIGKILLed writer loses at most 1 s
     "test_multihost",  # network namespaces

@@ -98,6 +98,9 @@ def test_models_from_every_reader_are_bounded_the_same_way() -> None:
                 Normalisation((-1.0,), (1.0,), -1.0, 1.0))
     with pytest.raises(DataError, match=f"lags up to {MAX_LAG}"):
         Predictor(big)
+    deep = {**_doc(3), "metrics": json.loads('{"a":' * 100 + '1' + '}' * 100)}  # deep, within Python's parser
+    with pytest.raises(ModelFormatError, match=f"nests at most {MAX_DEPTH}"):
+        Model.from_dict(deep)  # the client's path: a model update's parsed "model" field
     ok = Model.from_dict(_doc(3))
     assert Predictor(ok).model is ok and MAX_PARAMETERS >= 1000 * (200 + 2)
 

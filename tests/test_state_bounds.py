@@ -169,3 +169,19 @@ def test_a_state_holding_a_huge_champion_is_refused_before_building_it(tmp_path:
     warnings = ident.restore(got)
     assert any("100000 neurons; a model has at most 1000" in w for w in warnings), warnings
     assert ident.version == 7 and ident.document is None  # the version carries over, the champion does not
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
+def test_an_identity_file_that_is_not_a_regular_file_gets_a_new_identity(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, kind: str) -> None:
+    """Was: a FIFO there blocked the daemon's start for ever (a device was read to its 4 KiB bound)."""
+    from streamid.daemon.identity import IDENTITY_FILE, daemon_origin
+
+    p = tmp_path / IDENTITY_FILE
+    if kind == "fifo":
+        os.mkfifo(p)
+    else:
+        os.symlink("/dev/zero", p)
+    with caplog.at_level(logging.WARNING, logger="streamid.daemon.identity"):
+        o = daemon_origin(tmp_path, now_ns=7)
+    assert o.epoch_ns == 7 and "not a regular file" in caplog.text

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from streamid.daemon.state_store import atomic_write_text
+from streamid.engine.bounded_files import read_regular_file
 
 __all__ = ["IDENTITY_FILE", "IDENTITY_FORMAT", "Origin", "daemon_origin", "save_identity"]
 
@@ -64,15 +65,14 @@ def _new_id() -> str:
 
 def _read(path: Path) -> tuple[str | None, int, str]:
     """(daemon id or None, last epoch or 0, why the file was not usable or '')."""
-    try:
-        with path.open("rb") as fh:
-            raw = fh.read(_MAX_FILE_BYTES + 1)
+    try:  # a regular file only (a FIFO would block the start, a device never end)
+        raw = read_regular_file(path, _MAX_FILE_BYTES)
     except FileNotFoundError:
         return None, 0, ""
     except OSError as exc:
         return None, 0, f"cannot read {path} ({exc})"
-    if len(raw) > _MAX_FILE_BYTES:
-        return None, 0, f"{path} is larger than {_MAX_FILE_BYTES} bytes: not an identity file"
+    except ValueError as exc:
+        return None, 0, f"{exc}: not an identity file"
     try:
         doc = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:

@@ -135,6 +135,10 @@ def check_model_document(d: Any) -> None:
     if total > MAX_PARAMETERS:
         raise ModelFormatError(f"the model holds {total} parameters (neurons x (regressors + 2) + linear part, over "
                                f"all its networks); a model has at most {MAX_PARAMETERS}")
+    depth = json_depth(d)  # (after the counts: the walk is as long as the document)
+    if depth > MAX_DEPTH:
+        raise ModelFormatError(f"the model document nests {depth}+ levels deep; a model document nests at most "
+                               f"{MAX_DEPTH}")
 
 
 def osa_block_rows(neurons: int, regressors: int, most: int) -> int:
