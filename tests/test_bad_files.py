@@ -105,6 +105,20 @@ def test_models_from_every_reader_are_bounded_the_same_way() -> None:
     assert Predictor(ok).model is ok and MAX_PARAMETERS >= 1000 * (200 + 2)
 
 
+def test_model_files_with_a_bom_are_read_and_other_encodings_named(tmp_path: Path) -> None:
+    text = json.dumps(_doc(3))
+    for enc in ("utf-8-sig", "utf-16"):
+        p = tmp_path / f"{enc}.json"
+        p.write_bytes(text.encode(enc))
+        assert Model.load(p).neurons == 3, enc
+    p = tmp_path / "latin1.json"
+    p.write_bytes(text.replace('"y"', '"\xb5"').encode("latin-1"))
+    r = subprocess.run([*STREAMID, "validate", str(p), str(_record(tmp_path / "r.csv"))], capture_output=True,
+                       text=True, timeout=120)
+    line = _one_line_exit_2(r)
+    assert "must be UTF-8 JSON text" in line and "latin1.json" in line, line
+
+
 def test_cut_or_odd_mat_files_are_one_line_errors(tmp_path: Path) -> None:
     """Was: a .mat cut to 100 bytes gave an IndexError or MatReadError traceback (exit 1)."""
     from scipy.io import savemat

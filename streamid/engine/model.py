@@ -504,7 +504,8 @@ class Model:
         """
         p = Path(path)
         try:
-            text = read_regular_file(p, MAX_MODEL_BYTES).decode("utf-8")
+            raw = read_regular_file(p, MAX_MODEL_BYTES)  # UTF-8 (a BOM skipped), or UTF-16 with a BOM
+            text = raw.decode("utf-16" if raw.startswith((b"\xff\xfe", b"\xfe\xff")) else "utf-8-sig")
         except ValueError as exc:  # not a regular file, or too large (UnicodeDecodeError is handled below)
             if isinstance(exc, UnicodeDecodeError):
                 raise ModelFormatError(f"model file {str(p)!r} must be UTF-8 JSON text; {exc}") from None
