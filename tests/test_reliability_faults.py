@@ -190,11 +190,14 @@ def test_daemon_sigkilled_thrice_resumes_warm_with_unique_increasing_versions(tm
                 proc.send_signal(signal.SIGKILL)
                 proc.wait(10)
                 for f in (tmp_path / "state").iterdir():  # whole documents only
-                    if f.name.endswith(".tmp") or f.name == "daemon.identity":
-                        continue  # a temporary of the killed writer (removed at the next start); the daemon's id
+                    if f.name.endswith(".tmp") or f.name in ("daemon.identity", "bench.versions"):
+                        continue  # a temporary of the killed writer (removed at the next start); the daemon's id;
+                        # the version record (checked below)
                     assert f.name == "bench.json", f.name
                     doc = json.loads(f.read_text())
                     assert doc["format"] == "streamid.daemon-state/1" and doc["coea_state"]
+                    record = [int(v) for v in (tmp_path / "state" / "bench.versions").read_text().split()]
+                    assert max(record) >= doc["version"]  # every saved version was recorded first
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(20) == 0
         finally:
@@ -213,7 +216,7 @@ def test_daemon_sigkilled_thrice_resumes_warm_with_unique_increasing_versions(tm
         assert mine[0].version > max(u.version for lf, u in ups if lf < i)
     saved = json.loads((tmp_path / "state" / "bench.json").read_text())
     assert saved["version"] == versions[-1]
-    assert sorted(f.name for f in (tmp_path / "state").iterdir()) == ["bench.json", "daemon.identity"]
+    assert sorted(f.name for f in (tmp_path / "state").iterdir()) == ["bench.json", "bench.versions", "daemon.identity"]
 
 
 _WRITER = """
