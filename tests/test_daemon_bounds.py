@@ -222,13 +222,18 @@ def _phases(attack: dict[str, Any]) -> dict[str, tuple[float, float]]:
 
 
 def test_healthy_stream_keeps_its_latency_while_another_stream_sends_wide_batches(attack: dict[str, Any]) -> None:
-    ups, figures = attack["updates"], {}
+    ups, figures, gaps = attack["updates"], {}, {}
     for name, (a, b) in _phases(attack).items():
         lat = [s for t, _, s in ups if a <= t < b]
         times = [t for t, _, _ in ups if a <= t < b]
         assert len(lat) >= 0.7 * (b - a) / HEALTHY.update_every_s, (name, len(lat))  # an update every 0.5 s
-        assert max(np.diff(times)) < 1.5, name  # no stall
+        gaps[name] = float(max(np.diff(times)))
         figures[name] = (float(np.median(lat)), max(lat))
+    # No stall: under attack the longest gap between the healthy stream's updates is at most its own longest gap
+    # of the normal phase and two update periods (relative to this run, not a wall-clock time of the machine:
+    # issue 39 item 5).
+    for name in ("wide", "payloads"):
+        assert gaps[name] <= gaps["normal"] + 2 * HEALTHY.update_every_s, gaps
     normal_max = figures["normal"][1]
     for name in ("wide", "payloads"):
         # waiting at most one generation of the long run, or its start (measured 0.26 s at 600 candidates)

@@ -15,8 +15,10 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
-                        streamid.errors, streamid._lazy and streamid.engine.* (so never online, daemon,
-                        wire, logs, viz, transport, commands, bench, zenoh, rerun, mcap)
+                        streamid.errors, streamid._lazy, streamid.bounded_files (stdlib only: a file
+                        read under a bound, which Model.load and the daemon's state store share) and
+                        streamid.engine.* (so never online, daemon, wire, logs, viz, transport,
+                        commands, bench, zenoh, rerun, mcap)
 sim-is-numerics         streamid/sim/ imports only the stdlib, numpy, scipy, streamid.errors,
                         streamid.sim.* and streamid.engine.*
 wire-stands-alone       streamid/wire/ imports only the stdlib, numpy, streamid.errors and
@@ -214,7 +216,7 @@ RULES: dict[str, Callable[[Import], str | None]] = {
     **{name: _adapter_rule(families, owner) for name, (families, owner) in ADAPTERS.items()},
     "engine-is-numerics": _allow_only(
         "streamid.engine", ("numpy", "scipy", "threadpoolctl", "numba"),
-        ("streamid.errors", "streamid._lazy", "streamid.engine"),
+        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.engine"),
     ),
     "sim-is-numerics": _allow_only(
         "streamid.sim", ("numpy", "scipy"), ("streamid.errors", "streamid.sim", "streamid.engine")

@@ -208,8 +208,9 @@ def test_two_daemons_share_fail_over_warm_and_take_their_share_back(tmp_path: Pa
                            for s in mine["beta"]}
                 first_v = {s: min(v for t, ss, v, d in got if ss == s and d == "alpha" and t > t_kill)
                            for s in mine["beta"]}
-            assert max(resumed.values()) <= 5.0, resumed  # the stated failover bound
-            assert all(first_v[s] == beta_last[s] + 1 for s in mine["beta"]), (first_v, beta_last)  # warm: state kept
+            # How soon (`resumed`, seconds) is the bench's figure, not a test's (issue 39 item 5: a wall-clock time
+            # of this machine under load is no assertion): examples/measure/scale.py failover, docs/benchmarks.md.
+            assert all(first_v[s] == beta_last[s] + 1 for s in mine["beta"]), (first_v, beta_last, resumed)  # warm
             # 3. beta comes back on its state directory (same id, new life) and takes its share again
             t_back = time.monotonic()
             procs["beta"] = _daemon(tmp_path, "beta", ep)

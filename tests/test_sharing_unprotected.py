@@ -82,8 +82,11 @@ def test_unprotected_sharing_warns_at_start_and_at_a_forged_hand_over_and_status
     stream = "dev1"
     forged_id = next(f"z{i}" for i in range(1000) if ranking(stream, ["alpha", f"z{i}"])[0] == f"z{i}")
     stop = threading.Event()
+    # the documented trusted-network variant: a router without access control, the daemon connected to it
+    router = subprocess.Popen([*STREAMID, "router", "--listen", ep], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
     with open(log, "w") as fh:
-        proc = subprocess.Popen([*STREAMID, "daemon", "--listen", ep, "--config", str(tmp_path / "d.toml"),
+        proc = subprocess.Popen([*STREAMID, "daemon", "--connect", ep, "--config", str(tmp_path / "d.toml"),
                                  "--state-dir", str(state), "--no-rerun", "-v"], stdout=fh, stderr=fh, text=True)
     feeder = threading.Thread(target=_feed, args=(ep, stream, stop), daemon=True)
     try:
@@ -118,12 +121,38 @@ def test_unprotected_sharing_warns_at_start_and_at_a_forged_hand_over_and_status
     finally:
         stop.set()
         feeder.join(10)
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        for p in (proc, router):
+            p.terminate()
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(10)
+
+
+def test_a_daemon_reached_from_this_machine_only_does_not_warn() -> None:
+    """The default daemon (README journey 2) listens on loopback alone: only this machine's processes reach it, so
+    no warning; one that connects to a router or listens beyond loopback is reached by others."""
+    import zenoh
+
+    from streamid.daemon.share_link import reaches_others
+
+    def cfg(**kw: str) -> zenoh.Config:
+        c = zenoh.Config()
+        for key, value in kw.items():
+            c.insert_json5(key.replace("__", "/"), value)
+        return c
+
+    assert not reaches_others(cfg(listen__endpoints='["tcp/127.0.0.1:7447"]'))
+    assert not reaches_others(cfg(listen__endpoints='["tcp/[::1]:7447"]'))
+    assert reaches_others(cfg(listen__endpoints='["tcp/127.0.0.1:7447"]', connect__endpoints='["tcp/127.0.0.1:7448"]'))
+    assert reaches_others(cfg(listen__endpoints='["tcp/0.0.0.0:7447"]'))
+    assert reaches_others(cfg(listen__endpoints='["tcp/192.0.2.10:7447"]'))
+    assert reaches_others(zenoh.Config())  # Zenoh's own default listens on every interface
+    proc = subprocess.run([*STREAMID, "daemon", "--listen", endpoint(), "--no-rerun", "--duration", "1.5", "-v"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "daemon started" in proc.stderr and "without access control" not in proc.stderr, proc.stderr[-3000:]
 
 
 def test_a_daemon_with_the_shipped_access_control_does_not_warn(tmp_path: Path) -> None:

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from streamid.daemon.state_store import atomic_write_text
-from streamid.engine.bounded_files import read_regular_file
+from streamid.bounded_files import read_regular_file
 
 __all__ = ["IDENTITY_FILE", "IDENTITY_FORMAT", "Origin", "daemon_origin", "save_identity"]
 

@@ -15,7 +15,9 @@ to a :class:`~streamid.transport.Bus`:
 Without access control (the trusted-network variant) anyone who reaches the router can declare a
 member or claim token and so take this daemon's streams: :meth:`start` warns when the daemon
 shares on a session whose configuration neither enforces access control nor authenticates to a
-router (the shipped recipe: ``examples/zenoh/router.json5`` + ``daemon-via-router.json5``), and
+router (the shipped recipe: ``examples/zenoh/router.json5`` + ``daemon-via-router.json5``) and may be reached
+from other machines (it connects to a router or listens beyond loopback; the default daemon, on loopback alone, is
+reached from this machine only and says nothing), and
 :meth:`successor_check` makes a hand-over to a daemon that never put a state on
 ``streamid/@state/*`` a WARNING naming it (a daemon that just joined, or a forged token).
 
@@ -26,6 +28,7 @@ handed-over state).
 
 from __future__ import annotations
 
+import json
 import logging
 import re
 import threading
@@ -49,6 +52,31 @@ _ORIGIN_RE = re.compile(rb'"origin"\s*:\s*\{\s*"daemon"\s*:\s*"([A-Za-z0-9_.\-]{
 RECIPE = ("run the router with examples/zenoh/router.json5 and each daemon with examples/zenoh/daemon-via-router.json5 "
           "(access control: only the 'daemon' user may declare streamid/@daemons, streamid/@claims and put "
           "streamid/@state; docs/security.md, 'With a Zenoh router')")
+
+
+def _endpoints(config: Any, key: str) -> list[str]:
+    """The endpoints of ``key`` (``connect/endpoints`` or ``listen/endpoints``: a list, or a dict of lists by mode)."""
+    try:
+        value = json.loads(config.get_json(key) or "[]")
+    except Exception:  # noqa: BLE001 - a key this Zenoh does not know, or not JSON: none
+        return []
+    if isinstance(value, dict):
+        return [str(e) for v in value.values() if isinstance(v, list) for e in v]
+    return [str(e) for e in value] if isinstance(value, list) else []
+
+
+def _loopback(endpoint: str) -> bool:
+    """Whether an endpoint such as ``tcp/127.0.0.1:7447`` or ``tcp/[::1]:7447`` names this machine only."""
+    host = endpoint.split("/", 1)[-1].split("#", 1)[0].rsplit(":", 1)[0].strip("[]")
+    return host in ("localhost", "::1") or host.startswith("127.")
+
+
+def reaches_others(config: Any) -> bool:
+    """Whether a session may be reached from other machines: it connects to anything (a router, which others reach
+    too) or listens on an endpoint that is not loopback. A daemon listening on loopback alone (the default) is
+    reached from this machine only."""
+    return bool(_endpoints(config, "connect/endpoints")) or any(
+        not _loopback(e) for e in _endpoints(config, "listen/endpoints"))
 
 
 def unprotected(config: Any) -> bool:
@@ -92,7 +120,8 @@ class ShareLink:
         self._handles.append(bus.liveliness_subscribe(CLAIMS_ALL, self._on_token))
         self._handles.append(bus.subscribe(HANDOFF_ALL, self._on_handoff, max_payload_bytes=self.max_payload_bytes,
                                            on_too_large=lambda _k, _n: self.counters.update(["handoff_too_large"])))
-        if self.shares.share and unprotected(bus.settings.to_config()):
+        config = bus.settings.to_config()
+        if self.shares.share and unprotected(config) and reaches_others(config):
             _log.warning("stream sharing on a bus without access control: anyone who reaches the router can declare "
                          "a member (streamid/@daemons/...) or a claim (streamid/@claims/...) and take this daemon's "
                          "streams, or hand it a state; to prevent it, %s", RECIPE)

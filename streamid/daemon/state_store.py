@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from streamid.engine.bounded_files import read_regular_file
+from streamid.bounded_files import read_regular_file
 from streamid.errors import ConfigError, ModelFormatError
 from streamid.online.snapshot import MAX_VERSION, STATE_FORMAT, StreamState
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name

@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.freerun import free_run
-from streamid.engine.bounded_files import read_regular_file
+from streamid.bounded_files import read_regular_file
 from streamid.engine.model_limits import MAX_MODEL_BYTES, MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
 from streamid.engine.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
 from streamid.errors import DataError, ModelFormatError
