@@ -44,7 +44,8 @@ from collections.abc import Callable, Mapping, Sized
 from streamid.online.stream_config import StreamConfig
 from streamid.wire.codec import SampleBatch
 
-__all__ = ["identification_bytes", "stream_bytes", "window_samples_at", "known_channels", "check_batch", "Deadline", "MiB"]
+__all__ = ["identification_bytes", "stream_bytes", "window_samples_at", "known_channels", "check_batch", "Deadline", "MiB",
+           "STREAM_FAULTS"]
 
 MiB = 1 << 20
 #: Windows longer than this are refused by the window buffer whatever the bounds here.
@@ -94,6 +95,11 @@ def _period_of(batch: SampleBatch) -> int:
     if t is not None and len(t) >= 2:
         return max(1, int((int(t[-1]) - int(t[0])) // (len(t) - 1)))
     return 0
+
+
+#: Refusals that every batch of the stream as it is sent would meet (its window, its channels): the stream is degraded
+#: for them (issue 38: a stream that cannot be identified is never ``ok``), not only the batch counted.
+STREAM_FAULTS = ("too_large_window", "too_many_channels")
 
 
 def check_batch(

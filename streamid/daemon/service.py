@@ -51,7 +51,7 @@ from typing import Any
 from streamid.wire.codec import decode
 from streamid.daemon.config import DaemonConfig
 from streamid.wire.documents import encode_json
-from streamid.daemon.admission import check_batch, known_channels
+from streamid.daemon.admission import STREAM_FAULTS, check_batch, known_channels
 from streamid.daemon.memory import LARGE_PAYLOAD, give_back_freed_memory, retain_freed_memory
 from streamid.daemon.runner import JobRunner
 from streamid.daemon.slots import StreamSlot as _Stream
@@ -395,7 +395,10 @@ class Daemon(SlotKeeping):
                                   known=known_channels(st.ident.counters()))
             if refused is not None:
                 st.ident.count_bad(refused[0], refused[1], now_ns=now_ns)
+                if refused[0] in STREAM_FAULTS:  # every batch as sent would be: the stream is degraded, never ok
+                    st.ident.intake_fault(f"cannot be identified as sent: {refused[1]}")
                 return
+            st.ident.intake_fault("")
             events = st.ident.push(batch, source=kind, now_ns=now_ns)
             if not st.had_valid and not any(ev.kind.startswith("bad.") for ev in events):
                 st.had_valid = True

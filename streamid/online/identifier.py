@@ -129,6 +129,7 @@ class OnlineIdentifier(StreamIntake):
         self._drop_reasons: Counter[str] = Counter()
         self._last: dict[str, Any] = {}
         self._health = Health()  # why each output is degraded
+        self._intake_fault = ""  # why the stream cannot be identified as it is sent (set by its adapter's admission)
         self._state_error = ""
 
     # ---------------------------------------------------------------- identification
@@ -443,17 +444,24 @@ class OnlineIdentifier(StreamIntake):
     # ---------------------------------------------------------------- status and events
     @property
     def degraded(self) -> bool:
-        """Whether an output's last update was not accepted for a fault or an invalid challenger (reason in
-        :meth:`status`).  Each output of a stream of several is healthy or not on its own: a model accepted for
-        one does not make another's failure go away."""
-        return bool(self._health.current(self._buffer.output_names))
+        """Whether an output's last update was not accepted for a fault or an invalid challenger, or the stream cannot
+        be identified as it is sent (reason in :meth:`status`).  Each output of a stream of several is healthy or not
+        on its own: a model accepted for one does not make another's failure go away."""
+        return bool(self._intake_fault) or bool(self._health.current(self._buffer.output_names))
+
+    def intake_fault(self, reason: str) -> None:
+        """The stream cannot be identified as it is sent (e.g. its window needs more memory than the daemon allows
+        one identification, or it has more channels than allowed): degraded for ``reason`` until its batches are
+        taken again (``reason`` empty). A stream never identified for such a reason is never ``ok``."""
+        self._intake_fault = str(reason)
 
     def status(self, *, now_ns: int = 0) -> dict[str, Any]:
         """The ``streamid.status/1`` document of this stream (the daemon adds its own part)."""
         return stream_status(
             self.stream, self._buffer.counters(), list(self._heads.values()), now_ns=now_ns,
-            degraded_reason=self._health.text(self._buffer.output_names, one_output=self.config.output is not None
-                                              or max(len(self._buffer.output_names), len(self._heads)) <= 1),
+            degraded_reason=self._intake_fault or self._health.text(
+                self._buffer.output_names,
+                one_output=self.config.output is not None or max(len(self._buffer.output_names), len(self._heads)) <= 1),
             version=self._version, busy=self.busy,
             outcomes=self._outcomes, decisions=self._decisions, drop_reasons=self._drop_reasons,
             last=self._last, events_dropped=self._events_dropped, state_error=self._state_error,
