@@ -77,3 +77,23 @@ def test_identify_prints_and_reports_the_ball_and_beams_caveats(tmp_path: Path) 
     assert printed == got and len(got) == 3
     assert "validation output y spans" in got[1] and "a one-step predictor, not a simulator" in got[2]
     assert "integrates or is unstable in open loop" in got[2]  # its second-order ARX pole: 0.998
+
+
+def test_a_kept_model_much_larger_than_a_close_competitor_is_named_with_it() -> None:
+    """Issue 37's real piezo: 30 neurons, lags up to 30 and a linear part kept for an estimation free-run R² of
+    0.99992 against 0.99988 of a 10-neuron, 10-lag restart (-3.96 on the next record)."""
+    from streamid.engine.caveats import size_caveat
+
+    cx = {"rule": "aic", "candidates": [
+        {"run": 0, "neurons": 30, "lag_space": 30, "linear": True, "params": 61, "r2_fr_est": 0.99992},
+        {"run": 1, "neurons": 10, "lag_space": 10, "linear": False, "params": 10, "r2_fr_est": 0.99988},
+        {"run": 2, "neurons": 8, "lag_space": 10, "linear": False, "params": 8, "r2_fr_est": 0.9990},  # not close
+        {"run": 3, "neurons": 30, "lag_space": 10, "linear": False, "params": 30, "r2_fr_est": None},  # inadmissible
+    ]}
+    (text,) = size_caveat(61, 0.99992, cx)
+    assert "fits 61 weights, 6.1 times the 10 of restart 1's (10 neurons, lags 1..10)" in text
+    assert "0.99988 is close to the kept one's 0.99992" in text and "by aic" in text
+    assert "--validate SECOND_RECORD" in text and "--neurons 10 --max-lag 10" in text
+    assert size_caveat(15, 0.99992, cx) == []  # not twice as large as any close candidate
+    assert size_caveat(61, 0.9999999, cx) == []  # the kept one's error is far smaller: no close competitor
+    assert size_caveat(61, None, cx) == [] and size_caveat(61, 0.99992, None) == []

@@ -15,7 +15,8 @@ from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit
                                            split_text)
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import CoEAConfig
-from streamid.engine.caveats import model_caveats
+from streamid.engine.caveats import model_caveats, size_caveat
+from streamid.engine.complexity import parameter_count
 from streamid.engine.ensemble import members_of
 from streamid.engine.fanout import fan_out
 from streamid.engine.identification import identify
@@ -302,6 +303,8 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
     rrd_files = draw_rrd(args.rrd, ds, runs, best, cfg.generations) if args.rrd is not None else []
     caveats = model_caveats(runs[best]["r2"], ds.u_est, ds.y_est, ds.u_val, ds.y_val, ds.input_names, ds.output_name,
                             runs[best].get("diverged"))
+    kept = Model.from_json(runs[best]["model"])
+    caveats += size_caveat(parameter_count(kept), runs[best]["r2"]["fr_est"], kept.metrics.get("complexity"))
     if not args.json:
         _print_report(sys.stdout, ds, cfg, runs, best, wall, caveats)
         if rrd_files:

@@ -15,6 +15,11 @@ model and writes to its report (``caveats``).  Each caveat names the figure that
   the data it was fitted to.
 * **a free run that diverged** -- the simulation left the numbers (inf or NaN) at a named sample: it has no
   free-run R^2 there (null in the reports, never an error that takes the report down; issue 37).
+* **much larger than a close competitor** -- the kept model fits at least :data:`SIZE_RATIO` times as many weights
+  as another run's candidate whose estimation free-run error is at most :data:`ERROR_RATIO` times the kept one's
+  (:func:`size_caveat`): the choice by the estimation record's criterion took a small gain there, which a second
+  experiment often does not confirm (issue 37: a real piezo's 30-neuron, 30-lag model kept for 0.99992 against
+  0.99988, then -3.96 on the next record).
 """
 
 from __future__ import annotations
@@ -27,8 +32,8 @@ from numpy.typing import NDArray
 from streamid.engine.longlinear import dense_regressors
 from streamid.engine.regressors import regressor_columns
 
-__all__ = ["BEYOND_RANGE", "MARGINAL_RADIUS", "OSA_GOOD", "arx_pole_radius", "beyond_range", "divergence_caveat",
-           "model_caveats", "range_caveats", "record_caveats"]
+__all__ = ["BEYOND_RANGE", "ERROR_RATIO", "MARGINAL_RADIUS", "OSA_GOOD", "SIZE_RATIO", "arx_pole_radius",
+           "beyond_range", "divergence_caveat", "model_caveats", "range_caveats", "record_caveats", "size_caveat"]
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
 #: estimation span (the free-run range guard of the final choice allows 0.25 of it; docs/method.md).
@@ -37,6 +42,10 @@ BEYOND_RANGE = 0.25
 OSA_GOOD = 0.9
 #: Pole radius of the second-order ARX fit from which the plant is called integrating or unstable.
 MARGINAL_RADIUS = 0.99
+#: A kept model this many times the weights of a close competitor is called much larger (:func:`size_caveat`).
+SIZE_RATIO = 2.0
+#: A competitor is close when its estimation free-run error ``1 - R^2`` is at most this many times the kept one's.
+ERROR_RATIO = 2.0
 
 
 def arx_pole_radius(u: NDArray[np.float64], y: NDArray[np.float64], order: int = 2) -> float:
@@ -136,6 +145,29 @@ def model_caveats(r2: dict[str, float | None], u_est: NDArray[np.float64], y_est
         out.append(f"its free run does not explain even its estimation record (free-run R2 {_fmt(fr_est)}): do not "
                    f"use it to simulate this device")
     return out
+
+
+def size_caveat(params: float, r2_fr_est: float | None, complexity: dict[str, Any] | None) -> list[str]:
+    """'Much larger than a close competitor' (see the module docstring) for a kept model of ``params`` fitted weights
+    and estimation free-run R^2 ``r2_fr_est``, from the final choice's evidence ``complexity`` (``metrics.complexity``:
+    every run's candidate with its ``params`` and ``r2_fr_est``); the smallest such competitor is named."""
+    if not complexity or r2_fr_est is None or not np.isfinite(r2_fr_est):
+        return []
+    err = max(1.0 - float(r2_fr_est), 1e-12)
+    close = [c for c in complexity.get("candidates", ())
+             if c.get("r2_fr_est") is not None and c.get("params") and params >= SIZE_RATIO * float(c["params"])
+             and 1.0 - float(c["r2_fr_est"]) <= ERROR_RATIO * err]
+    if not close:
+        return []
+    c = min(close, key=lambda c: (float(c["params"]), -float(c["r2_fr_est"])))
+    kind = " with a linear part" if c.get("linear") else ""
+    return [f"the kept model fits {params:g} weights, {params / float(c['params']):.1f} times the {float(c['params']):g} of "
+            f"restart {c['run']}'s ({c['neurons']} neurons{kind}, lags 1..{c['lag_space']}), whose estimation free-run "
+            f"R2 {float(c['r2_fr_est']):.5f} is close to the kept one's {float(r2_fr_est):.5f} (its error at most "
+            f"{ERROR_RATIO:g} times as large): the choice by {complexity.get('rule', 'the criterion')} on the "
+            f"estimation record took that small gain, which another experiment often does not confirm; judge on a "
+            f"second record (streamid identify --validate SECOND_RECORD, or streamid validate MODEL RECORD); "
+            f"--neurons {c['neurons']} --max-lag {c['lag_space']} identifies at that size"]
 
 
 def record_caveats(model: Any, osa: float, fr: float | None, u: NDArray[np.float64], y: NDArray[np.float64],
