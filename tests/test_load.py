@@ -7,8 +7,9 @@ at 2 kHz in real time and ``streamid replay piezo_sim_20khz`` putting the 20 kHz
 log in real time, while this process samples the daemon's resident memory.
 
 It runs for the two minutes of issue 6 (``STREAMID_LOAD_SECONDS``, default
-120; e.g. ``STREAMID_LOAD_SECONDS=40`` for a quicker local run).  The whole suite took 10.5-10.9 min on a
-2-core AMD EPYC VM without AVX-512 (2026-11-27, two test processes; this test 129 s of it, alone: tests/alone.py).  The same run's figures are in
+120; e.g. ``STREAMID_LOAD_SECONDS=40`` for a quicker local run).  The whole suite took 7.9-8.0 min on a
+2-core AMD EPYC VM (2026-11-27, stop 37's fresh-clone runs, two test processes; 10.5-10.9 min at stop 36 on a slower
+one; this test about two minutes of it, alone: tests/alone.py).  The same run's figures are in
 ``streamid bench --only daemon`` and docs/reliability.md.
 
 Deselect with ``-m "not load"``.
