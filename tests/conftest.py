@@ -23,6 +23,7 @@ import socket
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
+from typing import Any
 from pathlib import Path
 
 import pytest
@@ -154,6 +155,27 @@ def rerun_grpc_server(port: int, wait_s: float = 20.0) -> subprocess.Popen[bytes
         except OSError:
             time.sleep(0.1)
     return server
+
+
+def wait_until(cond: Callable[[], object], timeout_s: float, poll_s: float = 0.05) -> bool:
+    """Poll ``cond`` until it is truthy or ``timeout_s`` has passed; whether it became so (asked once more at the
+    deadline). A bound on a wait, not a figure: what a test asserts is the condition."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(poll_s)
+    return bool(cond())
+
+
+def stop_process(proc: subprocess.Popen[Any], wait_s: float = 30.0) -> None:
+    """SIGTERM a process this test started, wait ``wait_s`` for it, then SIGKILL it."""
+    proc.terminate()
+    try:
+        proc.wait(wait_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
 
 
 def endpoint(port: int | None = None) -> str:

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import STREAMID, endpoint
+from conftest import STREAMID, endpoint, stop_process
 
 from streamid.daemon.intake_budget import EPOCH_S, IntakeBudget
 from streamid.transport import Bus, ZenohSettings
@@ -91,12 +91,7 @@ def test_fifty_small_publishers_do_not_starve_a_healthy_stream(tmp_path: Path) -
     finally:
         if peer.poll() is None:
             peer.kill()
-        daemon.terminate()
-        try:
-            daemon.wait(30)
-        except subprocess.TimeoutExpired:
-            daemon.kill()
-            daemon.wait(10)
+        stop_process(daemon)
         log.close()
     text = (tmp_path / "daemon.log").read_text()
     assert st is not None and small is not None, text[-3000:]

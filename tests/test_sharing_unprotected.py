@@ -15,10 +15,9 @@ import subprocess
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-from conftest import STREAMID, endpoint
+from conftest import STREAMID, endpoint, stop_process, wait_until
 
 from streamid.daemon.sharing import ranking
 from streamid.sim import get_device
@@ -61,15 +60,6 @@ def _feed(ep: str, stream: str, stop: threading.Event) -> None:
                                        {"velocity": u[idx]}, {"force": y[idx]})))
 
 
-def _wait(cond: Any, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return bool(cond())
-
-
 def test_unprotected_sharing_warns_at_start_and_at_a_forged_hand_over_and_status_shows_the_conflict(
         tmp_path: Path) -> None:
     ep = endpoint()
@@ -93,7 +83,7 @@ def test_unprotected_sharing_warns_at_start_and_at_a_forged_hand_over_and_status
         with Bus(ZenohSettings(mode="client", connect=(ep,), connect_wait_s=30)) as forger:
             feeder.start()
             real: list[bytes] = []
-            assert _wait(lambda: bool(real.extend(p for _, p in forger.get(f"streamid/{stream}/status", 0.5)) or real)
+            assert wait_until(lambda: bool(real.extend(p for _, p in forger.get(f"streamid/{stream}/status", 0.5)) or real)
                          and b'"version":0' not in real[-1], 60), log.read_text()[-3000:]
             # 1. at start: the warning, naming the recipe
             text = log.read_text()
@@ -115,19 +105,14 @@ def test_unprotected_sharing_warns_at_start_and_at_a_forged_hand_over_and_status
             assert "CONFLICT" in out.stderr and "alpha" in out.stderr and "forged" in out.stderr, out.stderr
             # 3. one member token from anyone: the stream goes to it; the daemon says so as a WARNING naming it
             forger.liveliness_token(f"streamid/@daemons/{forged_id}/{time.time_ns()}")
-            assert _wait(lambda: f"handed over to daemon '{forged_id}', which never put a state" in log.read_text(),
+            assert wait_until(lambda: f"handed over to daemon '{forged_id}', which never put a state" in log.read_text(),
                          30), log.read_text()[-3000:]
             assert "WARNING" in next(ln for ln in log.read_text().splitlines() if "which never put a state" in ln)
     finally:
         stop.set()
         feeder.join(10)
         for p in (proc, router):
-            p.terminate()
-            try:
-                p.wait(30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(10)
+            stop_process(p)
 
 
 def test_a_daemon_reached_from_this_machine_only_does_not_warn() -> None:

@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import json
 import subprocess
-import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-from conftest import STREAMID, endpoint
+from conftest import STREAMID, endpoint, stop_process, wait_until
 
 from streamid.transport import Bus, ZenohSettings
 from streamid.wire.codec import SampleBatch, encode
@@ -43,15 +41,6 @@ def _status(ep: str, stream: str) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=60)
 
 
-def _wait(cond: Any, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(0.2)
-    return bool(cond())
-
-
 def test_a_window_too_large_for_the_bound_makes_the_stream_degraded_not_ok(tmp_path: Path) -> None:
     ep = endpoint()
     (tmp_path / "d.toml").write_text(CONFIG)
@@ -67,7 +56,7 @@ def test_a_window_too_large_for_the_bound_makes_the_stream_degraded_not_ok(tmp_p
                 fast.put(encode(SampleBatch("fast", k, k * 1000 * 50_000, 50_000, None, {"v": u}, {"x": u})))
                 slow.put(encode(SampleBatch("slow", k, k * 1000 * 5_000_000, 5_000_000, None, {"v": u}, {"x": u})))
             out: list[subprocess.CompletedProcess[str]] = []
-            assert _wait(lambda: bool(out.append(_status(ep, "fast")) or "DEGRADED" in out[-1].stdout), 30), \
+            assert wait_until(lambda: bool(out.append(_status(ep, "fast")) or "DEGRADED" in out[-1].stdout), 30), \
                 out[-1].stdout + out[-1].stderr
             line = next(ln for ln in out[-1].stdout.splitlines() if ln.startswith("fast"))
             assert "cannot be identified as sent: a window of 200000 samples" in line, line
@@ -75,13 +64,8 @@ def test_a_window_too_large_for_the_bound_makes_the_stream_degraded_not_ok(tmp_p
             docs = [json.loads(p) for _, p in bus.get("streamid/fast/status", 2.0)]
             assert docs and docs[0]["degraded"] is True and "200000 samples" in docs[0]["degraded_reason"], docs
             rows: list[str] = []
-            assert _wait(lambda: bool(rows.append(next((ln for ln in _status(ep, "slow").stdout.splitlines()
+            assert wait_until(lambda: bool(rows.append(next((ln for ln in _status(ep, "slow").stdout.splitlines()
                                                          if ln.startswith("slow")), "")) or " v1 " in rows[-1]), 30), rows
             assert "DEGRADED" not in rows[-1], rows[-1]  # a stream that fits the bound: identified, and ok
     finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop_process(proc)
