@@ -81,7 +81,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.repeat < 1:
         raise ConfigError(f"--repeat must be a whole number >= 1, got {args.repeat}")
-    systems = tuple(s.strip() for s in (args.systems or "").split(",") if s.strip())
+    systems = tuple(s.strip() for s in (getattr(args, "systems", None) or "").split(",") if s.strip())
+    if systems:
+        if not getattr(args, "suite", False):
+            raise ConfigError("--systems chooses among the systems of --suite; add --suite")
+        from benchmarks.suite import SYSTEMS
+
+        unknown = [s for s in systems if s not in SYSTEMS]
+        if unknown:
+            raise ConfigError(f"--systems takes names among {', '.join(SYSTEMS)} (comma-separated); got "
+                              f"{', '.join(map(repr, unknown))}")
     options = BenchOptions(
         repeat=1 if args.quick else args.repeat, quick=args.quick, peers=args.peers, seed=args.seed, systems=systems
     )

@@ -87,6 +87,8 @@ def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixt
         assert next(r for r in mine if r["metric"] == "refined, paper")["max"] == 0.0  # the paper never refines
         assert all(v in (0.0, 1.0) for r in mine if r["metric"].startswith("refined") for v in r["values"])
         assert all(np.isfinite(r["median"]) for r in mine)
+    notes = {r["case"].split(" (")[0]: r["note"] for r in rows if r["metric"] == "FR R2 val, default"}
+    assert all(n.endswith("validated on the record's second part") for n in notes.values()), notes  # half/half rows
     reactor = [r for r in rows if r["case"].startswith("reactor") and r["metric"] == "FR R2 val, default"]
     assert reactor[0]["median"] > 0.99  # even the smoke run identifies the reactor
 
@@ -109,3 +111,21 @@ def test_run_table_validates_every_run_and_marks_the_one_taken() -> None:
     assert ok and runs[table["chosen"]]["criterion"] == min(r["criterion"] for r in ok)
     with pytest.raises(ValueError, match="selection='fr_est' and restarts > 1"):
         run_table(t, PAPER.replace(generations=5), 0)
+
+
+def test_bench_suite_systems_option_runs_a_two_experiment_system(capsys: pytest.CaptureFixture[str]) -> None:
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    command.register(sub)
+    assert command.run(parser.parse_args(["bench", "--suite", "--quick", "--json", "--systems", "reactor_sim"])) == 0
+    rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["measurements"]
+    fr = [r for r in rows if r["metric"] == "FR R2 val, default"]
+    assert len(fr) == 3 and all(r["case"].startswith("reactor_sim [") for r in fr), [r["case"] for r in fr]
+    assert all(r["note"].endswith("validated on another experiment") for r in fr)
+    assert sum("beyond" in r["case"] for r in fr) == 1
+    from streamid.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--systems takes names among piezo_sim, .*; got 'nope'"):
+        command.run(parser.parse_args(["bench", "--suite", "--systems", "reactor_sim,nope"]))
+    with pytest.raises(ConfigError, match="add --suite"):
+        command.run(parser.parse_args(["bench", "--systems", "reactor_sim"]))
