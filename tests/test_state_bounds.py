@@ -16,25 +16,15 @@ from pathlib import Path
 
 import pytest
 from conftest import STREAMID, endpoint
+from test_daemon_versions import SMALL, _first_accepted_version  # the same small stream and feed
 
 from streamid.daemon.identity import Origin
 from streamid.daemon.state_store import MAX_STATE_BYTES, RECORD_COMPACT_BYTES, StateStore
 from streamid.daemon.versions import MAX_VERSION, VersionKeeper
 from streamid.errors import ModelFormatError
-from streamid.online import OnlineIdentifier, StreamConfig
+from streamid.online import OnlineIdentifier
 from streamid.online.snapshot import StreamState
 from streamid.sim import get_device
-
-SMALL = StreamConfig(window_s=2.0, update_every_s=2.0, cold_generations=5, warm_generations=2, neurons=3,
-                     max_lag_y=2, max_lag_u=2, population=8, min_r2_osa=-1e9, min_r2_fr=-1e9, challenger_margin=0.0)
-
-
-def _first_accepted_version(ident: OnlineIdentifier) -> int:
-    t_ns, u, y = get_device("mr_damper").simulate_seconds(4.0, seed=1)
-    ident.learn_many(t_ns, u, y, inputs=["velocity"], outputs=["force"])
-    ups = [up for up in ident.update_all() if up.accepted]
-    assert ups, "no accepted model"
-    return ups[0].version
 
 
 def _life(store: StateStore, caplog: pytest.LogCaptureFixture) -> tuple[OnlineIdentifier, VersionKeeper]:
