@@ -22,6 +22,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 from pathlib import Path
@@ -166,6 +167,23 @@ def wait_until(cond: Callable[[], object], timeout_s: float, poll_s: float = 0.0
             return True
         time.sleep(poll_s)
     return bool(cond())
+
+
+def read_until(pipe: Any, text: str, max_lines: int = 20, timeout_s: float = 30.0) -> list[str]:
+    """Lines read from a process's text ``pipe`` until one holds ``text``, the pipe ends or ``max_lines`` were read
+    (in a thread, so that a silent process cannot hang the test past ``timeout_s``); the lines read."""
+    lines: list[str] = []
+
+    def read() -> None:
+        for _ in range(max_lines):
+            lines.append(pipe.readline() if pipe is not None else "")
+            if text in lines[-1] or not lines[-1]:
+                return
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(timeout=timeout_s)
+    return lines
 
 
 def stop_process(proc: subprocess.Popen[Any], wait_s: float = 30.0) -> None:

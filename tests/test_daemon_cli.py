@@ -12,12 +12,11 @@ import json
 import re
 import signal
 import subprocess
-import threading
 import sys
 import time
 from pathlib import Path
 
-from conftest import STREAMID, endpoint
+from conftest import STREAMID, endpoint, read_until
 
 from replay.player import ReplayConfig, replay_log
 from streamid.transport.client import latest_model
@@ -72,17 +71,7 @@ def test_daemon_watch_sigterm_sigkill_and_restart(tmp_path: Path) -> None:
                               "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         # watch says so once its subscription is declared: replay only then, or it may first see v2+
-        ready: list[str] = []
-
-        def read_until_ready() -> None:  # (a client may first say it waits for the daemon to answer)
-            for _ in range(20):
-                ready.append(watch.stderr.readline())
-                if "waiting for models" in ready[-1] or not ready[-1]:
-                    return
-
-        reader = threading.Thread(target=read_until_ready, daemon=True)
-        reader.start()
-        reader.join(timeout=30)
+        ready = read_until(watch.stderr, "waiting for models")  # (a client may first say it waits for the daemon)
         assert ready and "waiting for models" in ready[-1], ready
         replay(ep)
         last = wait_version(ep, 3)

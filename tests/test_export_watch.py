@@ -8,13 +8,12 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import STREAMID, endpoint
+from conftest import STREAMID, endpoint, read_until
 from replay.player import ReplayConfig, replay_log
 from streamid.engine.model import Model
 from streamid.logs import bundled_log
@@ -50,17 +49,7 @@ def test_watch_saves_each_served_champion_as_an_fmu(tmp_path: Path) -> None:
                               "--duration", "90", "--json", "--save-fmu", str(out)],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        ready: list[str] = []
-
-        def read_until_ready() -> None:
-            for _ in range(20):
-                ready.append(watch.stderr.readline() if watch.stderr else "")
-                if "waiting for models" in ready[-1] or not ready[-1]:
-                    return
-
-        reader = threading.Thread(target=read_until_ready, daemon=True)
-        reader.start()
-        reader.join(timeout=30)
+        ready = read_until(watch.stderr, "waiting for models")  # (a client may first say it waits for the daemon)
         assert ready and "waiting for models" in ready[-1], ready
         replay_log(bundled_log("mr_damper.mcap"), ZenohSettings(connect=(ep,)),
                    ReplayConfig(rate=10.0, wait_subscribers_s=15.0))
