@@ -33,6 +33,7 @@ accurate however ill-conditioned the design is: the ridge rows bound the conditi
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,7 +42,7 @@ from scipy.linalg import solve_triangular as _solve_triangular
 
 from streamid.engine._kernels import exp2_rows, gram_rows
 
-__all__ = ["LOG2E", "MIN_NORM", "NUMPY_PATH", "TINY", "activations", "activations_batch", "exp2_block", "fit_linear_rbf",
+__all__ = ["LOG2E", "MIN_NORM", "NUMPY_PATH", "BLOCK_ROWS", "FIT_BLOCK_ROWS", "TINY", "activations", "activations_batch", "exp2_block", "fit_linear_rbf",
            "fit_weights", "gram_block", "rbf_output"]
 
 #: added to a squared norm before its square root is divided by
@@ -53,6 +54,13 @@ TINY = 1e-300
 #: prediction wanders near its centre (seen on real data: weights of 1e6..1e93 on
 #: neurons of norm 1e-7..1e-95 that wrecked OSA predictions on new data).
 MIN_NORM = 1e-5
+
+#: Rows per block of :func:`activations` (its ``(rows, M, k)`` temporary: 16 MiB at M = 10, k = 20).
+BLOCK_ROWS = 8192
+#: Longer designs are fitted by a QR streamed over blocks of this many rows (:func:`fit_weights`); shorter ones in
+#: one QR, as always (the same solution to rounding). Every window of the bundled logs under the daemon's defaults,
+#: and the engine suite's records, are below it.
+FIT_BLOCK_ROWS = 16384
 
 
 def activations(r: NDArray[np.float64], centres: NDArray[np.float64], widths: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -70,8 +78,13 @@ def activations(r: NDArray[np.float64], centres: NDArray[np.float64], widths: ND
     ndarray, shape (n, M)
         ``exp(-||r_t - c_m||^2 / (2 sigma_m^2))``.
     """
-    d2 = ((r[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
-    g: NDArray[np.float64] = np.exp(-d2 / (2.0 * widths[None, :] ** 2))
+    n, M = r.shape[0], centres.shape[0]
+    g: NDArray[np.float64] = np.empty((n, M))
+    den = 2.0 * widths[None, :] ** 2
+    for a in range(0, n, BLOCK_ROWS):  # the (rows, M, k) temporary stays bounded; each element as in one pass
+        b = min(n, a + BLOCK_ROWS)
+        d2 = ((r[a:b, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
+        np.exp(-d2 / den, out=g[a:b])
     return g
 
 
@@ -139,6 +152,8 @@ def fit_weights(
     -------
     ndarray, shape (M,)
     """
+    if phi.shape[0] > FIT_BLOCK_ROWS:  # a long record: the same solution, the QR streamed over blocks of rows
+        return _streamed_fit(lambda a, b: phi[a:b], phi.shape[0], phi.shape[1], y, ridge, weight_decay)
     n2 = (phi * phi).sum(axis=0)
     s = np.where(n2 > MIN_NORM**2, 1.0 / np.sqrt(n2 + TINY), 0.0)  # as the search's BatchEvaluator: inactive -> w = 0
     a = phi * s
@@ -151,6 +166,52 @@ def fit_weights(
     z = _qr_solve(a, rhs) if np.all(lam > 0) else np.asarray(np.linalg.lstsq(a, rhs, rcond=None)[0])
     w: NDArray[np.float64] = z * s
     return w
+
+
+def _streamed_fit(
+    rows: Callable[[int, int], NDArray[np.float64]], n: int, m: int, y: NDArray[np.float64], ridge: float,
+    weight_decay: float,
+) -> NDArray[np.float64]:
+    """:func:`fit_weights` of the ``(n, m)`` design whose rows ``a:b`` are ``rows(a, b)``, in blocks of
+    :data:`FIT_BLOCK_ROWS` rows: memory ``O(FIT_BLOCK_ROWS m)`` beyond the design, whatever ``n``.
+
+    Two passes. The first sums the columns' squared norms (the Jacobi scaling). The second is a sequential
+    tall-skinny QR: the triangle ``T`` and ``Q^T y`` so far are stacked on the next scaled block and
+    factored again (LAPACK ``dgeqrf``/``dormqr``); the ridge rows come last as one more block. ``T z = Q^T y``
+    then has the solution of the whole stacked problem (``A = Q T``: the same least squares, backward stable
+    as the one-shot QR; without a ridge, the minimum-norm solution of ``T``, by SVD, is ``lstsq``'s).
+    """
+    n2 = np.zeros(m)
+    for a in range(0, n, FIT_BLOCK_ROWS):
+        blk = rows(a, min(n, a + FIT_BLOCK_ROWS))
+        n2 += np.einsum("tm,tm->m", blk, blk)
+    s = np.where(n2 > MIN_NORM**2, 1.0 / np.sqrt(n2 + TINY), 0.0)
+    lam = ridge + weight_decay * n * s * s
+    tri, qty = np.zeros((0, m)), np.zeros(0)
+    for a in range(0, n, FIT_BLOCK_ROWS):
+        b = min(n, a + FIT_BLOCK_ROWS)
+        tri, qty = _qr_fold(np.vstack([tri, rows(a, b) * s]), np.concatenate([qty, y[a:b]]), m)
+    if np.any(lam > 0):  # the ridge rows, last
+        tri, qty = _qr_fold(np.vstack([tri, np.diag(np.sqrt(lam))]), np.concatenate([qty, np.zeros(m)]), m)
+    if np.all(lam > 0) and tri.shape[0] == m:
+        z = np.asarray(_solve_triangular(tri, qty, check_finite=False), dtype=np.float64)
+    else:
+        z = np.asarray(np.linalg.lstsq(tri, qty, rcond=None)[0], dtype=np.float64)
+    w: NDArray[np.float64] = z * s
+    return w
+
+
+def _qr_fold(a: NDArray[np.float64], b: NDArray[np.float64], m: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The upper triangle (at most ``m`` rows) of ``a``'s QR and the same rows of ``Q^T b``."""
+    qr, tau, _, info = _lapack.dgeqrf(np.asfortranarray(a))
+    c = None
+    if info == 0:
+        c, _, info = _lapack.dormqr("L", "T", qr, tau, b[:, None], lwork=max(1, 2 * b.size))
+    if info != 0 or c is None:  # pragma: no cover - LAPACK reports an illegal argument only
+        q, r = np.linalg.qr(a)
+        return r, q.T @ b
+    k = min(m, a.shape[0])
+    return np.triu(qr[:k, :m]), np.asarray(c[:k, 0], dtype=np.float64)
 
 
 def _qr_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -176,8 +237,12 @@ def fit_linear_rbf(
     design ``[phi, r, 1]`` fitted by :func:`fit_weights` (the same Jacobi scaling and
     ridge on every column). Returns ``(w, linear)`` with ``linear = [a; b]``.
     """
-    design = np.hstack([phi, r, np.ones((phi.shape[0], 1))])
-    z = fit_weights(design, y, ridge, weight_decay)
+    n = phi.shape[0]
+    if n > FIT_BLOCK_ROWS:  # a long record: the design built block by block, never whole
+        z = _streamed_fit(lambda a, b: np.hstack([phi[a:b], r[a:b], np.ones((b - a, 1))]), n,
+                          phi.shape[1] + r.shape[1] + 1, y, ridge, weight_decay)
+    else:
+        z = fit_weights(np.hstack([phi, r, np.ones((n, 1))]), y, ridge, weight_decay)
     M = phi.shape[1]
     return z[:M], z[M:]
 
