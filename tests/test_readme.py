@@ -30,7 +30,7 @@ SECOND_RECORD = "### Judge a model on a record it has never seen"
 UP_S, MODELS_S = 30.0, 60.0
 #: Lines of `streamid watch`: which daemon serves a stream (stream, daemon id), a model (stream).
 ORIGIN_LINE = r"^(\S+): (?:a new daemon life: )?models from daemon (\w+), life began \S+$"
-MODEL_LINE = r"^(\S+) v\d+ (?:cold|warm) G="
+MODEL_LINE = r"^(\S+) v\d+ (?:cold G=|warm G=|refreshed)"
 
 #: Shell blocks the tests do not run, and why (every other block is run below).
 NOT_RUN = {

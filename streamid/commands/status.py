@@ -90,8 +90,18 @@ def status_line(doc: dict[str, Any], conflict: str | None = None) -> str:
     if conflict is not None:
         state = f"{conflict}; {state}"
     text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
-            f"{_model_columns(doc.get('version'), champ, doc.get('drifts'))} {len(members) or 1:>7}  {state}")
+            f"{_model_columns(doc.get('version'), champ, doc.get('drifts'))} {next_update(doc):<20} "
+            f"{len(members) or 1:>7}  {state}")
     return printable(text, 400)
+
+
+def next_update(doc: dict[str, Any]) -> str:
+    """The next update column: ``refresh (run in 3/8)`` (the champion's weights re-solved; a coevolution run after 3
+    more, one every 8 updates now) or ``coevolution`` (streamid.online.refresh); ``-`` when the status does not say."""
+    r = _table(doc, "refresh")
+    if r.get("next") == "refresh":
+        return f"refresh (run in {_num(r.get('refreshes_before_coevolution'), 'd')}/{_num(r.get('coevolution_every'), 'd')})"
+    return "coevolution" if r.get("next") == "coevolution" else "-"
 
 
 def output_lines(doc: dict[str, Any]) -> list[str]:
@@ -109,7 +119,7 @@ def output_lines(doc: dict[str, Any]) -> list[str]:
 
 
 HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'drifts':>6} "
-          f"{'daemons':>7}  state")
+          f"{'next update':<20} {'daemons':>7}  state")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -89,6 +89,16 @@ def decision_text(up: Any) -> str:
     return f"{word} ({d.code}): {reason}"
 
 
+def _how(up: Any) -> str:
+    """How the model was made: ``warm G=30`` / ``cold G=400`` (a coevolution run), ``refreshed from v3`` (the champion's
+    weights re-solved on new data, its structure kept: streamid.online.refresh)."""
+    doc = getattr(up, "document", None) or {}
+    if doc.get("update") == "refreshed":
+        src = doc.get("refreshed_from")
+        return f"refreshed from v{src}" if isinstance(src, int) and not isinstance(src, bool) else "refreshed"
+    return f"{'warm' if up.warm else 'cold'} G={up.generations}"
+
+
 def format_update(up: Any, now_ns: int | None = None) -> str:
     """One line: stream, version, output and lags, validation R^2, age, and why it was accepted or rejected.
 
@@ -104,7 +114,7 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
     order = up.model.linear_order  # a dense linear ARX part (the online long linear part)
     ll = f" + linear ARX part of order {order}" if order else ""
     return printable(
-        f"{head} {'warm' if up.warm else 'cold'} G={up.generations} "
+        f"{head} {_how(up)} "
         f"{output}(t) = F[{up.model.lags_text()}]{ll} R2 val OSA {_r2(m.get('r2_osa_val'))} FR {_r2(m.get('r2_fr_val'))} "
         f"ident {up.identification_s:.2f}s age {age:.1f}s" + (f"; {why}" if why else ""),
         2000,

@@ -443,7 +443,8 @@ class Daemon(SlotKeeping):
                 st.recent_latencies.append((up.version, latency_s))
             m = up.metrics
             _log.info("stream %s: window %d identified, model v%d published (%s, R² validation OSA %.4f FR %.4f, "
-                      "%.2f s, latency %.2f s)", name, window.number, up.version, "warm" if out.warm else "cold",
+                      "%.2f s, latency %.2f s)", name, window.number, up.version,
+                      "refreshed" if out.generations == 0 and out.warm else "warm" if out.warm else "cold",
                       m.get("r2_osa_val", float("nan")), m.get("r2_fr_val", float("nan")), out.seconds, latency_s)
         else:
             _log.info("stream %s: window %d %s, model v%d kept: %s", name, window.number, up.kind, up.version, up.reason)

@@ -50,16 +50,16 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine import EvalHelper, Model
-from streamid.engine.predictor import one_step
-from streamid.errors import ConfigError, DataError, ModelFormatError
+from streamid.errors import ConfigError, ModelFormatError
 from streamid.online.acceptance import Decision, Update, decide, degraded_after
 from streamid.online.drift import DriftSettings, reference_monitor
+from streamid.online.champions import ChampionViews
 from streamid.online.head import OutputHead, restored_head
 from streamid.online.health import Health
 from streamid.online.intake import EVENTS_KEPT, StreamIntake
+from streamid.online.refresh import RefreshJob, RefreshPolicy, RefreshTrack, coevolve_reason, refresh_job
 from streamid.online.snapshot import StreamState
 from streamid.online.status import stream_status
 from streamid.online.stream_config import StreamConfig
@@ -83,7 +83,7 @@ ESCALATED_RUNS = 3
 _MIN_CUT_FRACTION = 0.25
 
 
-class OnlineIdentifier(StreamIntake):
+class OnlineIdentifier(StreamIntake, ChampionViews):
     """Online identification of one stream (single-threaded; see the module docstring).
 
     Parameters
@@ -96,6 +96,10 @@ class OnlineIdentifier(StreamIntake):
     origin
         Who publishes the documents (e.g. ``{"daemon": "...", "epoch_ns": ...}``): copied into each
         model-update document so a subscriber recognises a restarted or another publisher.
+    refresh
+        When updates refresh the champion's weights instead of rerunning the coevolution
+        (:mod:`streamid.online.refresh`; default :class:`~streamid.online.refresh.RefreshPolicy`,
+        ``RefreshPolicy(enabled=False)``: every update is a coevolution run).
 
     Examples
     --------
@@ -110,7 +114,8 @@ class OnlineIdentifier(StreamIntake):
     """
 
     def __init__(
-        self, config: StreamConfig | None = None, *, stream: str = "stream", origin: Mapping[str, Any] | None = None
+        self, config: StreamConfig | None = None, *, stream: str = "stream", origin: Mapping[str, Any] | None = None,
+        refresh: RefreshPolicy | None = None,
     ) -> None:
         config = StreamConfig() if config is None else config
         if not isinstance(config, StreamConfig):
@@ -131,6 +136,10 @@ class OnlineIdentifier(StreamIntake):
         self._health = Health()  # why each output is degraded
         self._intake_fault = ""  # why the stream cannot be identified as it is sent (set by its adapter's admission)
         self._state_error = ""
+        self._refresh = RefreshPolicy() if refresh is None else refresh
+        if not isinstance(self._refresh, RefreshPolicy):
+            raise ConfigError(f"refresh must be a RefreshPolicy; got {type(refresh).__name__}")
+        self._tracks: dict[str, RefreshTrack] = {}
 
     # ---------------------------------------------------------------- identification
     @property
@@ -166,6 +175,9 @@ class OnlineIdentifier(StreamIntake):
                 cut = head.drift_t_ns
         if head.escalate and (cut is not None or head.drift_t_ns is None or head.drift_t_ns <= window.t0_ns):
             generations = self.config.drift_generations
+        if not coevolve_reason(self._track(output), head, window, self.config):  # a refresh of the champion's weights
+            self._job = refresh_job(self._track(output), head, window, self.config, self._next_version())
+            return self._job
         self._job = UpdateJob(
             window, self.config, self._next_version(), head.coea_state, head.signature,
             force_cold=head.failures_in_row >= self.config.cold_after_failures, output=output,
@@ -204,9 +216,12 @@ class OnlineIdentifier(StreamIntake):
         w, head = job.window, self._head(job.output or "")
         self._outcomes_count(outcome)
         self._last.update(identification_s=outcome.seconds, unix_ns=now_ns, output=head.output)
+        refresh = isinstance(job, RefreshJob)
         if outcome.kind != "identified":
             if outcome.kind == "failed":
                 head.failures_in_row += 1
+            self._track(head.output).after(refresh=refresh, code=outcome.code or outcome.kind, accepted=False,
+                                           normal=None)
             self._last["outcome"] = outcome.kind
             return self._refuse(job, outcome, outcome.kind, outcome.reason, outcome.code or outcome.kind, now_ns)
         assert outcome.model is not None and outcome.summary is not None
@@ -218,15 +233,21 @@ class OnlineIdentifier(StreamIntake):
                             "version": head.version}
         decision = decide(outcome, self.config, head.version)
         self._decisions[decision.code] += 1
+        self._track(head.output).after(refresh=refresh, code=decision.code, accepted=decision.accepted,
+                                       normal=getattr(outcome, "normal", None))
         metrics = {k: float(v) for k, v in outcome.summary.metrics.items()}
-        model = outcome.model.with_metrics(**{k: v for k, v in metrics.items() if np.isfinite(v)})
+        model = outcome.model.with_metrics(**{k: v for k, v in metrics.items() if np.isfinite(v)},
+                                           update="refreshed" if refresh else "identified")
         version = self._next_version() if decision.accepted else head.version
         doc = model_update_message(
             stream=self.stream, version=version, model=model.to_dict(), window=outcome.window_meta,
             metrics=metrics, warm=outcome.warm, generations=outcome.generations,
             identification_s=outcome.seconds, window_closed_unix_ns=w.received_ns, published_unix_ns=now_ns,
         )
-        doc.update(output=head.output, accepted=decision.accepted, decision=decision.to_dict())
+        doc.update(output=head.output, accepted=decision.accepted, decision=decision.to_dict(),
+                   update="refreshed" if refresh else "identified")
+        if refresh:  # the structure kept: which champion's weights were refreshed
+            doc["refreshed_from"] = int(getattr(outcome, "refreshed_from", head.version))
         if self.origin is not None:
             doc["origin"] = self.origin
         try:
@@ -281,7 +302,8 @@ class OnlineIdentifier(StreamIntake):
                           model_unix_ns=now_ns)
         ev = self._event(
             "update.accepted",
-            f"window {w.number}: {head.output} model v{version} accepted ({'warm' if outcome.warm else 'cold'}, "
+            f"window {w.number}: {head.output} model v{version} accepted "
+            f"({'refreshed' if isinstance(job, RefreshJob) else 'warm' if outcome.warm else 'cold'}, "
             f"R² validation OSA {m.get('r2_osa_val', float('nan')):.4f} FR {m.get('r2_fr_val', float('nan')):.4f}; "
             f"{decision.code})",
             w.t_end_ns, now_ns,
@@ -316,78 +338,6 @@ class OnlineIdentifier(StreamIntake):
             out.append(up)
         return out
 
-    # ---------------------------------------------------------------- the current model
-    @property
-    def version(self) -> int:
-        """The stream's newest version (of any output; 0: none yet)."""
-        return self._version
-
-    @property
-    def outputs(self) -> tuple[str, ...]:
-        """The outputs modelled so far, in the stream's order."""
-        return tuple(self._heads)
-
-    @property
-    def model(self) -> Model | None:
-        """The champion of the first modelled output (``config.output``, or the stream's first), or None."""
-        head = self._primary()
-        return head.model if head is not None else None
-
-    @property
-    def models(self) -> dict[str, Model]:
-        """The champion of every modelled output that has one."""
-        return {k: h.model for k, h in self._heads.items() if h.model is not None}
-
-    @property
-    def document(self) -> dict[str, Any] | None:
-        """The champion's update document (``streamid.model-update/1``) of the first modelled output, or None."""
-        head = self._primary()
-        return head.document if head is not None else None
-
-    @property
-    def payload(self) -> bytes | None:
-        """:attr:`document` as compact JSON bytes (what the daemon publishes), or None."""
-        head = self._primary()
-        return head.payload if head is not None else None
-
-    @property
-    def payloads(self) -> tuple[bytes, ...]:
-        """Every output's champion document as JSON bytes (what a query on the model key is answered with)."""
-        return tuple(h.payload for h in self._heads.values() if h.payload is not None)
-
-    def predict_one(self, output: str | None = None, u_next: ArrayLike | None = None) -> float | None:
-        """One-step-ahead prediction of the next sample of ``output`` (default: the first modelled) from the newest samples.
-
-        None if that output has no champion yet or fewer than ``max_lag`` complete samples are held
-        since the last gap or reset.  ``u_next``, the input at the predicted instant, is needed only by
-        a champion with direct terms (an input at lag 0, from ``feedthrough_test``): without it such a
-        champion raises :class:`~streamid.errors.DataError`.  (A controller holding a received model
-        uses :class:`~streamid.engine.predictor.Predictor`, which computes the same.)
-        """
-        head = self._primary() if output is None else self._heads.get(output)
-        m = head.model if head is not None else None
-        if head is None or m is None:
-            return None
-        recent = self._buffer.recent(m.max_lag)
-        names = self._buffer.output_names
-        if recent is None or head.output not in names or recent[0].shape[1] != m.n_inputs:
-            return None
-        u, y = recent
-        return one_step(m, u, y[:, names.index(head.output)], u_next)
-
-    def simulate(self, u: ArrayLike, y_init: ArrayLike, output: str | None = None) -> NDArray[np.float64]:
-        """Free run of an output's champion on inputs ``u`` from ``max_lag`` measured outputs ``y_init``.
-
-        Raises
-        ------
-        DataError
-            If that output has no model yet, or the data do not fit it.
-        """
-        head = self._primary() if output is None else self._heads.get(output)
-        if head is None or head.model is None:
-            raise DataError(f"no model yet for output {output or 'of the stream'}: simulate() needs an accepted update")
-        return head.model.simulate(u, y_init)
-
     # ---------------------------------------------------------------- state
     def state(self, *, now_ns: int = 0) -> StreamState:
         """What :meth:`from_state` resumes from: version, and per output the champion, populations, failures.
@@ -406,13 +356,14 @@ class OnlineIdentifier(StreamIntake):
             saved_unix_ns=now_ns,
             failures_in_row=first.get("failures_in_row", 0),
             others={h.output: h.snapshot() for h in heads[1:]},
+            refresh={h.output: self._track(h.output).snapshot() for h in heads},
         )
 
     @classmethod
     def from_state(cls, state: StreamState, config: StreamConfig | None = None,
-                   origin: Mapping[str, Any] | None = None) -> OnlineIdentifier:
+                   origin: Mapping[str, Any] | None = None, refresh: RefreshPolicy | None = None) -> OnlineIdentifier:
         """A new identifier that resumes from :meth:`state` (see :meth:`restore`)."""
-        ident = cls(config, stream=state.stream, origin=origin)
+        ident = cls(config, stream=state.stream, origin=origin, refresh=refresh)
         ident.restore(state)
         return ident
 
@@ -439,6 +390,11 @@ class OnlineIdentifier(StreamIntake):
             head = restored_head(part, name, warnings)
             if head is not None:
                 self._heads[head.output] = head
+        self._tracks.clear()
+        for output, part in state.refresh.items():
+            if output in self._heads and (why := self._track(output).restore(part)):
+                warnings.append(why)
+                self._tracks.pop(output)
         return warnings
 
     # ---------------------------------------------------------------- status and events
@@ -466,22 +422,32 @@ class OnlineIdentifier(StreamIntake):
             outcomes=self._outcomes, decisions=self._decisions, drop_reasons=self._drop_reasons,
             last=self._last, events_dropped=self._events_dropped, state_error=self._state_error,
             outputs_to_do=len(self._todo),
+            refresh={h.output: self._track(h.output).summary(coevolve_reason(self._track(h.output), h, None, self.config))
+                     for h in self._heads.values()},
+            refresh_policy=self._refresh.to_dict(),
         )
 
     # ---------------------------------------------------------------- internals
     def _next_version(self) -> int:
         return max(self._version, self._floor) + 1
 
+    def _track(self, output: str) -> RefreshTrack:
+        track = self._tracks.get(output)
+        if track is None:
+            track = self._tracks[output] = RefreshTrack(self._refresh)
+        return track
+
+    @property
+    def next_is_refresh(self) -> bool:
+        """Whether the next update of the window to come (its first output) would refresh the champion's weights."""
+        head = self._heads.get(self._todo[0]) if self._todo else self._primary()
+        return head is not None and not coevolve_reason(self._track(head.output), head, None, self.config)
+
     def _head(self, output: str) -> OutputHead:
         head = self._heads.get(output)
         if head is None:
             head = self._heads[output] = OutputHead(output)
         return head
-
-    def _primary(self) -> OutputHead | None:
-        if self.config.output is not None:
-            return self._heads.get(self.config.output)
-        return next(iter(self._heads.values()), None)
 
     def _watch(self, now_ns: int) -> None:
         """Run each champion free over the blocks of samples just completed (:mod:`streamid.online.watch`)."""

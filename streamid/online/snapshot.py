@@ -11,10 +11,12 @@ were fitted to.  The daemon writes it to ``--state-dir``
      "signature": {...}, "model_message": {...}, "coea_state": "...",
      "saved_unix_ns": ..., "failures_in_row": 0,
      "others": {"<output>": {"version": 5, "signature": {...}, "model_message": {...},
-                             "coea_state": "...", "failures_in_row": 0}, ...}}
+                             "coea_state": "...", "failures_in_row": 0}, ...},
+     "refresh": {"<output>": {"every": 8, "due_in": 3, ..., "normal": {...}}, ...}}
 
 The top-level model fields belong to the stream's first modelled output; ``others``
-holds the same per further output of a stream with several (absent in older files).
+holds the same per further output of a stream with several (absent in older files); ``refresh`` the refresh
+policy's state per output (:meth:`streamid.online.refresh.RefreshTrack.snapshot`; absent in older files).
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ class StreamState:
     others
         The same per further modelled output (name -> {"version", "signature", "model_message",
         "coea_state", "failures_in_row"}).
+    refresh
+        Per modelled output, the refresh policy's state (checked by its reader,
+        :meth:`~streamid.online.refresh.RefreshTrack.restore`).
     """
 
     stream: str
@@ -66,6 +71,7 @@ class StreamState:
     saved_unix_ns: int = 0
     failures_in_row: int = 0
     others: dict[str, dict[str, Any]] = field(default_factory=dict)
+    refresh: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_json(self) -> str:
         """The document written to disk (never NaN: ``allow_nan=False``)."""
@@ -80,6 +86,7 @@ class StreamState:
                 "saved_unix_ns": int(self.saved_unix_ns),
                 "failures_in_row": int(self.failures_in_row),
                 **({"others": self.others} if self.others else {}),
+                **({"refresh": self.refresh} if self.refresh else {}),
             },
             allow_nan=False,
             separators=(",", ":"),
@@ -117,6 +124,9 @@ class StreamState:
         others = doc.get("others", {})
         if not isinstance(others, dict) or not all(isinstance(v, dict) for v in others.values()):
             raise ModelFormatError(f"{source}: 'others' must be an object of per-output objects; got {others!r:.200}")
+        refresh = doc.get("refresh", {})
+        if not isinstance(refresh, dict) or not all(isinstance(v, dict) for v in refresh.values()):
+            raise ModelFormatError(f"{source}: 'refresh' must be an object of per-output objects; got {refresh!r:.200}")
         for where, part in [("", doc), *((f"others[{k!r:.80}].", v) for k, v in others.items())]:
             if where:
                 _check_version(part.get("version", 0), f"'{where}version'", source)
@@ -128,6 +138,7 @@ class StreamState:
             saved if isinstance(saved, int) and not isinstance(saved, bool) else 0,
             fails if isinstance(fails, int) and not isinstance(fails, bool) and fails >= 0 else 0,
             {str(k): dict(v) for k, v in others.items()},
+            {str(k): dict(v) for k, v in refresh.items()},
         )
 
 

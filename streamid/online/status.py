@@ -42,8 +42,13 @@ def stream_status(
     events_dropped: int,
     state_error: str,
     outputs_to_do: int = 0,
+    refresh: Mapping[str, Mapping[str, Any]] | None = None,
+    refresh_policy: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The status document (``c``: the window buffer's counters)."""
+    """The status document (``c``: the window buffer's counters; ``refresh``: per output, its
+    :meth:`~streamid.online.refresh.RefreshTrack.summary`, with ``refresh_policy`` the policy's settings)."""
+    refresh = refresh or {}
+    first_refresh = dict(refresh[heads[0].output]) if heads and heads[0].output in refresh else None
     last_t_ns = c.get("last_t_ns")
     outputs = {
         h.output: {
@@ -57,6 +62,7 @@ def stream_status(
             "drift_watch": h.monitor.summary() if h.monitor is not None else None,
             "drift_watch_replaced": [{"version": w.version, "blocks_left": w.blocks_left, **w.monitor.summary()}
                                      for w in h.retired],
+            "refresh": dict(refresh[h.output]) if h.output in refresh else None,
         }
         for h in heads
     }
@@ -88,6 +94,8 @@ def stream_status(
         "decisions": dict(decisions),
         "champion": outputs[first.output]["champion"] if first is not None else None,
         "models": outputs,  # per modelled output: its champion, losses, failures, drifts
+        # the first output's refresh policy state: next update a refresh or a coevolution run, and why
+        "refresh": {**first_refresh, "policy": dict(refresh_policy or {})} if first_refresh is not None else None,
         "drifts": sum(h.drifts for h in heads),
         "drop_reasons": dict(drop_reasons),
         "failures_in_row": first.failures_in_row if first is not None else 0,

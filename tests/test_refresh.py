@@ -1,0 +1,179 @@
+"""Cheaper warm updates (issue 38 item 2): the champion's weights refreshed by blocked least squares between
+coevolution runs, judged as challengers, with a back-off policy visible in the status (streamid.online.refresh)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from streamid import OnlineIdentifier, StreamConfig
+from streamid.engine import Model
+from streamid.engine.rbf import activations
+from streamid.errors import ConfigError
+from streamid.online import RefreshPolicy, StreamState
+from streamid.online.head import OutputHead
+from streamid.online.refresh import RefreshJob, RefreshTrack, accumulate, coevolve_reason, refreshed_weights
+from streamid.sim import get_device
+from streamid.transport.updates import parse_model_update
+
+# 200 Hz damper, 4 s windows (800 samples), one every 1 s: consecutive windows overlap, as in the daemon
+CFG = StreamConfig(window_s=4.0, update_every_s=1.0, cold_generations=40, warm_generations=10, neurons=6,
+                   max_lag_y=3, max_lag_u=3, max_pending_windows=64)
+NAMES = {"inputs": ["velocity_cm_s"], "outputs": ["force_N"]}
+
+
+@pytest.fixture(scope="module")
+def damper() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t, u, y = get_device("mr_damper").simulate_seconds(20.0, seed=4)
+    return t, u, y
+
+
+@pytest.fixture(scope="module")
+def run(damper: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[OnlineIdentifier, list]:
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper", refresh=RefreshPolicy(min_every=3, max_every=6))
+    ident.learn_many(t, u, y, **NAMES)
+    return ident, ident.update_all()
+
+
+def test_policy_settings_are_checked_and_name_the_value() -> None:
+    with pytest.raises(ConfigError, match=r"min_every must be an integer >= 1 \(updates\); got 0"):
+        RefreshPolicy(min_every=0)
+    with pytest.raises(ConfigError, match=r"max_every must be >= min_every \(8\); got 4"):
+        RefreshPolicy(min_every=8, max_every=4)
+    with pytest.raises(ConfigError, match=r"memory_s must be a number of seconds > 0; got -1"):
+        RefreshPolicy(memory_s=-1)
+    with pytest.raises(ConfigError, match="refresh must be a RefreshPolicy; got dict"):
+        OnlineIdentifier(CFG, refresh={"enabled": False})  # type: ignore[arg-type]
+
+
+def test_blocked_normal_equations_are_the_exact_forgetting_least_squares(run: tuple[OnlineIdentifier, list],
+                                                                          damper: tuple[np.ndarray, ...]) -> None:
+    ident, _ = run
+    model = ident.model
+    assert model is not None
+    t, u, y = damper
+    u2, y2 = u[:1200].reshape(-1, 1), y[:1200]
+    period = int(t[1] - t[0])
+    memory_s = 2.0
+    # in three blocks (the rows newer than the previous block's end each time), then all at once
+    ne = None
+    for end in (400, 401, 1200):
+        ne = accumulate(ne, model, u2[:end], y2[:end], 0, period, memory_s)
+    once = accumulate(None, model, u2, y2, 0, period, memory_s)
+    assert ne is not None and ne.rows == once.rows == 1200 - model.max_lag
+    np.testing.assert_allclose(ne.a, once.a, rtol=1e-10, atol=1e-12)
+    # the same as a weighted least squares solved directly (rows weighted exp(-age / memory_s))
+    r, yn = model.regressor_rows(u2, y2)
+    x = activations(r, model.centres, model.widths)
+    x = np.hstack([x, model.linear_rows(u2, y2), np.ones((x.shape[0], 1))]) if model.linear is not None else x
+    age_s = (x.shape[0] - 1 - np.arange(x.shape[0])) * period / 1e9
+    sw = np.sqrt(np.exp(-age_s / memory_s))
+    direct = np.linalg.lstsq(x * sw[:, None], yn * sw, rcond=None)[0]
+    got = refreshed_weights(once, 1e-12)
+    assert got is not None
+    # the optimum is flat along the activations' near-collinear directions: compare the weighted residuals
+    rss_direct, rss_got = (float(np.sum((sw * (yn - x @ w)) ** 2)) for w in (direct, got))
+    rss_mean = float(np.sum((sw * (yn - np.average(yn, weights=sw**2))) ** 2))
+    assert rss_direct <= rss_got <= rss_direct + 1e-6 * rss_mean, (rss_direct, rss_got, rss_mean)
+    # another champion's equations are not reused: the rows start again
+    other = dataclasses.replace(model, widths=model.widths * 1.1)
+    again = accumulate(ne, other, u2, y2, 0, period, memory_s)
+    assert again.rows == 1200 - model.max_lag and again.basis != ne.basis
+
+
+def test_updates_between_coevolution_runs_refresh_the_weights_and_say_so(run: tuple[OnlineIdentifier, list]) -> None:
+    ident, ups = run
+    assert len(ups) == 17  # (20 s - 4 s) / 1 s + 1 windows
+    kinds = [(up.document or {}).get("update") for up in ups if up.document is not None]
+    assert ups[0].accepted and ups[0].code == "first" and ups[0].document["update"] == "identified"  # type: ignore[index]
+    assert kinds.count("refreshed") >= 8 and kinds.count("identified") >= 3
+    for up in ups:
+        doc = up.document
+        if doc is None or doc["update"] != "refreshed":
+            continue
+        # a refresh is a challenger: judged against the champion on the same held-out data
+        assert up.decision is not None and up.decision.champion is not None
+        assert up.decision.champion["version"] == doc["refreshed_from"]
+        assert up.outcome.generations == 0 and up.model is not None
+        champion_before = up.decision.champion["version"]
+        assert up.model.metrics["update"] == "refreshed" and up.model.metrics["refreshed_from_version"] == champion_before
+        assert up.model.metrics["refreshed_samples"] > 0
+        # the structure is kept: same lags, centres, widths; only weights (and the linear part) change
+        assert up.accepted == (up.version > champion_before)
+        parsed = parse_model_update(up.payload)  # what a subscriber reads
+        assert parsed.document["update"] == "refreshed" and parsed.generations == 0
+    refreshed_accepted = [up for up in ups if up.accepted and up.document["update"] == "refreshed"]  # type: ignore[index]
+    for up in refreshed_accepted:  # a new version, its structure that of the version it refreshed
+        src = next(x for x in ups if x.accepted and x.version == up.document["refreshed_from"])  # type: ignore[index]
+        assert up.model is not None and src.model is not None
+        assert up.model.regressors == src.model.regressors and np.array_equal(up.model.centres, src.model.centres)
+        assert not np.array_equal(up.model.weights, src.model.weights)
+
+
+def test_the_back_off_doubles_while_the_champion_keeps_winning_and_the_status_shows_the_policy(
+        run: tuple[OnlineIdentifier, list]) -> None:
+    ident, ups = run
+    runs = [up for up in ups if up.document is not None and up.document["update"] == "identified"]
+    st = ident.status()
+    r = st["refresh"]
+    assert r["identified"] == len(runs) and r["refreshed"] == len(ups) - len(runs)
+    assert r["policy"] == {"enabled": True, "min_every": 3, "max_every": 6, "memory_s": 30.0, "ridge": 1e-9}
+    assert r["next"] in ("refresh", "coevolution") and st["models"]["force_N"]["refresh"]["identified"] == len(runs)
+    # the interval after each run: min_every after an accepted run, doubled (up to max_every) after a lost one
+    every = 3
+    gaps = []
+    for a, b in zip(runs, runs[1:]):
+        gaps.append((ups.index(b) - ups.index(a), a.code))
+    for gap, code in gaps:
+        every = 3 if code != "not_better" else min(6, 2 * every)
+        assert gap == every, gaps
+    assert any(code == "not_better" for _, code in gaps)  # the back-off was exercised
+
+
+def test_a_coevolution_run_comes_at_once_on_drift_failure_or_failed_revalidation(run: tuple[OnlineIdentifier, list],
+                                                                                 damper: tuple[np.ndarray, ...]) -> None:
+    ident, _ = run
+    model = ident.model
+    assert model is not None
+    track = RefreshTrack(RefreshPolicy(), every=8, due_in=5)
+    head = OutputHead("force_N", version=3, model=model)
+    assert coevolve_reason(track, head, None, CFG) == ""  # scheduled refreshes left
+    assert coevolve_reason(track, dataclasses.replace(head, escalate=True), None, CFG) == "drift"
+    assert "failed" in coevolve_reason(track, dataclasses.replace(head, failures_in_row=1), None, CFG)
+    bad = dataclasses.replace(head, current={"r2_fr_val": 0.2, "r2_osa_val": 0.99})
+    assert coevolve_reason(track, bad, None, CFG) == "the champion failed its re-validation"
+    assert coevolve_reason(track, dataclasses.replace(head, model=None), None, CFG) == "no champion yet"
+    assert coevolve_reason(RefreshTrack(RefreshPolicy(enabled=False)), head, None, CFG) == "refreshes disabled"
+    # a refreshed challenger refused below the floors: the next update reruns the coevolution
+    track.after(refresh=True, code="validation", accepted=False, normal=None)
+    assert coevolve_reason(track, head, None, CFG).startswith("a refreshed challenger was refused (validation)")
+    # a refresh on a window whose input is constant is dropped like a coevolution run's
+    t, u, y = damper
+    w_ident = OnlineIdentifier(CFG, stream="flat")
+    w_ident.learn_many(t[:800], np.ones(800), y[:800], **NAMES)
+    window = w_ident._buffer.take()
+    assert window is not None
+    job = RefreshJob(window, CFG, 4, output="force_N", champion=model, champion_version=3)
+    out = job.run()
+    assert out.kind == "dropped" and out.code == "constant_signal" and "constant" in out.reason
+
+
+def test_the_schedule_and_equations_resume_from_the_state(run: tuple[OnlineIdentifier, list],
+                                                          damper: tuple[np.ndarray, ...]) -> None:
+    ident, _ = run
+    state = StreamState.from_json(ident.state().to_json())
+    assert state.refresh["force_N"]["normal"] is not None
+    again = OnlineIdentifier.from_state(state, CFG, refresh=RefreshPolicy(min_every=3, max_every=6))
+    a, b = again.status()["refresh"], ident.status()["refresh"]
+    assert a == b
+    assert again._tracks["force_N"].normal.a.tolist() == ident._tracks["force_N"].normal.a.tolist()  # exact
+    # an unusable part leaves a fresh track (the next update is a coevolution run) and says why
+    broken = dataclasses.replace(state, refresh={"force_N": {**state.refresh["force_N"], "every": "x"}})
+    fresh = OnlineIdentifier(CFG, stream="damper")
+    warnings = fresh.restore(broken)
+    assert any("refresh state" in w for w in warnings) and fresh.status()["refresh"]["identified"] == 0
+    json.dumps(ident.status())  # JSON-ready
