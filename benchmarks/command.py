@@ -27,7 +27,11 @@ BUILTIN_PROVIDERS: dict[str, str] = {
     "daemon": "benchmarks.daemon_cases:bench",
     "online": "benchmarks.online_cases:bench",
     "suite": "benchmarks.suite:bench",
+    "capacity": "benchmarks.capacity:bench",
 }
+
+#: Sections that take many minutes: run only when named (``--only``; ``--suite`` for the suite).
+ON_REQUEST = ("suite", "capacity")
 
 ENTRY_POINT_GROUP = "streamid.benchmarks"
 
@@ -99,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "suite", False):
         wanted = ["suite"]
     elif not args.only:
-        wanted = [w for w in wanted if w != "suite"]  # long: only on request
+        wanted = [w for w in wanted if w not in ON_REQUEST]  # long: only on request
     unknown = [w for w in wanted if w not in found]
     if unknown:
         import difflib

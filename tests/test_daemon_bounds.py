@@ -391,6 +391,8 @@ class _FakeIdent:
         if job is self.out:
             self.out = None
 
+    next_is_refresh = False  # (every job here is a run of generations, none a refresh of weights)
+
 
 def test_short_jobs_nested_in_a_long_run_leave_it_half_of_the_worker() -> None:
     """An overloaded daemon: three streams whose short jobs never stop coming, one long run among them.

@@ -161,6 +161,7 @@ def accumulate(normal: NormalEquations | None, model: Model, u: np.ndarray, y: n
     The older rows' weights decay by ``exp(-elapsed / memory_s)``; a ``normal`` of another basis is discarded
     (the rows are then all of ``u``/``y``).
     """
+    u = u.reshape(u.shape[0], -1)  # (one input may come as a vector)
     key = basis_key(model)
     if normal is not None and normal.basis != key:
         normal = None
