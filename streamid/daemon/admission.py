@@ -14,16 +14,37 @@ Memory of one stream
     * the ring (window + hop + slack <= 3 windows) and the job's copy, ``4 w``
       with ``w = 8 n c`` bytes and ``c = n_inputs + n_outputs``, plus the pending
       windows: ``min(max_pending_windows w, max(max_pending_bytes, w))``;
-    * the identification's working memory over its ``m = n_est - max_lag`` rows
-      (``n_est = n (1 - validation_fraction)``): the lag matrix and the
-      evaluator's data table ``(2D + P + 1) m``, the feature table ``P (D + 2) m``,
-      the activations and residuals ``P (M + 2) m``, the helper's shared copy of
-      the lag matrix ``D m``, and the populations ``P (M (D + 1))`` twice, i.e.
-      ``8 [m (P (2D + M + 5) + 3D + 1) + 2 P M (D + 1)]`` bytes
-      (P population, M neurons).
+    * one identification (:func:`identification_bytes`), with ``m = n_est - max_lag``
+      estimation rows (``n_est = n (1 - validation_fraction)``), ``i`` inputs, ``M``
+      neurons, population ``P`` and ``C`` free-run candidates (``P + 1``, or
+      ``fr_candidates + 1``), in doubles:
+
+      - the search, over its ``k = min(m, bound)`` rows (:mod:`streamid.online.rows`:
+        ``bound = max(4096, 128 (M + D + 1))``): the evaluator's data and feature tables,
+        activations and residuals, the rows' copies (and the helper's), the populations,
+        ``k (P (D + M + 4) + 4 D + 2) + 2 P M (D + 1)``: bounded whatever the window;
+      - the data: the window's copy, the output column, the estimation part and its
+        normalised copy, the lag matrix, ``n c + n + 2 n_est (i + 1) + m D``;
+      - the passes over every row, the largest of: the candidates' free runs for the choice
+        (their paths and one working copy), ``2 C + i + 4``; the chosen one's regressors and
+        activations for its refit beside the paths, ``C + D + M + 4``; and, when that refit
+        leaves the data's range, the selection's fallback (:func:`~streamid.engine.selection.select_model`
+        fits every candidate on every row), the activations of all of them, ``C M + 2 D + 2``;
+        times ``m``;
+      - the blocks of those passes (:mod:`streamid.engine.rbf`: a streamed QR of
+        ``FIT_BLOCK_ROWS`` rows, activations of ``BLOCK_ROWS``), the larger of
+        ``4 min(m, 16384) (M + D + 1)`` and ``2 min(m, 8192) M D``;
+      - the long linear part's trial, when it can be offered: four copies of its design,
+        which is at most ``LONG_LINEAR_DESIGN_BYTES`` (8 MiB).
+
+      So a window's cost grows by about 2.2 kB per estimation row with the defaults
+      (``C = 21``, ``D = 20``: the fallback's activations), where the search alone used to take
+      ``8 P (2 D + M + 5)`` (8.8 kB) a row: a 10 s window of a 20 kHz stream, 200,000 samples,
+      is estimated at ~350 MiB (tracemalloc peak of a warm update 102 MiB; it was 1,316 MiB and refused).
 
     The estimate is checked against tracemalloc peaks in
-    ``tests/test_daemon_bounds.py`` (it must not under-estimate).
+    ``tests/test_daemon_bounds.py`` and ``tests/test_bounded_update.py`` (small and
+    large windows; it must not under-estimate).
 
 Time of one identification
     A run is polled between generations (:class:`Deadline`): past
@@ -41,7 +62,11 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sized
 
-from streamid.online.stream_config import StreamConfig
+from streamid.engine.longlinear import ROWS_PER_PARAMETER
+from streamid.engine.rbf import BLOCK_ROWS, FIT_BLOCK_ROWS
+from streamid.online.rows import search_row_bound
+from streamid.online.stream_config import ONLINE_LONG_LINEAR, ONLINE_SELECTION, StreamConfig
+from streamid.online.update import LONG_LINEAR_DESIGN_BYTES
 from streamid.wire.codec import SampleBatch
 
 __all__ = ["identification_bytes", "stream_bytes", "window_samples_at", "known_channels", "check_batch", "Deadline", "MiB",
@@ -53,12 +78,40 @@ _MAX_WINDOW_SAMPLES = 4_000_000
 
 
 def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: StreamConfig) -> int:
-    """Upper estimate of the working memory of one identification of an ``n_samples`` window (bytes)."""
-    n, c = max(0, int(n_samples)), max(1, n_inputs) + max(1, n_outputs)
+    """Upper estimate of the working memory of one identification of an ``n_samples`` window (bytes).
+
+    The module docstring gives the terms: the search's part is bounded by its rows (:mod:`streamid.online.rows`);
+    the passes over every estimation row (lag matrix, the candidates' free runs, the chosen one's refit, the
+    selection's fallback) grow with the window, by ~2.2 kB a row with the defaults.
+    """
+    n, i = max(0, int(n_samples)), max(1, n_inputs)
+    c = i + max(1, n_outputs)
     p, m_neurons = cfg.population, cfg.neurons
-    d = cfg.max_lag_y + max(1, n_inputs) * cfg.max_lag_u
-    rows = max(0, n - int(round(n * cfg.validation_fraction)) - max(cfg.max_lag_y, cfg.max_lag_u))
-    return 8 * (n * c + rows * (p * (2 * d + m_neurons + 5) + 3 * d + 1) + 2 * p * m_neurons * (d + 1))
+    d = cfg.max_lag_y + i * cfg.max_lag_u
+    n_est = n - int(round(n * cfg.validation_fraction))
+    rows = max(0, n_est - max(cfg.max_lag_y, cfg.max_lag_u))
+    engine = dict(cfg.engine)
+    bound = search_row_bound(m_neurons, cfg.max_lag_y, cfg.max_lag_u, i, engine)
+    k = min(rows, bound) if bound else rows
+    fr = engine.get("fr_candidates", 0)
+    cands = (min(p, int(fr)) if fr else p) + 1
+    search = k * (p * (d + m_neurons + 4) + 4 * d + 2) + 2 * p * m_neurons * (d + 1)
+    data = n * c + n + 2 * n_est * (i + 1) + rows * d
+    passes = rows * max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2)
+    blocks = max(4 * min(rows, FIT_BLOCK_ROWS) * (m_neurons + d + 1), 2 * min(rows, BLOCK_ROWS) * m_neurons * d)
+    return 8 * (data + search + passes + blocks + _long_linear(n_est, i, cfg, engine))
+
+
+def _long_linear(n_est: int, n_inputs: int, cfg: StreamConfig, engine: dict[str, object]) -> int:
+    """Doubles of the long linear part's trial (:func:`streamid.online.update.long_linear_part`): its design, at
+    most ``LONG_LINEAR_DESIGN_BYTES``, and its QR's copies (4 designs; measured 2.7-3.8)."""
+    top = engine.get("long_linear", ONLINE_LONG_LINEAR)
+    if not isinstance(top, int) or top <= 0 or engine.get("selection", ONLINE_SELECTION) != "fr_est" or n_est <= 0:
+        return 0
+    m_neurons, lag = cfg.neurons, max(cfg.max_lag_y, cfg.max_lag_u)
+    order = min(top, (n_est // ROWS_PER_PARAMETER - m_neurons - 1) // (1 + n_inputs),
+                (LONG_LINEAR_DESIGN_BYTES // (8 * n_est) - m_neurons - 1) // (1 + n_inputs))
+    return 4 * n_est * (order * (1 + n_inputs) + m_neurons + 1) if order > lag else 0
 
 
 def stream_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: StreamConfig) -> int:
