@@ -380,7 +380,7 @@ class _FakeIdent:
     def pending(self) -> int:
         return self.left
 
-    def next_job(self) -> Any:
+    def next_job(self, defer_scheduled: bool = False) -> Any:
         if self.out is not None or self.left == 0:
             return None
         self.left -= 1
@@ -391,7 +391,8 @@ class _FakeIdent:
         if job is self.out:
             self.out = None
 
-    next_is_refresh = False  # (every job here is a run of generations, none a refresh of weights)
+    def next_is_refresh(self, defer_scheduled: bool = False) -> bool:
+        return False  # (every job here is a run of generations, none a refresh of weights)
 
 
 def test_short_jobs_nested_in_a_long_run_leave_it_half_of_the_worker() -> None:

@@ -148,6 +148,13 @@ def test_a_coevolution_run_comes_at_once_on_drift_failure_or_failed_revalidation
     assert coevolve_reason(track, bad, None, CFG) == "the champion failed its re-validation"
     assert coevolve_reason(track, dataclasses.replace(head, model=None), None, CFG) == "no champion yet"
     assert coevolve_reason(RefreshTrack(RefreshPolicy(enabled=False)), head, None, CFG) == "refreshes disabled"
+    # a loaded caller defers a scheduled run (a refresh instead), at most max_every times in a row; never a forced one
+    due = RefreshTrack(RefreshPolicy(min_every=2, max_every=3), every=2, due_in=0)
+    assert coevolve_reason(due, head, None, CFG) == "scheduled (every 2 updates)"
+    assert [due.defer("scheduled (every 2 updates)") for _ in range(4)] == [True, True, True, False]
+    assert not due.defer("drift") and due.summary("")["deferred"] == 3
+    due.after(refresh=False, code="not_better", accepted=False, normal=None)  # the run happened: deferrals reset
+    assert due.deferred == 0 and due.every == 3 and due.due_in == 2
     # a refreshed challenger refused below the floors: the next update reruns the coevolution
     track.after(refresh=True, code="validation", accepted=False, normal=None)
     assert coevolve_reason(track, head, None, CFG).startswith("a refreshed challenger was refused (validation)")
@@ -177,3 +184,20 @@ def test_the_schedule_and_equations_resume_from_the_state(run: tuple[OnlineIdent
     warnings = fresh.restore(broken)
     assert any("refresh state" in w for w in warnings) and fresh.status()["refresh"]["identified"] == 0
     json.dumps(ident.status())  # JSON-ready
+
+
+def test_a_loaded_caller_gets_a_refresh_where_a_scheduled_run_was_due(damper: tuple[np.ndarray, ...]) -> None:
+    t, u, y = damper
+    policy = RefreshPolicy(min_every=1, max_every=2)  # min_every 1: every update is a scheduled run
+    ident = OnlineIdentifier(CFG, stream="damper", refresh=policy)
+    ident.learn_many(t[:1400], u[:1400], y[:1400], **NAMES)  # 4 windows
+    first = ident.update()
+    assert first is not None and first.accepted and not isinstance(first.outcome, type(None))
+    assert not ident.next_is_refresh() and ident.next_is_refresh(defer_scheduled=True)
+    job = ident.next_job(defer_scheduled=True)
+    assert isinstance(job, RefreshJob)  # deferred: a refresh
+    ident.finish(job, job.run())
+    again = ident.next_job(defer_scheduled=False)
+    assert again is not None and not isinstance(again, RefreshJob)  # not loaded: the run comes
+    ident.abandon(again)
+    assert ident.status()["refresh"]["deferred"] == 1

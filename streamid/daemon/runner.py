@@ -88,15 +88,20 @@ class JobRunner:
             except Stopped:
                 return
 
-    def _try_take(self, name: str) -> Taken | None | Literal[False]:
-        """The stream's next job; None: nothing due; False: busy (the scheduler's lock is held)."""
+    def _try_take(self, name: str, *, loaded: bool = False) -> Taken | None | Literal[False]:
+        """The stream's next job; None: nothing due; False: busy (the scheduler's lock is held).
+
+        While other streams wait for a worker (or ``loaded``: a long run is going on), a coevolution run due only
+        by its schedule is deferred and the champion refreshed instead (:mod:`streamid.online.refresh`).
+        """
         st = self.streams.get(name)
         if st is None:
             return None
+        loaded = loaded or self.scheduler.waiting() > 1
         with st.lock:
             if st.ident.busy:
                 return False
-            job = st.ident.next_job()
+            job = st.ident.next_job(defer_scheduled=loaded)
         return None if job is None else (st, job)
 
     def _expected_s(self, name: str) -> float | None:
@@ -105,7 +110,7 @@ class JobRunner:
         if st is None:
             return None
         with st.lock:  # (the scheduler's lock is held: the same order as _try_take)
-            if st.ident.next_is_refresh:
+            if st.ident.next_is_refresh(defer_scheduled=True):  # (asked only while a long run goes on)
                 return REFRESH_EXPECTED_S
         if spg is None:
             return None
@@ -173,7 +178,8 @@ class JobRunner:
         for _ in range(max(1, len(self.streams))):  # each waiting stream at most once per generation
             if deadline.paused_s > NESTED_SHARE * deadline.own_s:  # the long run keeps its share of the worker
                 return
-            nxt = self.scheduler.take_short(self._try_take, self._expected_s, exclude=st.ident.stream)
+            nxt = self.scheduler.take_short(lambda n: self._try_take(n, loaded=True), self._expected_s,
+                                            exclude=st.ident.stream)
             if nxt is None:
                 return
             other, job = nxt

@@ -83,6 +83,11 @@ class Scheduler(Generic[T]):
                 self._queued.discard(name)
                 self._ready.remove(name)
 
+    def waiting(self) -> int:
+        """Streams queued with a window due (those busy included)."""
+        with self._cond:
+            return len(self._ready)
+
     def notify_all(self) -> None:
         """Wake every waiting worker (stop)."""
         with self._cond:

@@ -152,10 +152,13 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         """Whether a job taken by :meth:`next_job` has not been finished yet."""
         return self._job is not None
 
-    def next_job(self) -> UpdateJob | None:
+    def next_job(self, *, defer_scheduled: bool = False) -> UpdateJob | None:
         """Take the next (window, output) to identify as an :class:`UpdateJob` (None: nothing due, or a job is out).
 
         A window is identified once per modelled output, one job each, before the next window is taken.
+        ``defer_scheduled``: the caller is loaded (other streams wait for its worker): a coevolution run due only
+        by the schedule becomes a refresh, at most ``RefreshPolicy.max_every`` times in a row
+        (:mod:`streamid.online.refresh`); a run forced by drift, failure or a failed re-validation never waits.
         """
         if self._job is not None:
             return None
@@ -175,8 +178,10 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
                 cut = head.drift_t_ns
         if head.escalate and (cut is not None or head.drift_t_ns is None or head.drift_t_ns <= window.t0_ns):
             generations = self.config.drift_generations
-        if not coevolve_reason(self._track(output), head, window, self.config):  # a refresh of the champion's weights
-            self._job = refresh_job(self._track(output), head, window, self.config, self._next_version())
+        track = self._track(output)
+        why = coevolve_reason(track, head, window, self.config)
+        if not why or (defer_scheduled and track.defer(why)):  # a refresh of the champion's weights
+            self._job = refresh_job(track, head, window, self.config, self._next_version())
             return self._job
         self._job = UpdateJob(
             window, self.config, self._next_version(), head.coea_state, head.signature,
@@ -437,11 +442,15 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
             track = self._tracks[output] = RefreshTrack(self._refresh)
         return track
 
-    @property
-    def next_is_refresh(self) -> bool:
-        """Whether the next update of the window to come (its first output) would refresh the champion's weights."""
+    def next_is_refresh(self, *, defer_scheduled: bool = False) -> bool:
+        """Whether the next update of the window to come (its first output) would refresh the champion's weights
+        (``defer_scheduled`` as for :meth:`next_job`)."""
         head = self._heads.get(self._todo[0]) if self._todo else self._primary()
-        return head is not None and not coevolve_reason(self._track(head.output), head, None, self.config)
+        if head is None:
+            return False
+        track = self._track(head.output)
+        why = coevolve_reason(track, head, None, self.config)
+        return not why or (defer_scheduled and track.deferrable(why))
 
     def _head(self, output: str) -> OutputHead:
         head = self._heads.get(output)

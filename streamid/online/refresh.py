@@ -305,6 +305,8 @@ class RefreshTrack:
     identified: int = 0  # coevolution runs
     last: str = ""  # "refreshed" or "identified": the kind of the last finished update
     champion_kind: str = ""  # how the served champion was made
+    deferred: int = 0  # scheduled runs deferred in a row (the caller was loaded)
+    deferred_total: int = 0
 
     def plan(self, *, champion: Model | None, window: Window | None, signature: dict[str, Any] | None,
              champion_signature: dict[str, Any] | None, escalate: bool, failures_in_row: int,
@@ -338,6 +340,19 @@ class RefreshTrack:
             return f"scheduled (every {self.every or self.policy.min_every} updates)"
         return ""
 
+    def deferrable(self, reason: str) -> bool:
+        """Whether a run due for ``reason`` may wait (a refresh instead) while the caller is loaded: only a scheduled
+        one, at most ``max_every`` updates in a row."""
+        return reason.startswith("scheduled") and self.deferred < self.policy.max_every
+
+    def defer(self, reason: str) -> bool:
+        """:meth:`deferrable`, and if so count the deferral (the next update is a refresh)."""
+        if not self.deferrable(reason):
+            return False
+        self.deferred += 1
+        self.deferred_total += 1
+        return True
+
     def after(self, *, refresh: bool, code: str, accepted: bool, normal: NormalEquations | None) -> None:
         """Account for a finished update: a refresh's or a coevolution run's decision ``code``."""
         p = self.policy
@@ -357,6 +372,7 @@ class RefreshTrack:
                 self.force = f"a refreshed challenger was refused ({code})"
             return
         self.identified += 1
+        self.deferred = 0
         if accepted:
             self.normal = None  # a new structure: its equations start from its first refresh
             self.champion_kind = "identified"
@@ -372,7 +388,7 @@ class RefreshTrack:
         ne = self.normal
         return {"every": self.every, "due_in": self.due_in, "force": self.force, "refreshed": self.refreshed,
                 "refreshes_accepted": self.refreshes_accepted, "identified": self.identified, "last": self.last,
-                "champion": self.champion_kind,
+                "champion": self.champion_kind, "deferred": self.deferred, "deferred_total": self.deferred_total,
                 "normal": None if ne is None else {"basis": ne.basis, "a": ne.a.tolist(), "b": ne.b.tolist(),
                                                    "weight": ne.weight, "through_t_ns": ne.through_t_ns,
                                                    "rows": ne.rows}}
@@ -382,6 +398,7 @@ class RefreshTrack:
         leaves the track as new (the next update then reruns the coevolution)."""
         try:
             ints = {k: part[k] for k in ("every", "due_in", "refreshed", "refreshes_accepted", "identified")}
+            ints.update({k: part.get(k, 0) for k in ("deferred", "deferred_total")})  # (absent before deferrals)
             texts = {k: part[k] for k in ("force", "last", "champion")}
             if not all(isinstance(v, int) and not isinstance(v, bool) and v >= -1 for v in ints.values()) or \
                     not all(isinstance(v, str) for v in texts.values()):
@@ -397,8 +414,8 @@ class RefreshTrack:
         except (KeyError, TypeError, ValueError) as exc:
             return f"refresh state unusable ({type(exc).__name__}: {exc!s:.100})"
         self.every, self.due_in = min(int(ints["every"]), self.policy.max_every), int(ints["due_in"])
-        self.refreshed, self.refreshes_accepted, self.identified = (int(ints[k]) for k in (
-            "refreshed", "refreshes_accepted", "identified"))
+        self.refreshed, self.refreshes_accepted, self.identified, self.deferred, self.deferred_total = (
+            int(ints[k]) for k in ("refreshed", "refreshes_accepted", "identified", "deferred", "deferred_total"))
         self.force, self.last, self.champion_kind = (str(texts[k])[:200] for k in ("force", "last", "champion"))
         self.normal = normal
         return ""
@@ -413,6 +430,7 @@ class RefreshTrack:
             "refreshed": self.refreshed,
             "refreshes_accepted": self.refreshes_accepted,
             "identified": self.identified,
+            "deferred": self.deferred_total,  # scheduled runs that waited (refreshes instead) while the daemon was loaded
             "last": self.last or None,
             "champion": self.champion_kind or None,
             "rows": self.normal.rows if self.normal is not None else 0,
