@@ -7,8 +7,11 @@ Issue 38 item 4.  Every process is real and on loopback:
   ``--listen`` on a free ``tcp/127.0.0.1`` port and ``--no-rerun``), a publisher process putting that many
   simulated streams in real time (the MR damper at 200 Hz and 2 kHz, the piezo at 20 kHz; batches of 1/20 s,
   BLOCK congestion control), and this process recording every decision (accepted models and rejected
-  challengers) and sampling the daemon's resident memory.  A count is *kept up with* when every stream was
-  served (a model) and no window was coalesced; the ladder stops at the first count that is not.
+  challengers) and sampling the daemon's resident memory.  All streams start at once, so their first (cold)
+  runs queue up: the windows a stream loses before its first decision are counted apart from those it loses
+  once served.  A count is *kept up with* when every stream was served (a model) and no window was coalesced
+  after a stream's first decision; the ladder stops at the first count that is not.  The issue's stricter
+  figure, every window of the run decided, is the ``coalesced windows`` row.
   Per trial: decision latency p50/p99 (window closed -> decided, the daemon's clock), coalesced windows,
   decisions per stream, the median over streams of the served model's held-out free-run R^2, the daemon's
   peak RSS and its growth per stream over the idle daemon, and how many decisions were refreshes of the
@@ -72,7 +75,7 @@ class CapacityPlan:
             raise ValueError(f"seconds must be > 0; got {self.seconds!r}")
 
 
-FULL = CapacityPlan(ladders=((200.0, (40, 80, 160)), (2000.0, (10, 20, 40, 60)), (20000.0, (1, 2, 4))))
+FULL = CapacityPlan(ladders=((200.0, (40, 80, 160)), (2000.0, (10, 20, 30, 40)), (20000.0, (1, 2, 4, 8))))
 #: A smoke run (``--quick``), not for quoting: short windows, one small trial per rate, small records.
 QUICK = CapacityPlan(ladders=((200.0, (2,)), (2000.0, (2,)), (20000.0, (1,))), seconds=12.0,
                      engine_lengths=(2_000, 6_000), engine_timeout_s=300.0,
@@ -171,9 +174,11 @@ def trial(rate_hz: float, streams: int, seconds: float, *, daemon_toml: str = ""
                         decisions[up.stream].append({
                             "accepted": bool(up.accepted), "version": up.version,
                             "update": str(up.document.get("update", "identified")),
-                            "r2_fr_val": up.metrics.get("r2_fr_val"),
+                            "r2_fr_val": up.metrics.get("r2_fr_val"), "t_s": time.monotonic() - t_start,
+                            "coalesced_before": int(up.window.get("coalesced_before", 0) or 0),
                             "latency_s": (up.published_unix_ns - up.window_closed_unix_ns) / 1e9})
 
+                t_start = time.monotonic()
                 sub = ModelSubscriber(bus, "*", on_update, fetch_latest=False, include_rejected=True)
                 code = f"from benchmarks.capacity import publish_main; publish_main({ep!r}, {streams}, {rate_hz}, " \
                        f"{seconds}, {seed})"
@@ -210,12 +215,16 @@ def _trial_figures(rate_hz: float, streams: int, seconds: float, decisions: dict
             fr.append(last[-1])
     coalesced = {n: int((s.get("windows") or {}).get("coalesced", 0) or 0) for n, s in status.items()}
     counts = [len(ds) for ds in decisions.values()]
+    after_first = sum(d["coalesced_before"] for ds in decisions.values() for d in ds[1:])
+    first_t = [ds[0]["t_s"] for ds in decisions.values() if ds]
     kinds = [d["update"] for ds in decisions.values() for d in ds]
     peak = max(rss) if rss else float("nan")
     return {
         "rate_hz": rate_hz, "streams": streams, "seconds": seconds,
         "served": len(served), "coalesced": sum(coalesced.values()),
         "coalesced_streams": sum(1 for v in coalesced.values() if v),
+        "coalesced_after_first": after_first,
+        "first_decision_max_s": max(first_t) if len(first_t) == streams else float("inf"),
         "decisions_per_stream": counts,
         "decisions_min": min(counts) if counts else 0,
         "decisions_median": statistics.median(counts) if counts else 0,
@@ -226,7 +235,7 @@ def _trial_figures(rate_hz: float, streams: int, seconds: float, decisions: dict
         "refreshed": kinds.count("refreshed"), "identified": kinds.count("identified"),
         "rss_idle_mb": idle_mb, "rss_peak_mb": peak, "rss_hwm_mb": hwm,
         "rss_per_stream_mb": (peak - idle_mb) / streams if rss else float("nan"),
-        "kept_up": len(served) == streams and sum(coalesced.values()) == 0,
+        "kept_up": len(served) == streams and after_first == 0,
         "publisher_max_late_s": publisher.get("max_late_s"),
         "degraded": sorted(n for n, s in status.items() if s.get("degraded")),
     }
@@ -327,7 +336,7 @@ def capacity_measurements(plan: CapacityPlan) -> Iterator[Measurement]:
                 break
             kept = n
         yield Measurement(SECTION, f"{rate:g} Hz, one daemon", "streams kept up", "streams", (float(kept),),
-                          f"every stream served, no window coalesced, {plan.seconds:g} s; tried {', '.join(tried)}")
+                          f"every stream served, none coalesced once served, {plan.seconds:g} s; tried {', '.join(tried)}")
     for n in plan.engine_lengths:
         e = engine_length(n, plan.seed, plan.engine_timeout_s)
         case = f"engine, {n} samples (2 kHz MR damper, cold online settings)"
@@ -350,7 +359,9 @@ def _trial_rows(r: dict[str, Any]) -> Iterable[Measurement]:
     yield Measurement(SECTION, case, "decision latency p99", "s", (r["latency_p99_s"],))
     yield Measurement(SECTION, case, "streams served", "streams", (float(r["served"]),), f"of {r['streams']}")
     yield Measurement(SECTION, case, "coalesced windows", "count", (float(r["coalesced"]),),
-                      f"in {r['coalesced_streams']} streams")
+                      f"in {r['coalesced_streams']} streams; {r['coalesced_after_first']} after a stream's first decision")
+    yield Measurement(SECTION, case, "last stream's first decision", "s", (r["first_decision_max_s"],),
+                      "after the publisher began (all streams start at once; 10 s windows: >= 10 s)")
     yield Measurement(SECTION, case, "decisions per stream", "count", tuple(float(c) for c in r["decisions_per_stream"]),
                       f"min {r['decisions_min']}")
     yield Measurement(SECTION, case, "median served FR R2", "", (r["served_fr_r2_median"],),

@@ -25,7 +25,8 @@ def test_a_tiny_capacity_run_gives_every_row() -> None:
     by = {(m.case, m.metric): m for m in rows}
     trial = "1 x 200 Hz, 12 s"
     for metric in ("decision latency p50", "decision latency p99", "streams served", "coalesced windows",
-                   "decisions per stream", "median served FR R2", "RSS per stream", "daemon peak RSS"):
+                   "decisions per stream", "median served FR R2", "RSS per stream", "daemon peak RSS",
+                   "last stream's first decision"):
         assert (trial, metric) in by, (metric, sorted(by))
     assert all(m.section == "capacity" for m in rows)
     served = by[(trial, "streams served")]
@@ -34,6 +35,8 @@ def test_a_tiny_capacity_run_gives_every_row() -> None:
     assert len(decisions.values) == 1 and decisions.values[0] >= 3
     assert 0 < by[(trial, "decision latency p50")].median <= by[(trial, "decision latency p99")].median
     assert "refreshes" in by[(trial, "decision latency p50")].note
+    assert 2.0 <= by[(trial, "last stream's first decision")].median < 12.0  # a 2 s window first, within the run
+    assert "after a stream's first decision" in by[(trial, "coalesced windows")].note
     assert by[(trial, "daemon peak RSS")].median > 50  # MB: a Python process with numpy and zenoh
     ladder = by[("200 Hz, one daemon", "streams kept up")]
     assert ladder.values[0] in (0.0, 1.0) and "tried 1: " in ladder.note
