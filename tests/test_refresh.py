@@ -83,6 +83,9 @@ def test_blocked_normal_equations_are_the_exact_forgetting_least_squares(run: tu
     other = dataclasses.replace(model, widths=model.widths * 1.1)
     again = accumulate(ne, other, u2, y2, 0, period, memory_s)
     assert again.rows == 1200 - model.max_lag and again.basis != ne.basis
+    # a stream whose clock went back (a publisher restarted it): the rows start again, none is taken for seen
+    reset = accumulate(ne, model, u2[:600], y2[:600], 0, period, memory_s)
+    assert reset.rows == 600 - model.max_lag and reset.through_t_ns == 599 * period
 
 
 def test_updates_between_coevolution_runs_refresh_the_weights_and_say_so(run: tuple[OnlineIdentifier, list]) -> None:

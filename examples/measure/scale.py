@@ -56,10 +56,13 @@ def publish_main(ep: str, prefix: str, streams: int, seconds: float, rate_hz: fl
     step = max(1, round(1e9 / rate_hz / dev.period_ns))
     period = dev.period_ns * step
     sigs = []
-    for k in range(streams):
+    for k in range(min(streams, 4)):  # a few records (a 10 s piezo record takes ~1 s to simulate), shared below
         _, u, y = dev.simulate_seconds(max(10.0, 10.0 * RATE_HZ / rate_hz), seed=k)
         sigs.append((np.ascontiguousarray(u[::step]), np.ascontiguousarray(y[::step])))
     n = len(sigs[0][1]) // BATCH * BATCH
+    per = -(-streams // len(sigs))  # streams sharing a record start at their own offset in it
+    sigs = [(np.roll(u, -((k // len(sigs)) * (n // per))), np.roll(y, -((k // len(sigs)) * (n // per))))
+            for k, (u, y) in ((k, sigs[k % len(sigs)]) for k in range(streams))]
     names = [f"{prefix}{k}" for k in range(streams)]
     with Bus(ZenohSettings(connect=(ep,))) as bus:
         pubs = [bus.publisher(f"streamid/{s}/samples", block=True) for s in names]

@@ -163,13 +163,13 @@ def accumulate(normal: NormalEquations | None, model: Model, u: np.ndarray, y: n
     """
     u = u.reshape(u.shape[0], -1)  # (one input may come as a vector)
     key = basis_key(model)
-    if normal is not None and normal.basis != key:
-        normal = None
     L, n = model.max_lag, y.shape[0]
+    through = t0_ns + (n - 1) * period_ns
+    if normal is not None and (normal.basis != key or normal.through_t_ns > through):
+        normal = None  # another champion's, or the stream's clock went back (a reset): its rows start again
     first = L  # the first sample whose row is new
     if normal is not None:
         first = max(L, -(-(normal.through_t_ns - t0_ns) // period_ns) + 1)
-    through = t0_ns + (n - 1) * period_ns
     if first >= n:  # nothing new
         return normal if normal is not None else NormalEquations(key, np.zeros((0, 0)), np.zeros(0), 0.0, through, 0)
     x, target = _design(model, u[first - L:], y[first - L:])
