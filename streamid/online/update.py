@@ -10,8 +10,11 @@ while samples keep arriving; :meth:`OnlineIdentifier.finish
 the version.
 
 A run splits the window (the newest ``validation_fraction`` is held out), runs
-the coevolution generation by generation -- cold, or warm-started from the
-previous final populations, which the engine re-evaluates on the new data --
+the coevolution generation by generation on at most a bounded, stratified set of
+the estimation rows (:mod:`streamid.online.rows`: 4,096 with the defaults, so an
+update's cost is set by the model's size, not the stream's sample rate) -- cold,
+or warm-started from the previous final populations, which the engine re-evaluates
+on the new data --
 chooses the model with the engine's one selection rule
 (:func:`~streamid.engine.identification.select_model`: ``"fitness"``, the paper's,
 or ``"fr_est"``; validation data are never looked at), lets a dense linear ARX
