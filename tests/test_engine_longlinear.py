@@ -22,6 +22,7 @@ from streamid.engine.model import MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMA
 from streamid.engine.refine import refine_weights
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.engine.selection import refit_weights
+from streamid.engine.stability import is_bounded
 from streamid.engine.validation import r2
 from streamid.errors import ModelFormatError
 
@@ -195,7 +196,12 @@ def test_the_choice_fits_long_memory_and_validates_on_another_excitation() -> No
     # the kept model survives the final steps: a refit keeps its structure, the refinement leaves it alone
     again = refit_weights(res.model, u, y, cfg.ridge)
     assert again.linear_regressors == res.model.linear_regressors
-    np.testing.assert_allclose(again.simulate(uv, yv)[L:], res.model.simulate(uv, yv)[L:], rtol=1e-6, atol=1e-6)
+    # The refit is the same rule (streamid.engine.longlinear.long_linear_fit) on the model's own rows (the choice
+    # fitted on the rows every offer shares, which start later): with the linear part's own autoregression (this
+    # record's joint fits are unstable) the two least squares differ a little, and validate alike.
+    assert is_bounded(again) and ev["orders"][0]["autoregression"] == "fitted alone"
+    val_again = r2(yv[L:], again.simulate(uv, yv[: again.max_lag])[L:])
+    assert abs(val_again - val) < 0.005, (val_again, val)
     same, why = refine_weights(res.model, u.reshape(-1, 1), y, 5, -1e9, 0.25)
     assert same is res.model and why["reason"] == "a long linear part (not refined)"
 
@@ -255,17 +261,21 @@ def test_a_part_that_leaves_the_range_on_a_second_pass_is_refused() -> None:
 
 
 def test_a_part_whose_free_run_is_worse_than_the_mean_is_refused() -> None:
-    """The ball and beam (an unstable plant, DaISy), seed 26: orders of R^2 est below 0 lower the criterion of a
+    """The ball and beam (an unstable plant, DaISy), seed 26: orders of R^2 est below 0 lowered the criterion of a
     final choice worse still; taken (before MIN_R2_FR_EST), one stayed in range over two passes of the record and
-    diverged on validation (R^2 -1.7e127)."""
+    diverged on validation (R^2 -1.7e127). Since the stability rule most of them are refused earlier."""
     from benchmarks.suite import free_run_val, targets
 
     t = targets(("ball_and_beam",))[0]
     res = identify(t.u_est, t.y_est, DEFAULT, 26)
     ev = res.model.metrics["complexity"]["long_linear"]
     assert not ev["taken"] and res.model.linear_regressors is None
-    worse = [o for o in ev["orders"] if o["criterion"] is not None and o["criterion"] < ev["criterion_without"]]
-    assert worse and all(o["r2_fr_est"] <= 0.0 for o in worse), ev["orders"]
+    # every order was refused: its free run explains less than the mean, or its criterion is no lower, or (since
+    # streamid.engine.stability) its autoregression is unstable even when the linear part is fitted alone
+    for o in ev["orders"]:
+        assert (o.get("autoregression") == "unstable" or o.get("excursion_spans") is not None
+                or o["r2_fr_est"] <= 0.0 or o["criterion"] >= ev["criterion_without"]), o
+    assert any(o.get("autoregression") == "unstable" for o in ev["orders"]), ev["orders"]
     assert np.isfinite(free_run_val(res.model, t))
 
 

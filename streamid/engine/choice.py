@@ -20,7 +20,8 @@ restarted just before the tail).
 
 A candidate with no input term is not admissible either: its free run ignores the
 input (an autonomous oscillator can fit an estimation record and says nothing of
-another). If no candidate is admissible, the choice falls back to the candidate with the
+another). Nor is one whose linear part has an unstable autoregression
+(:mod:`streamid.engine.stability`: only a stable one bounds the free run on every input). If no candidate is admissible, the choice falls back to the candidate with the
 smallest excursion beyond the widened range (the report says ``admissible: 0``).
 """
 
@@ -35,6 +36,7 @@ from numpy.typing import NDArray
 from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.model import Model, free_run
 from streamid.engine.rbf import activations, fit_weights
+from streamid.engine.stability import is_bounded
 from streamid.engine.validation import r2
 from streamid.errors import DataError, ModelFormatError
 
@@ -155,7 +157,7 @@ def free_run_scores(
             if not np.all(np.isfinite(ys[k, L:])):
                 continue
             paths[i] = ys[k]
-            if drives:
+            if drives and is_bounded(models[i]):
                 scores[i], exc[i] = path_score(ys[k], y, L, first, lo, hi, range_margin)
     return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin), tuple(paths))
 

@@ -36,8 +36,9 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   round 8). 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
 * **Weights stay at their scale:** the error minimised is the free run's plus ``rho |w - w0|^2`` (``RIDGE``).
 * **Kept only if better:** the refined model's free run over the whole estimation record must
-  pass the range guard of :mod:`streamid.engine.choice` and have a higher R^2 than before;
-  otherwise the chosen model stands unchanged.
+  pass the range guard of :mod:`streamid.engine.choice` and have a higher R^2 than before, and its
+  linear part's autoregression must stay stable (:mod:`streamid.engine.stability`: a fit to the free
+  run can move a pole out where the record does not reach); otherwise the chosen model stands unchanged.
 * The evidence (gate, iterations, R^2 before and after, one-step MSE after) goes to
   ``metrics.refinement``; a refined model's ``metrics.fitness`` is its one-step MSE on the estimation
   record (``Result.fitness``: the final model's, as for an ensemble).
@@ -57,6 +58,7 @@ from numpy.typing import NDArray
 
 from streamid.engine._kernels import free_run_sensitivities
 from streamid.engine.choice import path_score
+from streamid.engine.stability import is_bounded
 from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
@@ -267,6 +269,9 @@ def refine_weights(
     ev.update(r2_fr_est_after=float(after) if np.isfinite(after) else None, excursion_spans=float(excursion))
     if not after > score:
         ev["reason"] = "the refined free run leaves the range" if excursion > 0 else "no gain on the whole record"
+        return model, ev
+    if not is_bounded(refined):
+        ev["reason"] = "the refined linear part's autoregression is unstable (streamid.engine.stability)"
         return model, ev
     osa = refined.predict_osa(u, y)
     ev.update(taken=True, osa_mse_est=float(np.mean((osa[L:] - y[L:]) ** 2)))

@@ -17,6 +17,7 @@ from streamid.engine.choice import FreeRunScores, blocked_cv_scores, free_run_sc
 from streamid.engine.complexity import criterion, padded, parameter_count, pruned
 from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.model import Model
+from streamid.engine.longlinear import long_linear_fit
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import as_data
 from streamid.engine.validation import r2
@@ -51,7 +52,10 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
             fit = phi @ w
         else:
             rl = r if model.linear_regressors is None else model.linear_rows(ua, ya)
-            w, lin = fit_linear_rbf(phi, rl, target, ridge, weight_decay)
+            if model.linear_regressors is None:
+                w, lin = fit_linear_rbf(phi, rl, target, ridge, weight_decay)
+            else:  # a long linear part: fitted as it was built (streamid.engine.longlinear)
+                w, lin = long_linear_fit(model.linear_regressors, phi, rl, target, ridge)
             fit = phi @ w + rl @ lin[:-1] + lin[-1]
     if not np.all(np.isfinite(w)) or (lin is not None and not np.all(np.isfinite(lin))):
         raise DataError("refitted weights are not finite (numerically degenerate data)")
