@@ -66,12 +66,13 @@ def _narx_record() -> tuple[np.ndarray, np.ndarray]:
 
 def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
     u, y = _narx_record()
-    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, neuron_alternatives=(8,),
+    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, fallback_neurons=(8,),
+                          fallback_below=1.0, more_restarts=0,
                           run_ensembles=False)  # the single network's choice (ensembles: test_engine_ensemble.py)
     res = identify(u, y, cfg, 0)
     ev = res.model.metrics["complexity"]
     assert ev["rule"] == "aic" and ev["chosen_run"] == res.chosen and len(ev["candidates"]) == len(res.runs)
-    assert [c["neurons"] for c in ev["candidates"]][:2] == [30, 8]
+    assert [c["neurons"] for c in ev["candidates"]] == [30, 30, 30, 30, 8]  # the fallback run: another size
     assert ev["neurons"] == res.model.neurons
     ok = [c for c in ev["candidates"] if c["criterion"] is not None]
     assert ok and ev["candidates"][res.chosen]["criterion"] == min(c["criterion"] for c in ok)

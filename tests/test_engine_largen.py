@@ -12,7 +12,7 @@ import pytest
 
 from streamid.engine import PAPER, identify
 from streamid.engine.coevolution import Coevolution
-from streamid.engine.restarts import repeats_agree as _repeats_agree, wants_more
+from streamid.engine.restarts import wants_more
 from streamid.engine.model import Model
 from streamid.errors import ConfigError
 from streamid.sim import simulate_reactor
@@ -59,59 +59,8 @@ def test_the_best_pair_is_a_candidate_once(second_stage: Coevolution) -> None:
     assert len(run.candidate_models(5)) == 5  # the 5 fittest include the best member: 1 + 4
 
 
-def test_the_lag_search_on_fewer_rows_is_seeded_and_acts_only_on_a_row_sample(reactor: tuple[np.ndarray, np.ndarray]) -> None:
-    u, y = reactor
-    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, lag_search_generations=10, restarts=2,
-                        selection="fr_est", search_rows=400)
-    a = identify(u, y, cfg.replace(lag_search_rows=100), 2)
-    assert a.model.to_json() == identify(u, y, cfg.replace(lag_search_rows=100), 2).model.to_json()
-    # 0 and "at least as many as the search's rows" both mean the search's rows.
-    assert _same(identify(u, y, cfg, 2).model, identify(u, y, cfg.replace(lag_search_rows=400), 2).model)
-    # A small record (no row sample): the option does nothing.
-    small = cfg.replace(search_rows=0)
-    assert _same(identify(u, y, small, 2).model, identify(u, y, small.replace(lag_search_rows=100), 2).model)
-    # With fewer rows the lag search's fitness differs (its evaluations see other data).
-    fewer = Coevolution(u, y, cfg.replace(neurons=4, generations=3), 1, rows=np.arange(0, 400, 4))
-    assert fewer.search_rows == 100 and fewer.best_f != Coevolution(u, y, cfg.replace(neurons=4, generations=3), 1,
-                                                                      rows=np.arange(400)).best_f
-    with pytest.raises(ConfigError, match=r"lag_search_rows must be 0 .* >= 2 \* lag_search_neurons = 8; got 7"):
-        cfg.replace(lag_search_rows=7)
-
-
-def _same(a: Model, b: Model) -> bool:
-    """The same network (the settings recorded in the models may differ)."""
-    return (a.regressors == b.regressors and np.array_equal(a.centres, b.centres)
-            and np.array_equal(a.widths, b.widths) and np.array_equal(a.weights, b.weights))
-
-
 def _out(score: float, neurons: int = 30, max_lag: int = 10) -> dict[str, object]:
     return {"score": score, "neurons": neurons, "max_lag": max_lag}
-
-
-def test_repeats_agree_only_among_runs_of_the_same_configuration() -> None:
-    cfg = PAPER.replace(agree_tol=0.01, fallback_below=0.5)
-    job = {"neurons": 30, "max_lag": 10}
-    assert not _repeats_agree([_out(0.95)], job, cfg)  # one repeat: nothing to compare
-    assert _repeats_agree([_out(0.95), _out(0.955)], job, cfg)
-    assert not _repeats_agree([_out(0.95), _out(0.97)], job, cfg)  # they differ by more than agree_tol
-    assert _repeats_agree([_out(0.90), _out(0.95), _out(0.955)], job, cfg)  # the best two agree
-    assert not _repeats_agree([_out(0.95), _out(0.955, neurons=10)], job, cfg)  # another size
-    assert not _repeats_agree([_out(0.95), _out(0.955, max_lag=30)], job, cfg)  # another lag space
-    assert not _repeats_agree([_out(0.40), _out(0.401)], job, cfg)  # a poor fit (fallback territory) never stops
-    assert not _repeats_agree([_out(-1e9), _out(-1e9)], job, cfg.replace(fallback_below=-1e9))  # nothing admissible
-
-
-def test_agreeing_restarts_stop_early(reactor: tuple[np.ndarray, np.ndarray]) -> None:
-    u, y = reactor
-    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, lag_search_generations=10, restarts=4,
-                        selection="fr_est")
-    every = identify(u, y, cfg, 6)
-    some = identify(u, y, cfg.replace(agree_tol=1.0), 6)  # any two good runs agree
-    assert every.model.metrics["restarts_skipped"] == [] and len(every.runs) == 4
-    assert some.model.metrics["restarts_skipped"] == [2, 3] and len(some.runs) == 2
-    assert [r.score for r in some.runs] == [r.score for r in every.runs[:2]]  # the same first two runs
-    none = identify(u, y, cfg.replace(agree_tol=1e-15), 6)  # scores never agree that closely
-    assert none.model.to_json() == every.model.to_json().replace('"agree_tol": 0.0', '"agree_tol": 1e-15')
 
 
 def test_more_runs_only_where_the_record_is_half_explained() -> None:

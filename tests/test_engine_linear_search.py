@@ -104,24 +104,3 @@ def test_linear_search_false_searches_rbf_only_and_still_offers_both_kinds() -> 
     assert sum(m.linear is not None for m in cands) == len(cands) // 2 == len(plain.candidate_models(3))
     with pytest.raises(ConfigError, match="linear_search must be true or false; got 'yes'"):
         CoEAConfig(linear_search="yes")  # type: ignore[arg-type]
-
-
-def test_linear_alternation_makes_runs_of_each_kind_and_keeps_the_plain_runs_bitwise() -> None:
-    from streamid.engine import DEFAULT, identify
-
-    u, y = _narx(500, 3)
-    cfg = DEFAULT.replace(generations=6, lag_search_generations=6, max_lag_cap=0, fallback_neurons=(), prune_runs=0,
-                          linear_terms=False, linear_search=True)
-    plain = identify(u, y, cfg, 0)
-    alt = identify(u, y, cfg.replace(linear_terms=True, linear_alternation=True), 0)
-    runs = alt.extra["run_models"]
-    assert len(runs) == 4
-    for i in (0, 1):  # restarts 0 and 1: the RBF-only runs of linear_terms=False, the same to the bit
-        assert runs[i].linear is None
-        np.testing.assert_array_equal(runs[i].weights, plain.extra["run_models"][i].weights)
-    # restarts 2 and 3 searched with the linear part: a different search from the plain runs'
-    assert alt.runs[2].fitness != plain.runs[2].fitness and alt.runs[3].fitness != plain.runs[3].fitness
-    chosen = alt.model.metrics["complexity"]
-    assert chosen["chosen_run"] == alt.chosen and [c["linear"] for c in chosen["candidates"]][:2] == [False, False]
-    with pytest.raises(ConfigError, match="linear_alternation must be true or false; got 1"):
-        CoEAConfig(linear_alternation=1)  # type: ignore[arg-type]

@@ -3,13 +3,11 @@ admissible, the blocked cross-validation score."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from streamid.engine import PAPER, identify
-from streamid.engine.choice import blocked_cv_scores
 from streamid.engine.coevolution import Coevolution
 from streamid.engine.lagspace import memory_lag, with_input_term
 from streamid.engine.regressors import candidate_regressors
@@ -118,39 +116,6 @@ def test_smaller_networks_are_tried_when_no_run_is_admissible(reactor) -> None:
     # An admissible run: no fallback.
     ok = identify(u, y, cfg.replace(max_lag_u=2, max_lag_y=2, max_lag_cap=0), 0).model.metrics
     assert ok["fallback_runs"] == [] and ok["free_run_choice"]["admissible"] > 0
-
-
-def test_blocked_cross_validation_ranks_a_structure_by_data_it_did_not_fit(reactor) -> None:
-    u, y = reactor
-    good = identify(u, y, PAPER.replace(generations=40), 1).model
-    narrow = replace(good, widths=good.widths * 0.02)  # needle-like neurons: fit their own block, not the other
-    cv = blocked_cv_scores([good, narrow], u, y, folds=2)
-    assert cv[0] > 0.9 and cv[0] > cv[1]
-    res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, selection="cv_fr"), 0)
-    ev = res.model.metrics["free_run_choice"]
-    assert ev["cv_folds"] == 2 and ev["cv_score"] == pytest.approx(res.model.metrics["selection_score"])
-
-
-def test_an_ensemble_of_networks_with_the_same_lags_is_one_network(reactor) -> None:  # type: ignore[no-untyped-def]
-    from streamid.engine.selection import _ensemble
-
-    u, y = reactor
-    a = identify(u, y, PAPER.replace(generations=20), 1).model
-    b = replace(a, widths=a.widths * 1.1)  # another network on the same regressors
-    ens, score = _ensemble([a, b], (0.9, 0.8), 0, 3, u, y, 0.25)
-    assert ens is not None and ens.neurons == 2 * a.neurons
-    assert ens.metrics["free_run_choice"]["ensemble"] == 2
-    y0 = y[: a.max_lag]
-    want = (a.predict_osa(u, y) + b.predict_osa(u, y)) / 2  # one step ahead the mean network is the mean
-    np.testing.assert_allclose(ens.predict_osa(u, y)[a.max_lag :], want[a.max_lag :], rtol=1e-9, atol=1e-9)
-    assert np.isfinite(score) and ens.simulate(u, y0).shape == y.shape
-    # a network with a linear part and one without are of different kinds: no mean of the two
-    c = replace(b, linear=np.zeros(len(b.regressors) + 1))
-    assert _ensemble([a, c], (0.9, 0.8), 0, 3, u, y, 0.25) == (None, -np.inf)
-    both, _ = _ensemble([a, c, b], (0.9, 0.85, 0.8), 0, 3, u, y, 0.25)
-    assert both is not None and both.linear is None and both.neurons == 2 * a.neurons  # a and b, not c
-    res = identify(u, y, DEFAULT.replace(generations=10, lag_search_generations=10, restarts=2, ensemble=3), 0)
-    assert res.model.metrics["free_run_choice"].get("ensemble") in (None, 2, 3)
 
 
 def test_a_long_lag_space_is_hedged_by_short_restarts() -> None:

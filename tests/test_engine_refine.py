@@ -4,7 +4,6 @@ jointly, determinism, and ``identify``'s evidence."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from dataclasses import replace

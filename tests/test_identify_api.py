@@ -9,7 +9,7 @@ import pytest
 
 from streamid.logs.datafile import load_dataset, load_table, split_index
 from streamid.engine import CoEAConfig
-from streamid.engine.identification import free_run_r2, identify, refit_weights
+from streamid.engine.identification import free_run_r2, identify
 from streamid.errors import DataError
 
 DATA = Path(__file__).parent / "data"
@@ -44,17 +44,6 @@ def test_selection_rules() -> None:
     # the chosen model's free-run R^2 on the estimation data is its selection score
     score = free_run_r2([fr.model], u[:, None], y)[0]
     assert score == pytest.approx(fr.model.metrics["selection_score"], rel=1e-12)
-    ho = identify(u, y, SMALL.replace(restarts=2, selection="holdout_fr", holdout_fraction=0.25), 0)
-    assert ho.model.metrics["holdout_samples"] == 100
-    # weights were refitted on all 400 estimation samples: refitting again changes nothing
-    again = refit_weights(ho.model, u, y, SMALL.ridge)
-    np.testing.assert_allclose(again.weights, ho.model.weights, rtol=1e-8, atol=1e-10)
-
-
-def test_holdout_too_short() -> None:
-    u, y = narx(100, 2)
-    with pytest.raises(DataError, match="hold-out of 5 samples"):
-        identify(u, y, SMALL.replace(restarts=2, selection="holdout_fr", holdout_fraction=0.05), 0)
 
 
 def test_paper_mode_reports_progress_every_generation() -> None:
@@ -142,3 +131,13 @@ def test_a_validation_file_is_the_validation_data(tmp_path: Path) -> None:
     d.write_text("t_s,x,y\n0,1,2\n0.5,2,3\n")
     with pytest.raises(DataError, match=r"unknown column 'z' in .*d\.csv"):
         load_dataset(a, ["x"], "z", validation=d)
+
+
+def test_retired_fields_are_refused_with_the_reason() -> None:
+    from streamid.engine import DEFAULT, CoEAConfig
+    from streamid.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"\['agree_tol'\] were retired in issue 37 .*remove them"):
+        CoEAConfig.from_dict({**DEFAULT.to_dict(), "agree_tol": 0.01})
+    with pytest.raises(ConfigError, match=r"selection must be one of \['fr_est', 'fitness'\]; got 'holdout_fr'"):
+        CoEAConfig(selection="holdout_fr")

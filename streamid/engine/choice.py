@@ -12,8 +12,7 @@ widened by ``range_margin`` of its span on both sides
 to a wrong equilibrium; such a model is never chosen while an admissible one exists.
 
 Score of an admissible candidate: R^2 of that same free run over the scored part
-of the record (``score_from`` onwards: the held-out tail with
-``selection="holdout_fr"``, everything after the initial lags with ``"fr_est"``).
+of the record (everything after the initial lags, or from ``score_from`` when given).
 One simulation gives both the guard and the score, and a held-out tail is scored
 after the drift accumulated over the whole search part (stricter than a simulation
 restarted just before the tail).
@@ -27,7 +26,7 @@ smallest excursion beyond the widened range (the report says ``admissible: 0``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -35,13 +34,11 @@ from numpy.typing import NDArray
 
 from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.model import Model, free_run
-from streamid.engine.rbf import activations, fit_weights
 from streamid.engine.stability import is_bounded
 from streamid.engine.validation import r2
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["FreeRunScores", "blocked_cv_scores", "free_run_scores", "group_free_run", "path_score"]
-
+__all__ = ["FreeRunScores", "free_run_scores", "group_free_run", "path_score"]
 
 def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[np.float64],
                    threads: int = 1) -> NDArray[np.float64]:
@@ -68,7 +65,6 @@ def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[
         linear_regressors=m0.linear_regressors,
     )
 
-
 def _linear_parts(models: list[Model]) -> NDArray[np.float64] | None:
     """The networks' linear parts stacked (zeros for a network without one); None when none has one."""
     if all(m.linear is None for m in models):
@@ -76,7 +72,6 @@ def _linear_parts(models: list[Model]) -> NDArray[np.float64] | None:
     regs = models[0].regressors if models[0].linear_regressors is None else models[0].linear_regressors
     k = len(regs) + 1
     return np.stack([np.zeros(k) if m.linear is None else m.linear for m in models])
-
 
 @dataclass(frozen=True)
 class FreeRunScores:
@@ -111,7 +106,6 @@ class FreeRunScores:
             "excursion_spans": finite(self.excursions[k]),
             "range_margin": self.range_margin,
         }
-
 
 def free_run_scores(
     models: list[Model],
@@ -161,7 +155,6 @@ def free_run_scores(
                 scores[i], exc[i] = path_score(ys[k], y, L, first, lo, hi, range_margin)
     return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin), tuple(paths))
 
-
 def path_score(path: NDArray[np.float64], y: NDArray[np.float64], L: int, first: int, lo: float, hi: float,
                range_margin: float) -> tuple[float, float]:
     """The range guard and score of one finite free run ``path`` (output units) of ``y``: (R^2 over
@@ -171,90 +164,3 @@ def path_score(path: NDArray[np.float64], y: NDArray[np.float64], L: int, first:
     beyond = max(float(run.max()) - hi, lo - float(run.min()), 0.0) / span
     e = max(beyond - range_margin, 0.0)
     return (r2(y[first:], path[first:]) if e == 0.0 else -np.inf), e
-
-
-def blocked_cv_scores(
-    models: list[Model],
-    u: NDArray[np.float64],
-    y: NDArray[np.float64],
-    *,
-    folds: int = 2,
-    ridge: float = 1e-10,
-    weight_decay: float = 0.0,
-) -> list[float]:
-    """Blocked cross-validated free-run R^2 of each model's structure (lags, centres, widths).
-
-    The record is cut into ``folds`` consecutive blocks; for each block the output
-    weights are refitted on the other blocks (joined end to end; the rows that would
-    straddle a join are dropped) and the block is simulated in free run from its own
-    first ``max_lag`` measured outputs. The score is the mean R^2 over the blocks
-    (-inf when a refit or a free run is not finite): how well the structure predicts
-    data its weights have not seen. It ranks complexity: a network with too many
-    neurons fits its own estimation record and loses on the held-out block.
-    """
-    n = len(y)
-    edges = [round(k * n / folds) for k in range(folds + 1)]
-    total = [0.0] * len(models)
-    for b in range(folds):
-        a, z = edges[b], edges[b + 1]
-        refits: list[Model] = []
-        keep: list[int] = []
-        for i, m in enumerate(models):
-            if not np.isfinite(total[i]):
-                continue
-            parts = [(edges[k], edges[k + 1]) for k in range(folds) if k != b]
-            # One least squares over the rows of every training block.
-            rs, ts = [], []
-            ok = True
-            for lo, hi in parts:
-                f = _refit_rows(m, u[lo:hi], y[lo:hi])
-                if f is None:
-                    ok = False
-                    break
-                rs.append(f[0])
-                ts.append(f[1])
-            w = fit_weights(np.vstack(rs), np.concatenate(ts), ridge, weight_decay) if ok else None
-            if w is None or not np.all(np.isfinite(w)) or z - a <= m.max_lag + 1:
-                total[i] = -np.inf
-                continue
-            assert w is not None
-            M = m.neurons
-            refits.append(replace(m, weights=w[:M], linear=None if m.linear is None else w[M:]))
-            keep.append(i)
-        if not refits:
-            continue
-        fr = _fr_r2(refits, u[a:z], y[a:z])
-        for i, v in zip(keep, fr):
-            total[i] = total[i] + v / folds if np.isfinite(v) else -np.inf
-    return total
-
-
-def _refit_rows(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-    """Activations and normalised targets of ``model`` on ``(u, y)`` (rows ``t >= max_lag``)."""
-    if len(y) - model.max_lag < 2:
-        return None
-    r, target = model.regressor_rows(u, y)
-    phi = activations(r, model.centres, model.widths)
-    if model.linear is not None:  # the linear part is refitted in the same least squares
-        rl = r if model.linear_regressors is None else model.linear_rows(u, y)
-        phi = np.hstack([phi, rl, np.ones((phi.shape[0], 1))])
-    return phi, target
-
-
-def _fr_r2(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64]) -> list[float]:
-    """Free-run R^2 of each model over ``(u, y)`` from its first ``max_lag`` outputs (-inf: not finite)."""
-    out = [-np.inf] * len(models)
-    groups: dict[tuple[Any, ...], list[int]] = {}
-    for i, m in enumerate(models):
-        groups.setdefault((m.regressors, m.normalisation, m.neurons, m.linear_regressors), []).append(i)
-    for (regs, norm, _, lregs), idx in groups.items():
-        L = models[idx[0]].max_lag
-        with np.errstate(over="ignore", invalid="ignore"):
-            sim = norm.y_inverse(free_run(
-                regs, np.stack([models[i].centres for i in idx]), np.stack([models[i].widths for i in idx]),
-                np.stack([models[i].weights for i in idx]), norm.u(u), np.broadcast_to(norm.y(y[:L]), (len(idx), L)),
-                _linear_parts([models[i] for i in idx]), linear_regressors=lregs))
-        for k, i in enumerate(idx):
-            if np.all(np.isfinite(sim[k, L:])):
-                out[i] = r2(y[L:], sim[k, L:])
-    return out

@@ -13,11 +13,6 @@ Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
 
   - ``"fr_est"``: highest free-run R^2 on the estimation data, simulated from its first samples (the OSA-trained
     candidates differ most in how their free runs hold up; this choice removes the runs whose simulation drifts);
-  - ``"holdout_fr"``: the runs search on the first ``1 - holdout_fraction`` of the estimation data; highest
-    free-run R^2 over the held-out tail; the chosen structure's weights are then refitted on all of it;
-  - ``"cv_fr"``: as ``"fr_est"`` for the range guard; among admissible candidates the highest blocked
-    cross-validated free-run R^2 (weights refitted on the other blocks,
-    :func:`~streamid.engine.choice.blocked_cv_scores`);
   - ``"fitness"``: lowest OSA MSE.
 
 Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen from the estimation data
@@ -55,7 +50,7 @@ from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rn
 from streamid.engine.complexity import choose as choose_complexity
 from streamid.engine.ensemble_choice import choose_ensemble
 from streamid.engine.refine import refine_weights
-from streamid.engine.restarts import report_after, runs_until_agreed, wants_more
+from streamid.engine.restarts import report_after, wants_more
 from streamid.engine.fanout import fan_out
 from streamid.engine.feedthrough import direct_terms
 from streamid.engine.lagspace import memory_lag, with_input_term
@@ -149,15 +144,13 @@ def _threads(helper: EvalHelper | None) -> int:
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
-    if job.get("neurons", cfg.neurons) != cfg.neurons:  # this restart's complexity (neuron_alternatives)
+    if job.get("neurons", cfg.neurons) != cfg.neurons:  # this restart's size (hedge_neurons, fallback_neurons)
         cfg = cfg.replace(neurons=int(job["neurons"]))
     if job.get("max_lag", cfg.max_lag) != cfg.max_lag:  # this restart's lag space (max_lag_cap)
         cfg = cfg.replace(max_lag_y=int(job["max_lag"]), max_lag_u=int(job["max_lag"]), max_lag_cap=0)
-    if job.get("linear", cfg.linear_terms) != cfg.linear_terms:  # this restart's kind (linear_alternation)
-        cfg = cfg.replace(linear_terms=bool(job["linear"]))
     norm = Normalisation.from_dict(job["normalisation"])
     warm = CoEAState.from_json(job["warm_start"]) if job.get("warm_start") else None
-    u, y, n_search = job["u"], job["y"], job["n_search"]
+    u, y = job["u"], job["y"]
     tick = job.get("tick")  # in-process runs only (a callable is never sent to a worker): tick(Progress) per generation
     t0 = time.perf_counter()
     rng = np.random.default_rng(job["seed"])
@@ -168,7 +161,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "normalisation": norm,
         "helper": helper,
     }
-    n_rows = n_search - cfg.max_lag
+    n_rows = len(y) - cfg.max_lag
     if cfg.search_rows and n_rows > cfg.search_rows:  # a large record: the search sees a random sample of rows
         common["rows"] = np.sort(rng.choice(n_rows, cfg.search_rows, replace=False))
     evaluations = 0
@@ -178,23 +171,19 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         lag_cfg = cfg.replace(
             neurons=cfg.lag_search_neurons, generations=cfg.lag_search_generations, harmony_stop=1.0
         )
-        lag_common = dict(common)
-        rows = common.get("rows")
-        if rows is not None and 0 < cfg.lag_search_rows < len(rows):  # fewer rows for the smaller network
-            lag_common["rows"] = rows[np.round(np.linspace(0, len(rows) - 1, cfg.lag_search_rows)).astype(np.intp)]
-        lag_run = Coevolution(u[:n_search], y[:n_search], lag_cfg, rng, linear_search=False,  # RBF-only: cheap
-                              **lag_common).solve(_stage(tick, 0, 0))
+        lag_run = Coevolution(u, y, lag_cfg, rng, linear_search=False,  # RBF-only: cheap
+                              **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.lagspace)...
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,
                                          lag_run.R, lag_run.target)
         # ...then DE trains the full network on those lags.
-        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, fixed_mask=mask, **common).solve(
+        run = Coevolution(u, y, cfg, rng, fixed_mask=mask, **common).solve(
             _stage(tick, lag_cfg.generations, evaluations))
     else:
-        run = Coevolution(u[:n_search], y[:n_search], cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
+        run = Coevolution(u, y, cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
     evaluations += run.evaluations
-    model, score, path = select_model_path(run, u, y, cfg.selection, n_search=n_search, threads=_threads(helper))
+    model, score, path = select_model_path(run, u, y, cfg.selection, threads=_threads(helper))
     return {
         "seed": job["seed"],
         # A run made in this process hands back its objects; a worker's go back as JSON.
@@ -276,7 +265,7 @@ def identify(
     floor = cfg.max_lag
     if cfg.max_lag_cap and warm_start is None and (cfg.restarts > 1 or cfg.lag_search_neurons):
         lag, lag_evidence = memory_lag(ua, ya, cfg.max_lag, cfg.max_lag_cap)
-        lag = min(lag, max(cfg.max_lag, (n - 2 * max((cfg.neurons, *cfg.neuron_alternatives))) // 2))
+        lag = min(lag, max(cfg.max_lag, (n - 2 * cfg.neurons) // 2))
         lag_evidence["max_lag"] = lag
         cfg = cfg.replace(max_lag_y=lag, max_lag_u=lag, max_lag_cap=max(lag, cfg.max_lag_cap))
     elif warm_start is not None and cfg.max_lag_cap:  # the lag space (and size) of the state warm-started from
@@ -285,18 +274,10 @@ def identify(
                           max_lag_cap=max(st.max_lag_y, st.max_lag_u, cfg.max_lag_cap))
     # u(t) a candidate? A warm start's state says; else the test on the record (streamid.engine.feedthrough)
     cfg, feed = direct_terms(cfg, ua, ya, warm_start, test=cfg.restarts > 1 or bool(cfg.lag_search_neurons))
-    n_hold = int(round(cfg.holdout_fraction * n)) if cfg.selection == "holdout_fr" else 0
-    n_search = n - n_hold
-    need = cfg.max_lag + 2 * max((cfg.neurons, *cfg.neuron_alternatives))
-    if n_hold and n_hold < max(cfg.max_lag + 10, 20):
+    need = cfg.max_lag + 2 * cfg.neurons
+    if n < need:
         raise DataError(
-            f"the hold-out of {n_hold} samples (holdout_fraction {cfg.holdout_fraction} of {n}) is too short "
-            f"to choose by free-run R^2; it needs >= {max(cfg.max_lag + 10, 20)} samples "
-            "(more data, a larger holdout_fraction, or another selection)"
-        )
-    if n_search < need:
-        raise DataError(
-            f"{n_search} estimation samples are too few (after any hold-out): with max lag {cfg.max_lag} and "
+            f"{n} estimation samples are too few: with max lag {cfg.max_lag} and "
             f"{cfg.neurons} neurons at least max_lag + 2 * neurons = {need} are needed"
         )
     norm = Normalisation.fit(ua, ya)
@@ -322,13 +303,11 @@ def identify(
     seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.restarts)]
     # A long lag space chosen from the data (>= twice the floor) is hedged: the odd restarts use the floor's.
     hedge = cfg.lag_alternation and lag_evidence is not None and cfg.max_lag >= 2 * floor
-    sizes = (cfg.neurons, *cfg.neuron_alternatives)
     base = {
         "config": cfg.to_dict(),
         "normalisation": norm.to_dict(),
         "u": ua,
         "y": ya,
-        "n_search": n_search,
         "input_names": list(names),
         "output_name": output_name,
         "window": win,
@@ -339,9 +318,8 @@ def identify(
 
     def restart(i: int, s: int, n_jobs: int) -> dict[str, Any]:  # restart i's job: the pattern repeats every 4
         job = {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
-               "neurons": (cfg.hedge_neurons or sizes[i % len(sizes)]) if (hedge and i % 4 == 1) else sizes[i % len(sizes)],
-               "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1,
-               "linear": cfg.linear_terms and (not cfg.linear_alternation or i % 4 >= 2)}
+               "neurons": (cfg.hedge_neurons or cfg.neurons) if (hedge and i % 4 == 1) else cfg.neurons,
+               "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1}
         if callback is not None and executor is None and min(cfg.workers, n_jobs) <= 1:
             job["tick"] = lambda p: callback(Progress(  # runs made here report every generation, as one run does
                 i * per_run + p.generation, total_gen, min([p.best_fitness] + [o["fitness"] for o in done]),
@@ -362,11 +340,7 @@ def identify(
                 )
             )
 
-    if cfg.agree_tol > 0:  # fewer restarts when they agree (restarts.repeats_agree)
-        outs, skipped = runs_until_agreed(jobs, cfg, executor, helper, report, _one_run)
-    else:
-        outs, skipped = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report), []
-    jobs = [j for i, j in enumerate(jobs) if i not in skipped]
+    outs = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report)
     more_made = 0  # more runs where the record is half explained (restarts.wants_more)
     if wants_more(outs, cfg):
         more_seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.more_restarts)]
@@ -385,14 +359,12 @@ def identify(
             break
         made = list(outs)
         job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor,
-               "in_process": True, "linear": cfg.linear_terms and not cfg.linear_alternation}
+               "in_process": True}
         jobs.append(job)
         fallback_made.append(m)
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
                               on_result=partial(report_after, report, made))
 
-    if skipped and callback is not None:  # the progress reaches its end though some restarts were not made
-        callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs)))
     models = [o["model"] if isinstance(o["model"], Model) else Model.from_json(o["model"]) for o in outs]
     scores, paths = [float(o["score"]) for o in outs], [o.get("path") for o in outs]  # paths: estimation free runs
     complexity: dict[str, Any] | None = None
@@ -420,8 +392,6 @@ def identify(
                                                            cfg.range_margin, cfg.ridge, offered, chosen)
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
-    if n_hold:
-        final = refit_weights(final, ua, ya, cfg.ridge, cfg.weight_decay)
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
         final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, cfg.refine_above, cfg.range_margin,
                                         threads=_threads(helper))
@@ -429,7 +399,6 @@ def identify(
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
-        restarts_skipped=skipped,
         more_restarts=more_made,
         run_neurons=[int(o.get("neurons", cfg.neurons)) for o in outs],
         fallback_runs=fallback_made,
@@ -438,7 +407,6 @@ def identify(
         run_lag_rules=[str(o.get("lag_rule", "search")) for o in outs],
         selection=cfg.selection,
         selection_score=score,
-        holdout_samples=n_hold,
         evaluations=int(sum(o["evaluations"] for o in outs)),
         max_lag_choice=lag_evidence,
         **({"feedthrough": feed} if feed is not None else {}),

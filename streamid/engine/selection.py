@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
-from streamid.engine.choice import FreeRunScores, blocked_cv_scores, free_run_scores, group_free_run
+from streamid.engine.choice import FreeRunScores, free_run_scores, group_free_run
 from streamid.engine.complexity import criterion, padded, parameter_count, pruned
 from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.model import Model
@@ -107,14 +107,13 @@ def select_model(
     y: NDArray[np.float64],
     selection: str,
     *,
-    n_search: int | None = None,
     range_margin: float | None = None,
 ) -> tuple[Model, float]:
     """The model of a finished run by the selection rule, and its score (higher is better).
 
     See :func:`select_model_path` (the same choice, with the chosen model's estimation free run).
     """
-    model, score, _ = select_model_path(run, u, y, selection, n_search=n_search, range_margin=range_margin)
+    model, score, _ = select_model_path(run, u, y, selection, range_margin=range_margin)
     return model, score
 
 
@@ -124,12 +123,11 @@ def select_model_path(
     y: NDArray[np.float64],
     selection: str,
     *,
-    n_search: int | None = None,
     range_margin: float | None = None,
     threads: int = 1,
 ) -> tuple[Model, float, NDArray[np.float64] | None]:
     """The model of a finished run by the selection rule, its score (higher is better) and, with
-    ``"fr_est"`` or ``"cv_fr"``, its free run over the estimation record in output units when the choice made
+    ``"fr_est"``, its free run over the estimation record in output units when the choice made
     one (None otherwise: the final choice's ensembles then simulate it again).
 
     The one final-model choice of streamid: :func:`identify` and the online
@@ -138,65 +136,36 @@ def select_model_path(
     * ``"fitness"``: the run's best pair (lowest one-step-ahead error, the paper's
       choice); score = -fitness.
     * ``"fr_est"``: of the best pair and the final population, the highest
-      free-run R^2 on ``u[:n_search], y[:n_search]`` among the candidates whose
-      free run stays in the data's range (:mod:`streamid.engine.choice`).
-    * ``"holdout_fr"``: the same, the free run simulated over all the data from
-      its start and scored over the held-out tail ``[n_search:]``.
-    * ``"cv_fr"``: the range guard of ``"fr_est"``, then the highest blocked
-      cross-validated free-run R^2 (:func:`~streamid.engine.choice.blocked_cv_scores`).
+      free-run R^2 on ``u, y`` among the admissible candidates: their free run stays in the data's range and
+      they are bounded by construction (:mod:`streamid.engine.choice`, :mod:`streamid.engine.stability`).
 
     With ``config.linear_terms`` and ``"fr_est"``, every candidate is offered with its linear part and
     without it (the same centres and widths, weights refitted); the run's model is the admissible one of
     the lowest ``config.complexity`` criterion (:func:`_by_criterion`).
 
-    With ``config.ensemble = K > 1`` and ``"fr_est"``, the mean of the run's K best
-    admissible candidates (one network of K x M neurons) competes too, by the same score.
-
-    ``n_search`` defaults to all the data; ``range_margin`` to the run's
-    ``config.range_margin``. ``threads`` > 1: the candidates are fitted and simulated in that many
-    threads (for a caller with a core to spare; the same result). A run with no candidate in range scores below
-    -1e9 (any run with one wins over it); its model says ``admissible: 0``.
+    ``range_margin`` defaults to the run's ``config.range_margin``. ``threads`` > 1: the candidates are fitted
+    and simulated in that many threads (for a caller with a core to spare; the same result). A run with no
+    candidate in range scores below -1e9 (any run with one wins over it); its model says ``admissible: 0``.
     """
     if selection == "fitness":
         best = run.best_model()
         return best, -float(best.metrics["fitness"]), None
-    if selection not in ("fr_est", "holdout_fr", "cv_fr"):
-        raise ConfigError(f"selection must be one of 'fitness', 'fr_est', 'holdout_fr', 'cv_fr'; got {selection!r}")
-    n = len(y) if n_search is None else int(n_search)
+    if selection != "fr_est":
+        raise ConfigError(f"selection must be one of 'fitness', 'fr_est'; got {selection!r}")
+    n = len(y)
     margin = run.config.range_margin if range_margin is None else float(range_margin)
-    if selection == "fr_est" and run.config.screen_rows and run.search_rows < len(run.target):
-        screened = _screened(run, u[:n], y[:n], margin)
+    if run.config.screen_rows and run.search_rows < len(run.target):
+        screened = _screened(run, u, y, margin)
         if screened is not None:
             return screened
-    both = run.config.linear_terms and selection == "fr_est"  # both kinds compete (_by_criterion)
+    both = run.config.linear_terms  # both kinds compete (_by_criterion)
     cands = run.candidate_models(run.config.fr_candidates or None, both=both, threads=threads)  # the best pair first
     with one_blas_thread():
-        if selection in ("fr_est", "cv_fr"):
-            fr = free_run_scores(cands, u[:n], y[:n], range_margin=margin, threads=threads)
-        else:
-            fr = free_run_scores(cands, u, y, score_from=n, range_margin=margin, threads=threads)
-        cv: list[float] | None = None
-        if selection == "cv_fr" and fr.admissible:
-            ok = [i for i, e in enumerate(fr.excursions) if e == 0.0]
-            got = blocked_cv_scores([cands[i] for i in ok], u[:n], y[:n], folds=run.config.cv_folds,
-                                    ridge=run.config.ridge, weight_decay=run.config.weight_decay)
-            cv = [-np.inf] * len(cands)
-            for i, v in zip(ok, got):
-                cv[i] = v
-    if cv is not None:
-        k = int(np.argmax(cv))
-        ev = {**fr.evidence(k), "cv_score": float(cv[k]) if np.isfinite(cv[k]) else None, "cv_folds": run.config.cv_folds}
-        score = float(cv[k]) if np.isfinite(cv[k]) else -1e8  # admissible, but no finite CV score: below any finite
-        return cands[k].with_metrics(free_run_choice=ev), score, fr.paths[k]
+        fr = free_run_scores(cands, u, y, range_margin=margin, threads=threads)
     k = _by_criterion(run.config.complexity, cands, fr, n) if both and fr.admissible else fr.best()
     score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
     chosen = cands[k].with_metrics(free_run_choice=fr.evidence(k))
-    size = run.config.ensemble
-    if size > 1 and fr.admissible >= 2 and selection == "fr_est":
-        ens, ens_score = _ensemble(cands, fr.scores, k, size, u[:n], y[:n], margin)
-        if ens is not None and ens_score >= score:
-            return ens, float(ens_score), None
-    return chosen, float(score), fr.paths[k] if selection == "fr_est" and fr.admissible else None
+    return chosen, float(score), fr.paths[k] if fr.admissible else None
 
 
 def _by_criterion(rule: str, cands: list[Model], fr: FreeRunScores, n: int) -> int:
@@ -248,36 +217,3 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
         return None
     ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible, "screened_on_rows": run.search_rows}
     return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
-
-
-def _ensemble(
-    cands: list[Model], scores: tuple[float, ...], k: int, size: int,
-    u: NDArray[np.float64], y: NDArray[np.float64], margin: float,
-) -> tuple[Model | None, float]:
-    """The mean of the ``size`` best admissible candidates sharing candidate ``k``'s regressors, as one network.
-
-    Networks with the same regressors and normalisation, of one kind (all with a linear part or all
-    without), average into one RBF network: their neurons side by side, each weight (and the linear
-    parts' coefficients) divided by the number of members. It is
-    scored like any candidate (free run over the estimation record, range guard).
-    """
-    base = cands[k]
-    same = [i for i in np.argsort(scores)[::-1] if np.isfinite(scores[i])
-            and cands[i].regressors == base.regressors and cands[i].normalisation == base.normalisation
-            and (cands[i].linear is None) == (base.linear is None)][:size]  # of one kind: with a linear part or not
-    if len(same) < 2:
-        return None, -np.inf
-    ens = replace(
-        base,
-        centres=np.concatenate([cands[i].centres for i in same]),
-        widths=np.concatenate([cands[i].widths for i in same]),
-        weights=np.concatenate([cands[i].weights for i in same]) / len(same),
-        linear=None if base.linear is None else np.mean([cands[i].linear for i in same], axis=0),
-    )
-    fr = free_run_scores([ens], u, y, range_margin=margin)
-    if not fr.admissible:
-        return None, -np.inf
-    osa = ens.predict_osa(u, y)
-    L = ens.max_lag
-    mse = float(np.mean((osa[L:] - y[L:]) ** 2))
-    return ens.with_metrics(fitness=mse, free_run_choice={**fr.evidence(0), "ensemble": len(same)}), fr.scores[0]

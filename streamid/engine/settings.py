@@ -19,7 +19,12 @@ from streamid.errors import ConfigError
 __all__ = ["CoEAConfig", "PAPER", "DEFAULT", "SELECTIONS"]
 
 #: Ways :func:`~streamid.engine.identification.identify` chooses among restarts.
-SELECTIONS = ("fr_est", "holdout_fr", "cv_fr", "fitness")
+SELECTIONS = ("fr_est", "fitness")
+
+
+#: Fields of earlier versions, measured and removed (issue 37): a document naming one is refused with this reason.
+RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
+                  "lag_search_rows", "ensemble")
 
 
 def _int(name: str, value: object, low: int, high: int | None = None) -> int:
@@ -58,20 +63,20 @@ def _bounds(name: str, value: object, positive: bool) -> tuple[float, float]:
 _INT_RANGES: dict[str, tuple[int, int | None]] = {
     "neurons": (1, 1000), "max_lag_y": (0, 1000), "max_lag_u": (0, 1000), "generations": (0, None),
     "population": (4, 10000), "lag_search_neurons": (0, 1000), "lag_search_generations": (0, None),
-    "restarts": (1, 10000), "workers": (1, 1024), "search_rows": (0, None), "lag_search_rows": (0, None),
-    "fr_candidates": (0, 10000), "cv_folds": (2, 20), "ensemble": (0, 20), "hedge_neurons": (0, 1000),
+    "restarts": (1, 10000), "workers": (1, 1024), "search_rows": (0, None),
+    "fr_candidates": (0, 10000), "hedge_neurons": (0, 1000),
     "prune_runs": (0, 10000), "more_restarts": (0, 100), "min_lag_u": (0, 1), "refine_iterations": (0, 1000),
     "long_linear": (0, 1000), "max_lag_cap": (0, 1000),
 }
 #: Number fields: (low, high, whether low itself is refused).
 _FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
     "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop")},
-    "ridge": (0.0, 1.0, False), "weight_decay": (0.0, 1.0, False), "holdout_fraction": (0.0, 0.9, True),
-    "range_margin": (0.0, 100.0, False), "agree_tol": (0.0, 1e6, False), "fallback_below": (-1e9, 1.0, False),
+    "ridge": (0.0, 1.0, False), "weight_decay": (0.0, 1.0, False),
+    "range_margin": (0.0, 100.0, False), "fallback_below": (-1e9, 1.0, False),
     "more_below": (0.0, 1.0, True), "refine_above": (-1e9, 1.0, False),
 }
 #: Fields that must be true or false.
-_BOOL_FIELDS = ("feedthrough_test", "linear_terms", "linear_alternation", "linear_search", "run_ensembles",
+_BOOL_FIELDS = ("feedthrough_test", "linear_terms", "linear_search", "run_ensembles",
                 "screen_rows", "lag_alternation", "require_input")
 
 
@@ -129,47 +134,25 @@ class CoEAConfig:
         Generations of the first stage of a two-stage run.
     restarts : int
         Independent coevolution runs made by :func:`~streamid.engine.identification.identify`;
-        the final model is chosen among them (see ``holdout_fraction``).
+        the final model is chosen among them (see ``selection``).
     workers : int
         Processes used by :func:`~streamid.engine.identification.identify` for the restarts
         (1 = in the calling process).
     selection : str
         With ``restarts > 1``, how the final run is chosen: ``"fr_est"`` the
         highest free-run R^2 on the estimation data (all runs search on all of
-        it), ``"holdout_fr"`` the highest free-run R^2 on a held-out tail of the
-        estimation data (runs search on the rest; the chosen structure's weights
-        are then refitted on all of it), ``"fitness"`` the lowest OSA MSE.
-        Validation data are never used.
-    holdout_fraction : float
-        Fraction of the estimation samples held out with ``selection="holdout_fr"``.
+        it), ``"fitness"`` the lowest OSA MSE. Validation data are never used.
+        (A held-out tail, ``"holdout_fr"``, and blocked cross-validation, ``"cv_fr"``,
+        were measured and retired in issue 37: docs/engine-results.md, "Issue 37, round 2".)
     search_rows : int
         0: the search's fitness (OSA MSE) uses every row of the estimation data.
         > 0: each run draws this many rows at random (its own generator) and
         searches on them alone; every candidate model is then fitted and scored
         on all the rows. Large records cost the search no more than this many rows.
-    lag_search_rows : int
-        0: the lag search (first stage of a two-stage run) sees the search's rows. K > 0,
-        with ``search_rows`` in effect (a large record): it sees K of them, evenly spaced
-        among the sorted sample (no random draw: the second stage's stream is unchanged).
-        The lag search's network is smaller (``lag_search_neurons``), so fewer rows give
-        it as many rows per neuron as the second stage has.
     fr_candidates : int
         With a free-run selection: the candidates of a run are its best pair and
         this many members of its final population, those of lowest fitness
         (0 = every member).
-    neuron_alternatives : tuple of int
-        Complexity chosen by the data: restart ``i`` trains
-        ``(neurons, *neuron_alternatives)[i % (1 + len)]`` neurons, and the
-        selection rule chooses among all of them (the chosen M and every run's
-        score are in the model's metrics). Empty: every run has ``neurons``.
-    agree_tol : float
-        0: every one of ``restarts`` runs is made. > 0: fewer restarts when they agree.
-        A restart is a repeat (another seed) of its configuration (neurons, lag space);
-        it is not made when the runs already made with that configuration include two
-        whose selection scores are their best two, both above ``fallback_below`` (good,
-        admissible fits) and within ``agree_tol`` of each other. Runs of another
-        configuration (the hedge's short lag space, other sizes) are always made.
-        Evidence: ``metrics.restarts_skipped`` (the restarts not made).
     min_lag_u : int
         Each input's first candidate lag: 1 (the paper: ``u(t-1) .. u(t-max_lag_u)``) or 0 (the
         input's direct term ``u(t)`` is a candidate too: an output that responds within the sample,
@@ -191,7 +174,7 @@ class CoEAConfig:
         The upper end of that band (0.95: between the heat exchanger's and the F-16's best runs,
         0.90-0.92 and 0.12-0.73, which gained, and Bouc-Wen's and the MR damper's, 0.975-0.987).
     range_margin : float
-        With ``selection="fr_est"`` or ``"holdout_fr"``: a candidate whose free run
+        With ``selection="fr_est"``: a candidate whose free run
         over the whole estimation record leaves the measured output's range widened
         by this fraction of its span on both sides is never chosen while another
         stays inside (see :mod:`streamid.engine.choice`).
@@ -223,10 +206,6 @@ class CoEAConfig:
         candidates are fitted on the search's rows only for the free-run choice, and
         the chosen one is refitted on all rows and scored again (the full way if that
         refit is not admissible). False: every candidate is fitted on all rows.
-    ensemble : int
-        0 or 1: none. K > 1 with ``selection="fr_est"``: in each run the mean of its K
-        best admissible candidates (same lags: one RBF network of K x neurons, each
-        weight divided by K) competes with them by the same free-run score.
     linear_terms : bool
         False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate model
         gets a direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same
@@ -240,11 +219,6 @@ class CoEAConfig:
         the lag search stays RBF-only) fits the linear part with the weights, so that DE
         places the neurons on what the linear part cannot explain; False, the search is the
         RBF-only one and the linear part only enters when candidates are fitted.
-    linear_alternation : bool
-        With ``linear_terms``: False, every run has the linear part; True, runs of each kind:
-        restarts 2 and 3 of every 4 have it (with ``linear_search`` as set), restarts 0 and 1
-        and the fallback runs are the RBF-only runs of ``linear_terms=False``, and the final
-        choice (``complexity``) decides between the kinds.
     complexity : str
         With ``selection="fr_est"`` and several runs: how the final model's size is
         chosen among the runs' candidates (:mod:`streamid.engine.complexity`):
@@ -279,8 +253,6 @@ class CoEAConfig:
         three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.longlinear`;
         :func:`~streamid.engine.identification.identify`'s final choice; an online update's model gets a single
         network's part, of an order above its lag search's only: :func:`streamid.online.update.long_linear_part`).
-    cv_folds : int
-        Blocks of the blocked cross-validation of ``selection="cv_fr"``.
     require_input : bool
         False (the paper): any lag set may be searched. True: a lag set without an
         input term is infeasible (fitness +inf): on an oscillating output an
@@ -310,24 +282,17 @@ class CoEAConfig:
     restarts: int = 1
     workers: int = 1
     selection: str = "fitness"
-    holdout_fraction: float = 0.25
     search_rows: int = 0
-    lag_search_rows: int = 0
     range_margin: float = 0.25
     fr_candidates: int = 0
-    agree_tol: float = 0.0
-    neuron_alternatives: tuple[int, ...] = ()
     require_input: bool = False
-    cv_folds: int = 2
     max_lag_cap: int = 0
     fallback_neurons: tuple[int, ...] = ()
     lag_alternation: bool = False
-    ensemble: int = 0
     hedge_neurons: int = 0
     screen_rows: bool = False
     linear_terms: bool = False
     linear_search: bool = True
-    linear_alternation: bool = False
     complexity: str = "score"
     prune_runs: int = 0
     fallback_below: float = -1e9
@@ -360,15 +325,6 @@ class CoEAConfig:
             raise ConfigError(
                 f"CoEAConfig.search_rows must be 0 (all rows) or >= 2 * neurons = {2 * self.neurons}; got {self.search_rows}"
             )
-        if 0 < self.lag_search_rows < 2 * self.lag_search_neurons:
-            raise ConfigError(f"CoEAConfig.lag_search_rows must be 0 (the search's rows) or >= 2 * lag_search_neurons = "
-                              f"{2 * self.lag_search_neurons}; got {self.lag_search_rows}")
-        alts = self.neuron_alternatives
-        if not (isinstance(alts, (tuple, list)) and all(isinstance(m, int) and not isinstance(m, bool) and 1 <= m <= 1000 for m in alts)):
-            raise ConfigError(
-                f"CoEAConfig.neuron_alternatives must be a tuple of integers in [1, 1000]; got {alts!r}"
-            )
-        object.__setattr__(self, "neuron_alternatives", tuple(alts))
         fb = self.fallback_neurons
         if not (isinstance(fb, (tuple, list)) and len(fb) <= 10
                 and all(isinstance(m, int) and not isinstance(m, bool) and 1 <= m <= 1000 for m in fb)):
@@ -405,7 +361,6 @@ class CoEAConfig:
         d = asdict(self)
         d["centre_bounds"] = list(self.centre_bounds)
         d["width_bounds"] = list(self.width_bounds)
-        d["neuron_alternatives"] = list(self.neuron_alternatives)
         d["fallback_neurons"] = list(self.fallback_neurons)
         return d
 
@@ -415,11 +370,15 @@ class CoEAConfig:
         if not isinstance(data, dict):
             raise ConfigError(f"a CoEAConfig document must be a JSON object; got {type(data).__name__}")
         known = {f.name for f in fields(cls)}
+        retired = sorted(set(data) & set(RETIRED_FIELDS))
+        if retired:
+            raise ConfigError(f"CoEAConfig field(s) {retired} were retired in issue 37 (measured not to earn their place: "
+                              f"docs/engine-results.md, 'Issue 37, round 2'); remove them. Accepted: {sorted(known)}")
         unknown = sorted(set(data) - known)
         if unknown:
             raise ConfigError(f"unknown CoEAConfig field(s) {unknown}; accepted: {sorted(known)}")
         kw = dict(data)
-        for key in ("centre_bounds", "width_bounds", "neuron_alternatives", "fallback_neurons"):
+        for key in ("centre_bounds", "width_bounds", "fallback_neurons"):
             if key in kw and isinstance(kw[key], list):
                 kw[key] = tuple(kw[key])
         return cls(**kw)
@@ -481,7 +440,7 @@ class CoEAConfig:
         beam's free runs diverged); the long linear part where the networks explain the record in part (rounds
         12-13: the F-16, medians 0.77 / 0.42 / 0.43 -> 0.94 / 0.91 / 0.90) and the means of its best candidates
         (round 14: the F-16's accel3 worst seed 0.876 -> 0.885, median 0.898 -> 0.897), every mean's ``p`` its members'
-        mean (round 14: the heat exchanger's worst seed 0.942 -> 0.951). Measured and not defaults: ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
+        mean (round 14: the heat exchanger's worst seed 0.942 -> 0.951). Measured and not defaults (and retired in issue 37): ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
         (Bouc-Wen's worst seed 0.982 -> 0.958, +50 % time).
         """
         base = {

@@ -143,7 +143,7 @@ class StreamConfig:
 
     def __post_init__(self) -> None:
         self.window_params()  # geometry and names checked once, here
-        sel = self.coea_config(cold=True).selection
+        sel = dict(self.engine).get("selection", ONLINE_SELECTION)  # named as the configuration names it
         if sel not in ONLINE_SELECTIONS:
             raise ConfigError(
                 f"engine.selection must be one of {list(ONLINE_SELECTIONS)} online (one run per update: "
