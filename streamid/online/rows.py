@@ -25,7 +25,7 @@ The bound (:func:`search_row_bound`)
       project's 2-core machine, so a warm update's 30 generations take ~0.1 s
       and a cold one's 400 about 1.3 s);
     * the bundled logs' windows under the defaults stay whole (MR damper and
-      piezo_p885 at 200 Hz: 1,990 rows; the F-16 at 400 Hz: 3,990): their
+      piezo_p885 at 200 Hz: 1,390 rows; the F-16 at 400 Hz: 2,790): their
       updates are exactly what they were.
 
     ``[streams.<s>.engine] search_rows = N`` sets the bound (0: every row, the
