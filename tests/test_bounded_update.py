@@ -108,6 +108,12 @@ def test_a_long_window_is_searched_on_the_bound_and_refitted_on_every_row() -> N
     assert warm.model.metrics["search_rows"]["rows"] == 4096
     short = identify_window(_piezo_window(3000), StreamConfig(window_samples=3000, cold_generations=4), version=1)
     assert short.model is not None and "search_rows" not in short.model.metrics  # under the bound: every row
+    every = identify_window(w, StreamConfig(window_samples=20_000, cold_generations=4,
+                                            engine=(("long_linear", 0), ("search_rows", 0))), version=1)
+    assert every.model is not None and "search_rows" not in every.model.metrics  # search_rows = 0: every row
+    fewer = identify_window(w, StreamConfig(window_samples=20_000, cold_generations=4,
+                                            engine=(("long_linear", 0), ("search_rows", 500))), version=1)
+    assert fewer.model is not None and fewer.model.metrics["search_rows"]["rows"] == 500
 
 
 @pytest.mark.parametrize("n", [3000, 60_000])
