@@ -149,3 +149,22 @@ def test_print_config_is_every_effective_setting_as_toml_read_back_the_same(tmp_
     out = subprocess.run([sys.executable, "-m", "streamid", "daemon", "--config", str(src), "--print-config"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout == text, out.stderr
+
+
+def test_the_refresh_policy_is_a_table_per_stream_and_round_trips() -> None:
+    import tomllib
+
+    from streamid.daemon.config import config_from_mapping, to_toml
+    from streamid.online import RefreshPolicy
+
+    cfg = config_from_mapping({"defaults": {"refresh": {"enabled": False}},
+                               "streams": {"a": {"refresh": {"enabled": True, "min_every": 2}}}})
+    assert cfg.for_stream("b").refresh == RefreshPolicy(enabled=False)
+    assert cfg.for_stream("a").refresh == RefreshPolicy(enabled=True, min_every=2)  # over the defaults' table
+    back = config_from_mapping(tomllib.loads(to_toml(cfg)))
+    assert back.for_stream("a").refresh == cfg.for_stream("a").refresh and to_toml(back) == to_toml(cfg)
+    for table, text in (({"enabeld": False}, r"unknown key 'defaults.refresh.enabeld'.*enabled, max_every"),
+                        ({"enabled": "no"}, r"\[defaults.refresh\]: RefreshPolicy.enabled must be true or false; got 'no'"),
+                        ({"min_every": 8, "max_every": 4}, r"max_every must be >= min_every \(8\); got 4")):
+        with pytest.raises(ConfigError, match=text):
+            config_from_mapping({"defaults": {"refresh": table}}, "x.toml")

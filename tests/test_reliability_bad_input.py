@@ -32,6 +32,7 @@ from conftest import STREAMID, endpoint
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
+from streamid.online import RefreshPolicy
 from streamid.transport.updates import ModelUpdate
 from streamid.daemon.service import Daemon
 from streamid.sim import get_device
@@ -45,8 +46,10 @@ T_BASE = 10**12  # stream clock origin (ns)
 # A 5-neuron model with 10 warm generations sometimes free-runs off the 0.3 s validation part (R² FR < -1:
 # rejected, the stream degraded until the next update).  Here the stream's health must reflect the injected
 # faults only, so the free-run threshold is off; the one-step-ahead one (0.5) stays.
+# Every update is a coevolution run (RefreshPolicy(enabled=False)): recovery is judged by a model identified on
+# data after the fault; with refreshes (the default) the champion may rightly keep serving and nothing new be published.
 BASE = StreamConfig(window_s=1.0, update_every_s=0.5, cold_generations=30, warm_generations=10, neurons=5,
-                    max_lag_y=3, max_lag_u=3, min_r2_fr=-1e9)
+                    max_lag_y=3, max_lag_u=3, min_r2_fr=-1e9, refresh=RefreshPolicy(enabled=False))
 CONFIG = DaemonConfig(
     defaults=BASE,
     overrides=(("short", StreamConfig(**{**BASE.to_dict(), "window_s": None, "update_every_s": None,

@@ -22,6 +22,7 @@ The recorder killed mid-write is ``test_record_replay.py::test_cli_recorder_kill
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import logging
@@ -38,6 +39,7 @@ import numpy as np
 import pytest
 from conftest import STREAMID, endpoint, free_tcp_port, rerun_grpc_server
 
+from streamid.online import RefreshPolicy
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
@@ -324,7 +326,10 @@ def test_failed_and_rejected_updates_degrade_keep_the_model_and_spare_the_others
             raise FloatingPointError("injected overflow")
 
     ep = endpoint()
-    daemon = Daemon(DaemonConfig(defaults=BASE, status_every_s=0.2, workers=2), ZenohSettings(listen=(ep,)),
+    # every update a coevolution run: the faults are injected between its generations (a refresh of the champion's
+    # weights, the default between runs, has none and would publish while the runs fail)
+    no_refresh = dataclasses.replace(BASE, refresh=RefreshPolicy(enabled=False))
+    daemon = Daemon(DaemonConfig(defaults=no_refresh, status_every_s=0.2, workers=2), ZenohSettings(listen=(ep,)),
                     on_generation=fault).start()
     names = ("ok", "raiser", "arith", "noisy")
     srcs = {s: Source(s, 10 + i, 150) for i, s in enumerate(names)}

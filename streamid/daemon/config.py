@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from streamid.engine.settings import CoEAConfig
+from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.stream_config import ENGINE_RESERVED, StreamConfig
 from streamid.errors import ConfigError
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
@@ -205,6 +206,7 @@ _STREAM_KEYS: dict[str, tuple[str, str]] = {
     "drift_detection": ("bool", "true or false"),
     "drift_generations": ("int", "an integer >= 1"),
     "engine": ("table", "a table of CoEAConfig fields"),
+    "refresh": ("table", "a table of RefreshPolicy fields (enabled, min_every, max_every, memory_s, ridge)"),
 }
 _DAEMON_KEYS: dict[str, tuple[str, str]] = {
     "streams": ("names", "a list of stream names"),
@@ -291,6 +293,13 @@ def _stream_config(where: str, table: Any, base: StreamConfig) -> StreamConfig:
         for k, v in eng.items():
             merged[k] = tuple(v) if isinstance(v, list) else v
         kw["engine"] = tuple(sorted(merged.items()))
+    if "refresh" in kw:  # a table of RefreshPolicy fields over the inherited policy's
+        ref = kw["refresh"]
+        _unknown(f"{where}.refresh", ref, [f.name for f in fields(RefreshPolicy)])
+        try:
+            kw["refresh"] = dataclasses.replace(base.refresh, **ref)
+        except ConfigError as exc:
+            raise ConfigError(f"[{where}.refresh]: {exc}") from exc
     # seconds and samples exclude each other: a table giving one clears the inherited other
     for a, b in (("window_s", "window_samples"), ("update_every_s", "update_every_samples")):
         if a in kw and b not in kw:
@@ -379,6 +388,7 @@ def _stream_table(cfg: StreamConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     """Every effective setting of a stream, and its effective engine settings (the ``engine`` table)."""
     plain = cfg.to_dict()
     plain.pop("engine", None)
+    plain.pop("refresh", None)
     if cfg.window_s is None and cfg.window_samples is None:
         plain["window_s"] = cfg.window_params().window_s
     if cfg.update_every_s is None and cfg.update_every_samples is None:
@@ -400,4 +410,5 @@ def to_toml(config: DaemonConfig) -> str:
         plain, engine = _stream_table(cfg)
         lines += ["", f"[{name}]", *(f"{k} = {_toml_value(v)}" for k, v in plain.items())]
         lines += ["", f"[{name}.engine]", *(f"{k} = {_toml_value(v)}" for k, v in engine.items())]
+        lines += ["", f"[{name}.refresh]", *(f"{k} = {_toml_value(v)}" for k, v in cfg.refresh.to_dict().items())]
     return "\n".join(lines) + "\n"

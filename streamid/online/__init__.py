@@ -18,7 +18,7 @@ from streamid._lazy import lazy_exports
 
 if TYPE_CHECKING:
     from streamid.online.identifier import OnlineIdentifier, Persist, Update
-    from streamid.online.refresh import RefreshPolicy
+    from streamid.online.refresh_policy import RefreshPolicy
     from streamid.online.snapshot import StreamState
     from streamid.online.stream_config import StreamConfig
     from streamid.online.update import Outcome, Stopped, UpdateJob
@@ -30,7 +30,7 @@ _EXPORTS = {
     "OnlineIdentifier": "streamid.online.identifier",
     "Outcome": "streamid.online.update",
     "Persist": "streamid.online.identifier",
-    "RefreshPolicy": "streamid.online.refresh",
+    "RefreshPolicy": "streamid.online.refresh_policy",
     "Stopped": "streamid.online.update",
     "StreamConfig": "streamid.online.stream_config",
     "StreamState": "streamid.online.snapshot",

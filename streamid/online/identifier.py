@@ -98,7 +98,7 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         model-update document so a subscriber recognises a restarted or another publisher.
     refresh
         When updates refresh the champion's weights instead of rerunning the coevolution
-        (:mod:`streamid.online.refresh`; default :class:`~streamid.online.refresh.RefreshPolicy`,
+        (:mod:`streamid.online.refresh`; default: the config's ``refresh``, :class:`~streamid.online.refresh_policy.RefreshPolicy`,
         ``RefreshPolicy(enabled=False)``: every update is a coevolution run).
 
     Examples
@@ -136,7 +136,7 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         self._health = Health()  # why each output is degraded
         self._intake_fault = ""  # why the stream cannot be identified as it is sent (set by its adapter's admission)
         self._state_error = ""
-        self._refresh = RefreshPolicy() if refresh is None else refresh
+        self._refresh = self.config.refresh if refresh is None else refresh
         if not isinstance(self._refresh, RefreshPolicy):
             raise ConfigError(f"refresh must be a RefreshPolicy; got {type(refresh).__name__}")
         self._tracks: dict[str, RefreshTrack] = {}

@@ -48,8 +48,9 @@ import scipy.linalg
 
 from streamid.engine import Model
 from streamid.engine.rbf import MIN_NORM, activations
-from streamid.errors import ConfigError
+from streamid.engine.stability import ar_radius, is_bounded
 from streamid.online.head import OutputHead
+from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.stream_config import StreamConfig
 from streamid.online.summary import summarise
 from streamid.online.update import Outcome, StopFlag, Stopped, UpdateJob, champion_figures, signature_of
@@ -68,47 +69,6 @@ MAX_REFRESH_COLUMNS = 64
 _KEPT = ("not_better",)
 #: Codes of a decision that accepted the challenger.
 _WON = ("first", "better", "champion_invalid", "champion_inapplicable", "every")
-
-
-@dataclass(frozen=True)
-class RefreshPolicy:
-    """When updates refresh the champion's weights and when they rerun the coevolution (module docstring).
-
-    Attributes
-    ----------
-    enabled
-        False: every update is a coevolution run (the behaviour before refreshes).
-    min_every, max_every
-        Bounds of the interval, in updates, between two scheduled coevolution runs (``min_every`` 1: every
-        update is one).
-    memory_s
-        Time constant of the forgetting, in seconds of stream time: a sample ``memory_s`` old weighs
-        ``1/e`` of the newest.
-    ridge
-        Tikhonov term added to the unit-scaled normal equations' diagonal.
-    """
-
-    enabled: bool = True
-    min_every: int = 4
-    max_every: int = 32
-    memory_s: float = 30.0
-    ridge: float = 1e-9
-
-    def __post_init__(self) -> None:
-        for name in ("min_every", "max_every"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ConfigError(f"RefreshPolicy.{name} must be an integer >= 1 (updates); got {v!r}")
-        if self.max_every < self.min_every:
-            raise ConfigError(f"RefreshPolicy.max_every must be >= min_every ({self.min_every}); got {self.max_every!r}")
-        if not (isinstance(self.memory_s, (int, float)) and math.isfinite(self.memory_s) and self.memory_s > 0):
-            raise ConfigError(f"RefreshPolicy.memory_s must be a number of seconds > 0; got {self.memory_s!r}")
-        if not (isinstance(self.ridge, (int, float)) and 0 < self.ridge < 1):
-            raise ConfigError(f"RefreshPolicy.ridge must be a number in (0, 1); got {self.ridge!r}")
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (the status shows it)."""
-        return dataclasses.asdict(self)
 
 
 def basis_key(model: Model) -> str:
@@ -282,6 +242,9 @@ def refresh_window(job: RefreshJob) -> Outcome:
                  "refreshed_samples": int(normal.rows), "refreshed_weight": round(normal.weight, 1)},
         window={**champion.window, **{k: v for k, v in meta.items() if k != "coalesced_before"}},
     )
+    if not is_bounded(model):  # the refit moved a root of the linear part's autoregression out (streamid.engine.stability)
+        return Outcome("failed", f"the refreshed linear part's autoregression is unstable (largest root "
+                       f"{ar_radius(model):.4g}); the coevolution reruns", "refresh_failed", signature=sig, **common)
     summary = summarise(model, u_est, y_est, u_val, y_val)
     champ, champ_fr = champion_figures(champion, u_val, y_val)
     return RefreshOutcome(

@@ -14,6 +14,7 @@ from typing import Any
 
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import ConfigError
+from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.window_types import MAX_PENDING_WINDOWS, WindowParams
 
 __all__ = ["StreamConfig", "ONLINE_LONG_LINEAR", "ONLINE_SELECTION", "ONLINE_SELECTIONS", "ENGINE_RESERVED"]
@@ -113,6 +114,10 @@ class StreamConfig:
         response within the sample (:mod:`streamid.engine.feedthrough`; warm runs keep their populations'
         candidates); measured on the bundled MR damper log, x4 at max speed, every window: published models'
         held-out free-run R^2 median 0.9805 (0.9790 without) but worst 0.910 (0.967 without), so not the default.
+    refresh
+        When an update refreshes the champion's weights instead of rerunning the coevolution
+        (:class:`~streamid.online.refresh_policy.RefreshPolicy`, :mod:`streamid.online.refresh`; ``enabled=False``:
+        every update is a coevolution run).
     """
 
     window_s: float | None = None
@@ -140,15 +145,22 @@ class StreamConfig:
     max_pending_windows: int = MAX_PENDING_WINDOWS
     max_pending_bytes: int = 64 * 2**20
     engine: tuple[tuple[str, Any], ...] = ()
+    refresh: RefreshPolicy = RefreshPolicy()
 
     def __post_init__(self) -> None:
         self.window_params()  # geometry and names checked once, here
         sel = dict(self.engine).get("selection", ONLINE_SELECTION)  # named as the configuration names it
-        if sel not in ONLINE_SELECTIONS:
+        if sel in ONLINE_SELECTIONS:
+            self.coea_config(cold=True)  # every engine field checked here, at start (ConfigError naming it)
+        else:
             raise ConfigError(
                 f"engine.selection must be one of {list(ONLINE_SELECTIONS)} online (one run per update: "
                 f"'fitness' = lowest one-step-ahead error, 'fr_est' = best free run on the estimation part); got {sel!r}"
             )
+        if isinstance(self.refresh, dict):  # as to_dict writes it
+            object.__setattr__(self, "refresh", RefreshPolicy(**self.refresh))
+        if not isinstance(self.refresh, RefreshPolicy):
+            raise ConfigError(f"refresh must be a RefreshPolicy; got {type(self.refresh).__name__}")
         if not 0.05 <= self.validation_fraction <= 0.9:
             raise ConfigError(f"validation_fraction must be a number in [0.05, 0.9]; got {self.validation_fraction!r}")
         if self.output is not None and self.outputs is not None and self.output not in self.outputs:
@@ -200,9 +212,10 @@ class StreamConfig:
         out: dict[str, Any] = {}
         for f in fields(self):
             v = getattr(self, f.name)
-            if v is None or f.name == "engine":
+            if v is None or f.name in ("engine", "refresh"):
                 continue
             out[f.name] = list(v) if isinstance(v, tuple) else v
         if self.engine:
             out["engine"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.engine}
+        out["refresh"] = self.refresh.to_dict()
         return out
