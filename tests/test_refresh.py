@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
-from streamid.engine import Model
 from streamid.engine.rbf import activations
 from streamid.errors import ConfigError
 from streamid.online import RefreshPolicy, StreamState
@@ -204,3 +203,31 @@ def test_a_loaded_caller_gets_a_refresh_where_a_scheduled_run_was_due(damper: tu
     assert again is not None and not isinstance(again, RefreshJob)  # not loaded: the run comes
     ident.abandon(again)
     assert ident.status()["refresh"]["deferred"] == 1
+
+
+def test_a_refresh_keeps_the_linear_parts_autoregression_stable() -> None:
+    # tests/test_online_identifier.py's damper: its first champion is bounded (streamid.engine.stability), and the
+    # joint least squares of the next windows split its fit into autoregressions of roots 1.72 and 3.45 (measured
+    # before this rule: both refreshes failed). Now the output terms are the linear part's own solution.
+    from test_online_identifier import CFG as CFG_OI, NAMES as NAMES_OI
+
+    from streamid.engine.stability import is_bounded, radius
+    from streamid.online.refresh import RefreshOutcome, own_autoregression
+
+    t, u, y = get_device("mr_damper").simulate_seconds(8.2, seed=3)
+    ident = OnlineIdentifier(CFG_OI, stream="damper")
+    ident.learn_many(t[:1600], u[:1600], y[:1600], **NAMES_OI)
+    ups = ident.update_all()
+    champ = ups[0].outcome.model
+    assert champ is not None and champ.linear is not None and is_bounded(champ)
+    refreshes = [up.outcome for up in ups if isinstance(up.outcome, RefreshOutcome)]
+    assert len(refreshes) == 3 and all(o.model is not None and is_bounded(o.model) for o in refreshes)
+    first = refreshes[0]
+    assert first.normal is not None and first.model is not None
+    M = first.model.neurons  # the structure of the champion it refreshed (its long linear part, if any)
+    regs = first.model.linear_regressors or first.model.regressors
+    joint = refreshed_weights(first.normal, RefreshPolicy().ridge)
+    assert joint is not None and radius(regs, joint[M:-1]) > 1.0  # the case: the joint solution is unstable
+    z = own_autoregression(first.normal, first.model, RefreshPolicy().ridge)
+    assert z is not None and radius(regs, z[M:-1]) < 1.0
+    np.testing.assert_array_equal(first.model.weights, z[:M])  # what was published is that solution

@@ -48,7 +48,7 @@ import scipy.linalg
 
 from streamid.engine import Model
 from streamid.engine.rbf import MIN_NORM, activations
-from streamid.engine.stability import ar_radius, is_bounded
+from streamid.engine.stability import ar_radius, is_bounded, radius
 from streamid.online.head import OutputHead
 from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.stream_config import StreamConfig
@@ -154,17 +154,22 @@ def refreshed_weights(normal: NormalEquations, ridge: float) -> np.ndarray | Non
     A column whose weighted norm is below the engine's :data:`~streamid.engine.rbf.MIN_NORM` (a neuron where no
     sample is) gets weight 0, as in the search.
     """
-    d = np.diag(normal.a)
-    if d.size == 0 or not np.all(np.isfinite(normal.a)) or not np.all(np.isfinite(normal.b)):
+    return _solve(normal.a, normal.b, ridge)
+
+
+def _solve(a: np.ndarray, b: np.ndarray, ridge: float) -> np.ndarray | None:
+    """``a w = b`` Jacobi-scaled with ``ridge`` on the unit diagonal (see :func:`refreshed_weights`)."""
+    d = np.diag(a)
+    if d.size == 0 or not np.all(np.isfinite(a)) or not np.all(np.isfinite(b)):
         return None
     active = d > MIN_NORM**2
     s = np.where(active, 1.0 / np.sqrt(np.where(active, d, 1.0)), 0.0)
     idx = np.flatnonzero(active)
     if idx.size == 0:
         return None
-    m = normal.a[np.ix_(idx, idx)] * np.outer(s[idx], s[idx])
+    m = a[np.ix_(idx, idx)] * np.outer(s[idx], s[idx])
     m[np.diag_indices_from(m)] += ridge
-    rhs = normal.b[idx] * s[idx]
+    rhs = b[idx] * s[idx]
     try:
         z = scipy.linalg.solve(m, rhs, assume_a="pos", check_finite=False)
     except (np.linalg.LinAlgError, ValueError):
@@ -172,6 +177,29 @@ def refreshed_weights(normal: NormalEquations, ridge: float) -> np.ndarray | Non
     w = np.zeros(d.size)
     w[idx] = z * s[idx]
     return w if np.all(np.isfinite(w)) else None
+
+
+def own_autoregression(normal: NormalEquations, champion: Model, ridge: float) -> np.ndarray | None:
+    """Weights as :func:`refreshed_weights`, with the output terms of the linear part those of the linear part solved
+    alone (its own sub-block of the normal equations), when that autoregression is stable; the network's weights,
+    the input terms and the constant then solved with it fixed. The engine's rule for a long linear part
+    (:mod:`streamid.engine.longlinear`, step 3b), here where the refit's network and linear part split the fit into
+    an unstable autoregression. None: not solvable, or the linear part alone unstable too."""
+    M = champion.neurons
+    regs = champion.linear_regressors if champion.linear_regressors is not None else champion.regressors
+    lin = np.arange(M, M + len(regs) + 1)  # the linear part's columns and the constant
+    c = _solve(normal.a[np.ix_(lin, lin)], normal.b[lin], ridge)
+    if c is None or not radius(regs, c[:-1]) < 1.0:
+        return None
+    ys = np.array([M + j for j, r in enumerate(regs) if r.signal == "y"], dtype=np.intp)
+    rest = np.setdiff1d(np.arange(normal.b.size), ys)
+    a_y = c[ys - M]
+    z_rest = _solve(normal.a[np.ix_(rest, rest)], normal.b[rest] - normal.a[np.ix_(rest, ys)] @ a_y, ridge)
+    if z_rest is None:
+        return None
+    z = np.zeros(normal.b.size)
+    z[ys], z[rest] = a_y, z_rest
+    return z
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,6 +271,10 @@ def refresh_window(job: RefreshJob) -> Outcome:
         window={**champion.window, **{k: v for k, v in meta.items() if k != "coalesced_before"}},
     )
     if not is_bounded(model):  # the refit moved a root of the linear part's autoregression out (streamid.engine.stability)
+        z2 = own_autoregression(normal, champion, job.policy.ridge)
+        if z2 is not None:
+            model = dataclasses.replace(model, weights=z2[:M], linear=z2[M:])
+    if not is_bounded(model):
         return Outcome("failed", f"the refreshed linear part's autoregression is unstable (largest root "
                        f"{ar_radius(model):.4g}); the coevolution reruns", "refresh_failed", signature=sig, **common)
     summary = summarise(model, u_est, y_est, u_val, y_val)
