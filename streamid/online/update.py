@@ -269,12 +269,12 @@ def identify_window(
 
     The search sees at most :func:`~streamid.online.rows.search_row_bound` rows of the estimation part (one per
     stratum, :mod:`streamid.online.rows`; the model's ``metrics.search_rows`` says how many of how many); the
-    chosen model is refitted on every row and validated on the whole held-out part. All of it runs with one
-    BLAS thread (the correlation tests' products took 0.3 s instead of 1 ms with two threads on a busy machine).
+    chosen model is refitted on every row and validated on the whole held-out part, with one BLAS thread (the
+    correlation tests' products took 0.3 s instead of 1 ms with two threads on a busy machine; the engine's own
+    passes limit it themselves).
     """
-    with one_blas_thread():
-        return _identify(window, cfg, version, warm_state, warm_signature, force_cold, stop, on_generation, helper,
-                         output, champion, generations, cut_t_ns)
+    return _identify(window, cfg, version, warm_state, warm_signature, force_cold, stop, on_generation, helper,
+                     output, champion, generations, cut_t_ns)
 
 
 def _identify(
@@ -363,15 +363,16 @@ def _identify(
             model = model.with_metrics(refinement=refined)
         state = co.state()
         fitness = np.asarray(co.history, dtype=np.float64)
-        summary = summarise(model, u_est, y_est, u_val, y_val)
-        if generations is not None and champion is not None and champion.n_inputs == u_est.shape[1]:
-            # after a drift (an escalated run): the champion rescaled to the new output level competes too
-            recal = recalibrate(champion, u_est, y_est)
-            alt = None if recal is None else summarise(recal, u_est, y_est, u_val, y_val)
-            if alt is not None and recal is not None and alt.finite and not (
-                    alt.metrics["r2_fr_val"] <= summary.metrics["r2_fr_val"]):
-                model, summary = recal, alt
-        champ, champ_fr = champion_figures(champion, u_val, y_val)
+        with one_blas_thread():  # the validation's products: steady with one thread (see identify_window)
+            summary = summarise(model, u_est, y_est, u_val, y_val)
+            if generations is not None and champion is not None and champion.n_inputs == u_est.shape[1]:
+                # after a drift (an escalated run): the champion rescaled to the new output level competes too
+                recal = recalibrate(champion, u_est, y_est)
+                alt = None if recal is None else summarise(recal, u_est, y_est, u_val, y_val)
+                if alt is not None and recal is not None and alt.finite and not (
+                        alt.metrics["r2_fr_val"] <= summary.metrics["r2_fr_val"]):
+                    model, summary = recal, alt
+            champ, champ_fr = champion_figures(champion, u_val, y_val)
     except Stopped:
         raise
     except _ENGINE_ERRORS as exc:
