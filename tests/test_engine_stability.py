@@ -96,3 +96,17 @@ def test_identify_keeps_a_model_that_stays_bounded_far_from_its_record() -> None
     with np.errstate(over="ignore", invalid="ignore"):
         run = kept.simulate(far[:, None], np.full(kept.max_lag, float(np.max(y)) + 5 * span))
     assert np.all(np.isfinite(run))
+
+
+def test_a_neuron_where_no_row_is_gets_weight_zero_beside_a_long_linear_part() -> None:
+    # Seen on a 20,000-sample online window: a weight of 2.8e78 on a neuron whose activations had a norm of 9e-82.
+    rng = np.random.default_rng(2)
+    n = 500
+    Z = np.column_stack([np.ones(n), rng.uniform(-1, 1, (n, 2))])
+    A = np.column_stack([np.exp(-((Z[:, 1] - 0.3) ** 2) / 0.5), np.full(n, 1e-82)])  # a live and a dead neuron
+    target = Z @ np.array([0.1, 0.5, -0.2]) + 0.7 * A[:, 0]
+    block = _LinearBlock(Z, target, 1e-12)
+    w, c = block.solve(A, 3)
+    assert w[1] == 0.0 and abs(w[0] - 0.7) < 1e-6 and np.allclose(c, [0.1, 0.5, -0.2], atol=1e-6)
+    w2, _ = block.with_autoregression(Z, A, 3, np.array([False, True, False]))
+    assert w2[1] == 0.0 and np.all(np.isfinite(w2))

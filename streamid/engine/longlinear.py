@@ -85,7 +85,7 @@ from streamid.engine.choice import path_score
 from streamid.engine.complexity import criterion, parameter_count
 from streamid.engine.ensemble import ensemble_of, members_of
 from streamid.engine.model import Model
-from streamid.engine.rbf import activations
+from streamid.engine.rbf import MIN_NORM, activations
 from streamid.engine.regressors import Regressor, regressor_columns
 from streamid.engine.stability import ar_radius, is_bounded, radius
 
@@ -313,8 +313,7 @@ class _LinearBlock:
 
     def solve(self, A: NDArray[np.float64], p: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The network's weights (``A``'s columns) and the first ``p`` linear coefficients, in ``Z``'s units."""
-        sa = np.linalg.norm(A, axis=0)
-        sa[sa == 0.0] = 1.0
+        A, sa = _live(A)
         Qp = self.Q[:, :p]
         Ap = np.vstack([A / sa, np.zeros((self.Q.shape[0] - self.rows, A.shape[1]))])
         B = Qp.T @ Ap
@@ -336,7 +335,7 @@ class _LinearBlock:
         fitted with that autoregression fixed (step 3b of the module docstring)."""
         c = solve_triangular(self.R[:p, :p], self.qt[:p]) / self.scale[:p]
         ys = is_y[:p]
-        X = np.hstack([Z[:, :p][:, ~ys], A])
+        X = np.hstack([Z[:, :p][:, ~ys], _live(A)[0]])
         sx = np.linalg.norm(X, axis=0)
         sx[sx == 0.0] = 1.0
         k = X.shape[1]
@@ -347,6 +346,18 @@ class _LinearBlock:
         c = c.copy()
         c[~ys] = sol[:n_lin]
         return sol[n_lin:], c
+
+
+def _live(A: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``A`` with its dead columns zeroed (a neuron whose activations' norm is at most the engine's
+    :data:`~streamid.engine.rbf.MIN_NORM`: where no row is; its weight is then 0, as in the search and in
+    :func:`~streamid.engine.rbf.fit_weights`, not the inverse of a norm of 1e-80) and the column norms to scale by
+    (1 for a dead column)."""
+    sa = np.linalg.norm(A, axis=0)
+    dead = sa <= MIN_NORM
+    if np.any(dead):
+        A = np.where(dead, 0.0, A)
+    return A, np.where(dead, 1.0, sa)
 
 
 def _shares_rows(m: Model, base: Model) -> bool:
