@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.kit import BenchOptions, Measurement
-from benchmarks.load import _free_endpoint, _stop, proc_memory_mb
+from benchmarks.load import _free_endpoint, _stop, paced_publish, proc_memory_mb
 
 __all__ = ["CapacityPlan", "FULL", "QUICK", "bench", "capacity_measurements", "engine_length", "publish_main", "trial"]
 
@@ -112,8 +112,7 @@ def publish_main(ep: str, streams: int, rate_hz: float, seconds: float, seed: in
     A few distinct records (simulated once), each stream starting at its own offset in one of them, looped.
     Prints ``{"sent": {...}, "max_late_s": ...}``.
     """
-    from streamid.transport import Bus, ZenohSettings
-    from streamid.wire.codec import SampleBatch, encode
+    from streamid.wire.codec import SampleBatch
 
     n_rec = min(streams, 4)
     u_name, y_name, period, recs = _device_records(rate_hz, n_rec, 30.0 if rate_hz < 10_000 else 10.0, seed)
@@ -122,28 +121,15 @@ def publish_main(ep: str, streams: int, rate_hz: float, seconds: float, seed: in
     per_rec = -(-streams // n_rec)
     offsets = [((k // n_rec) * (n // per_rec)) // batch * batch for k in range(streams)]
     names = [f"cap{k}" for k in range(streams)]
-    sent = dict.fromkeys(names, 0)
-    late = 0.0
-    with Bus(ZenohSettings(connect=(ep,))) as bus:
-        pubs = [bus.publisher(f"streamid/{s}/samples", block=True) for s in names]
-        for p in pubs:
-            p.wait_for_subscribers(30.0)
-        print("publishing", flush=True)
-        t0 = time.perf_counter()
-        for j in range(int(seconds * rate_hz) // batch):
-            due = t0 + (j + 1) * batch * period / 1e9
-            now = time.perf_counter()
-            if due > now:
-                time.sleep(due - now)
-            else:
-                late = max(late, now - due)
-            for k, (name, pub) in enumerate(zip(names, pubs, strict=True)):
-                u, y = recs[k % n_rec]
-                i0 = (offsets[k] + j * batch) % n
-                pub.put(encode(SampleBatch(name, j, j * batch * period, period, None, {u_name: u[i0:i0 + batch]},
-                                           {y_name: y[i0:i0 + batch]})))
-                sent[name] += batch
-        time.sleep(0.3)
+
+    def batch_of(k: int, j: int) -> SampleBatch:
+        u, y = recs[k % n_rec]
+        i0 = (offsets[k] + j * batch) % n
+        return SampleBatch(names[k], j, j * batch * period, period, None, {u_name: u[i0:i0 + batch]},
+                           {y_name: y[i0:i0 + batch]})
+
+    sent, _, late = paced_publish(ep, names, int(seconds * rate_hz) // batch, batch, period, batch_of,
+                                  ready=lambda: print("publishing", flush=True))
     print(json.dumps({"sent": sent, "max_late_s": late}), flush=True)
 
 

@@ -25,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -77,10 +78,42 @@ def resident_by_mapping(pid: int, top: int = 8) -> dict[str, float]:
     return {k: round(v, 1) for k, v in out.items()}
 
 
+def paced_publish(ep: str, names: list[str], rounds: int, batch: int, period_ns: int,
+                  batch_of: Callable[[int, int], SampleBatch], ready: Callable[[], None] | None = None,
+                  ) -> tuple[dict[str, int], float, float]:
+    """Put one batch of ``batch`` samples per stream every ``batch * period_ns`` of real time, ``rounds`` times
+    (``batch_of(k, j)``: stream ``k``'s batch of round ``j``), on ``streamid/<name>/samples`` over a session connected to ``ep``, once every
+    publisher has a subscriber (then ``ready()``). Returns the samples sent per stream, the seconds it took and the
+    largest lateness of a round (a publisher that cannot keep up shows it)."""
+    from streamid.transport import Bus
+
+    sent = dict.fromkeys(names, 0)
+    late = 0.0
+    with Bus(ZenohSettings(connect=(ep,))) as bus:
+        pubs = [bus.publisher(f"streamid/{s}/samples", block=True) for s in names]
+        for p in pubs:
+            p.wait_for_subscribers(30.0)
+        if ready is not None:
+            ready()
+        t0 = time.perf_counter()
+        for j in range(rounds):
+            due = t0 + (j + 1) * batch * period_ns / 1e9
+            now = time.perf_counter()
+            if due > now:
+                time.sleep(due - now)
+            else:
+                late = max(late, now - due)
+            for k, (name, pub) in enumerate(zip(names, pubs, strict=True)):
+                pub.put(encode(batch_of(k, j)))
+                sent[name] += batch
+        dt = time.perf_counter() - t0
+        time.sleep(0.3)
+    return sent, dt, late
+
+
 def multi_publish_main(ep: str, streams: int, rate_hz: float, seconds: float, batch: int, seed: int) -> None:
     """Publisher process body: ``streams`` streams at ``rate_hz``, real time; prints sent counts and lateness."""
     from streamid.sim import get_device
-    from streamid.transport import Bus
 
     dev = get_device("piezo")
     step = max(1, round(1e9 / rate_hz / dev.period_ns))
@@ -91,29 +124,14 @@ def multi_publish_main(ep: str, streams: int, rate_hz: float, seconds: float, ba
         sigs.append((u[::step].copy(), y[::step].copy()))
     n = len(sigs[0][1]) // batch * batch
     names = [f"load{k}" for k in range(streams)]
-    sent = dict.fromkeys(names, 0)
-    late = 0.0
-    with Bus(ZenohSettings(connect=(ep,))) as bus:
-        pubs = [bus.publisher(f"streamid/{s}/samples", block=True) for s in names]
-        for p in pubs:
-            p.wait_for_subscribers(30.0)
-        t0 = time.perf_counter()
-        total = int(seconds * 1e9 / period) // batch
-        for j in range(total):
-            due = t0 + (j + 1) * batch * period / 1e9
-            now = time.perf_counter()
-            if due > now:
-                time.sleep(due - now)
-            else:
-                late = max(late, now - due)
-            i0 = (j * batch) % n
-            for name, pub, (u, y) in zip(names, pubs, sigs, strict=True):
-                b = SampleBatch(name, j, j * batch * period, period, None, {dev.input_name: u[i0 : i0 + batch]},
-                                {dev.output_name: y[i0 : i0 + batch]})
-                pub.put(encode(b))
-                sent[name] += batch
-        dt = time.perf_counter() - t0
-        time.sleep(0.3)
+
+    def batch_of(k: int, j: int) -> SampleBatch:
+        u, y = sigs[k]
+        i0 = (j * batch) % n
+        return SampleBatch(names[k], j, j * batch * period, period, None, {dev.input_name: u[i0 : i0 + batch]},
+                           {dev.output_name: y[i0 : i0 + batch]})
+
+    sent, dt, late = paced_publish(ep, names, int(seconds * 1e9 / period) // batch, batch, period, batch_of)
     print(json.dumps({"sent": sent, "seconds": dt, "max_late_s": late}), flush=True)
 
 
