@@ -196,6 +196,15 @@ def stop_process(proc: subprocess.Popen[Any], wait_s: float = 30.0) -> None:
         proc.wait(10)
 
 
+def start_daemon(tmp_path: Path, ep: str, config: str, **popen: Any) -> subprocess.Popen[str]:
+    """``streamid daemon --listen ep --config <tmp_path>/d.toml --no-rerun`` with ``config`` as that file (stdout
+    discarded and stderr piped unless ``popen`` says otherwise); stop it with :func:`stop_process`."""
+    (tmp_path / "d.toml").write_text(config)
+    kw: dict[str, Any] = {"stdout": subprocess.DEVNULL, "stderr": subprocess.PIPE, "text": True, **popen}
+    return subprocess.Popen([*STREAMID, "daemon", "--listen", ep, "--config", str(tmp_path / "d.toml"), "--no-rerun"],
+                            **kw)
+
+
 def endpoint(port: int | None = None) -> str:
     """``tcp/127.0.0.1:PORT`` (a fresh free port if none given)."""
     return f"tcp/127.0.0.1:{port if port is not None else free_tcp_port()}"

@@ -8,13 +8,12 @@ stream whose 10 s window was refused before (~1316 MiB by the old estimate again
 from __future__ import annotations
 
 import json
-import subprocess
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import STREAMID, endpoint, stop_process, wait_until
+from conftest import endpoint, stop_process, wait_until, start_daemon
 
 from streamid.daemon.admission import check_batch, identification_bytes, stream_bytes
 from streamid.engine import rbf
@@ -162,9 +161,7 @@ warm_generations = 5
 def test_a_daemon_with_default_bounds_identifies_a_20_khz_stream(tmp_path: Path) -> None:
     """The daemon's default window (10 s) and memory bound (512 MiB), fewer generations to keep the test short."""
     ep = endpoint()
-    (tmp_path / "d.toml").write_text(CONFIG)
-    proc = subprocess.Popen([*STREAMID, "daemon", "--listen", ep, "--config", str(tmp_path / "d.toml"), "--no-rerun"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = start_daemon(tmp_path, ep, CONFIG)
     try:
         tr = simulate_piezo(220_000, 4)
         with Bus(ZenohSettings(mode="client", connect=(ep,), connect_wait_s=30)) as bus:

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import STREAMID, endpoint, stop_process
+from conftest import endpoint, stop_process, start_daemon
 
 from streamid.daemon.intake_budget import EPOCH_S, IntakeBudget
 from streamid.transport import Bus, ZenohSettings
@@ -65,10 +65,8 @@ population = 20
 @pytest.mark.alone
 def test_fifty_small_publishers_do_not_starve_a_healthy_stream(tmp_path: Path) -> None:
     ep = endpoint()
-    (tmp_path / "d.toml").write_text(CONFIG)
     log = open(tmp_path / "daemon.log", "w")
-    daemon = subprocess.Popen([*STREAMID, "daemon", "--listen", ep, "--config", str(tmp_path / "d.toml"),
-                               "--no-rerun"], stdout=log, stderr=log, text=True)
+    daemon = start_daemon(tmp_path, ep, CONFIG, stdout=log, stderr=log)
     plan = {"seconds": 16.0, "small": 50, "rate_hz": 240.0, "small_from_s": 4.0}
     peer = subprocess.Popen([sys.executable, str(Path(__file__).with_name("intake_peer.py")), ep, json.dumps(plan)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -13,7 +13,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from conftest import STREAMID, endpoint, stop_process, wait_until
+from conftest import STREAMID, endpoint, stop_process, wait_until, start_daemon
 
 from streamid.transport import Bus, ZenohSettings
 from streamid.wire.codec import SampleBatch, encode
@@ -44,9 +44,7 @@ def _status(ep: str, stream: str) -> subprocess.CompletedProcess[str]:
 
 def test_a_window_too_large_for_the_bound_makes_the_stream_degraded_not_ok(tmp_path: Path) -> None:
     ep = endpoint()
-    (tmp_path / "d.toml").write_text(CONFIG)
-    proc = subprocess.Popen([*STREAMID, "daemon", "--listen", ep, "--config", str(tmp_path / "d.toml"), "--no-rerun"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = start_daemon(tmp_path, ep, CONFIG)
     try:
         with Bus(ZenohSettings(mode="client", connect=(ep,), connect_wait_s=30)) as bus:
             fast = bus.publisher("streamid/fast/samples", block=True)
