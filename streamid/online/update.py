@@ -269,20 +269,10 @@ def identify_window(
 
     The search sees at most :func:`~streamid.online.rows.search_row_bound` rows of the estimation part (one per
     stratum, :mod:`streamid.online.rows`; the model's ``metrics.search_rows`` says how many of how many); the
-    chosen model is refitted on every row and validated on the whole held-out part, with one BLAS thread (the
-    correlation tests' products took 0.3 s instead of 1 ms with two threads on a busy machine; the engine's own
-    passes limit it themselves).
+    chosen model is refitted on every row and validated on the whole held-out part, the validation with one BLAS
+    thread (the correlation tests' products took 0.3 s instead of 1 ms with two threads on a busy machine; the
+    engine's own passes limit it themselves).
     """
-    return _identify(window, cfg, version, warm_state, warm_signature, force_cold, stop, on_generation, helper,
-                     output, champion, generations, cut_t_ns)
-
-
-def _identify(
-    window: Window, cfg: StreamConfig, version: int, warm_state: CoEAState | None,
-    warm_signature: dict[str, Any] | None, force_cold: bool, stop: StopFlag | None,
-    on_generation: Callable[[str, Any], None] | None, helper: EvalHelper | None, output: str | None,
-    champion: Model | None, generations: int | None, cut_t_ns: int | None,
-) -> Outcome:
     t_start = time.perf_counter()
     picked = _pick_output(window, cfg, output)
     if isinstance(picked, str):
