@@ -231,3 +231,23 @@ def test_a_refresh_keeps_the_linear_parts_autoregression_stable() -> None:
     z = own_autoregression(first.normal, first.model, RefreshPolicy().ridge)
     assert z is not None and radius(regs, z[M:-1]) < 1.0
     np.testing.assert_array_equal(first.model.weights, z[:M])  # what was published is that solution
+
+
+def test_a_live_backlog_is_refreshed_in_order_before_a_scheduled_run(damper: tuple[np.ndarray, ...]) -> None:
+    """A live stream (samples arriving at 1 x stream time) that fell behind keeps its windows (max_pending_s) and
+    works through them in order by refreshes; the scheduled coevolution run waits until the backlog is drained."""
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper", refresh=RefreshPolicy(min_every=1, max_every=2))  # every update due
+    for a in range(0, 2000, 200):  # 10 s at 200 Hz, one chunk a second, each arriving as its last sample is taken
+        ident.learn_many(t[a:a + 200], u[a:a + 200], y[a:a + 200], now_ns=int(t[a + 199]) + 10**9, **NAMES)
+    w = ident.status(now_ns=int(t[1999]) + 4 * 10**9)["windows"]
+    assert w["live"] and w["pending_windows"] == 7 and w["coalesced"] == 0  # windows ending at 4, 5, ..., 10 s
+    assert w["backlog_s"] == pytest.approx(6.0, abs=0.01) and w["backlog_age_s"] == pytest.approx(9.0, abs=0.01)
+    assert w["pending_bytes"] == 2000 * 2 * 8  # the seven overlapping windows' 10 s of samples, held once
+    ups = ident.update_all()
+    assert [up.window.number for up in ups] == sorted(up.window.number for up in ups) and len(ups) == 7
+    kinds = [up.document["update"] if up.document else up.kind for up in ups]
+    assert kinds == ["identified"] + ["refreshed"] * 5 + ["identified"], kinds
+    st = ident.status()
+    assert st["refresh"]["deferred_backlog"] == 5 and st["windows"]["backlog_s"] == 0.0
+    assert st["windows"]["backlog_age_s"] is None

@@ -62,7 +62,9 @@ def test_queue_keeps_the_newest_windows_in_order_up_to_its_bound() -> None:
         wb.append(batch(i, 10 * i, 10))
     c = wb.counters()
     assert c["windows_closed"] == 7 and c["pending_windows"] == 5 and c["windows_coalesced"] == 2
-    assert c["pending_bytes"] == 5 * 100 * 2 * 8 == c["pending_bytes_max"] == c["pending_bytes_peak"]
+    # the five overlapping windows share their samples: 100 + 4 x 50 of them held, once
+    assert c["pending_bytes"] == (100 + 4 * 50) * 2 * 8 == c["pending_bytes_peak"]
+    assert c["pending_bytes_max"] == 5 * 100 * 2 * 8  # the bound: five windows, whatever their overlap
     assert c["pending_windows_peak"] == 5
     got = _take_all(wb)
     assert [int(check_window(w)[-1]) + 1 for w in got] == [200, 250, 300, 350, 400]  # oldest first
@@ -105,9 +107,10 @@ def test_an_endless_stream_never_taken_holds_at_most_the_bound() -> None:
             assert wb.counters()["pending_windows"] <= 8
     assert wb._ring is ring  # noqa: SLF001
     c = wb.counters()
-    assert c["pending_windows"] == 8 and c["pending_bytes"] == c["pending_bytes_max"] == 8 * 100 * 2 * 8
+    assert c["pending_windows"] == 8 and c["pending_bytes"] == (100 + 7 * 10) * 2 * 8  # one span of samples
+    assert c["pending_bytes_max"] == 8 * 100 * 2 * 8
     assert c["windows_closed"] == c["windows_coalesced"] + 8
-    assert c["pending_windows_peak"] == 8 and c["pending_bytes_peak"] == c["pending_bytes_max"]
+    assert c["pending_windows_peak"] == 8 and c["pending_bytes_peak"] == c["pending_bytes"]
     got = _take_all(wb)
     assert len(got) == 8 and int(check_window(got[-1])[-1]) == 3000 * 25 - 1
 
@@ -182,8 +185,10 @@ def test_property_queue_accounting_and_true_windows(sizes: list[int], limit: int
                 taken += 1
     c = wb.counters()
     assert c.get("windows_closed", 0) == taken + c.get("windows_coalesced", 0) + c["pending_windows"]
-    assert c["pending_bytes"] == c["pending_windows"] * 30 * 2 * 8
-    assert np.isfinite(c["pending_bytes"])
+    held = set()  # the samples of the windows still waiting: each held once
+    for win in _take_all(wb):
+        held.update(int(k) for k in check_window(win))
+    assert c["pending_bytes"] == len(held) * 2 * 8
 
 
 def _feed(wb: WindowBuffer, n_batches: int, speed: float | None) -> None:
@@ -204,20 +209,55 @@ def test_stream_time_faster_than_the_clock_queues_every_window_in_order(speed: f
     assert ends == list(range(499, 4000, 100))
 
 
-def test_a_live_stream_that_falls_behind_keeps_only_the_newest_window() -> None:
-    wb = make(500, 100, max_pending_windows=1000)
+def test_a_live_stream_that_falls_behind_keeps_its_backlog_in_order() -> None:
+    wb = make(500, 100, max_pending_windows=1000)  # max_pending_s: the default, 120 s
+    _feed(wb, 40, 1.0)
+    c = wb.counters()
+    assert c["live"] and c["pending_windows"] == c["windows_closed"] == 36 and c.get("windows_coalesced", 0) == 0
+    assert c["pending_span_s"] == pytest.approx(3.5) and c["max_pending_s"] == 120.0
+    assert c["pending_bytes"] == 4000 * 2 * 8  # 36 windows of 500 samples every 100: the 4,000 samples, once
+    assert [int(check_window(w)[-1]) for w in _take_all(wb)] == list(range(499, 4000, 100))
+
+
+def test_a_live_backlog_is_bounded_in_stream_time() -> None:
+    """Past max_pending_s of stream time behind the newest window, a live stream's oldest waiting windows are
+    dropped (coalesced, counted); a replay (stream time faster than the clock) is not bound by it."""
+    wb = make(500, 100, max_pending_windows=1000, max_pending_s=1.0)
+    _feed(wb, 40, 1.0)
+    c = wb.counters()
+    assert c["pending_windows"] == 11 and c["windows_coalesced"] == 25 and c["pending_span_s"] == pytest.approx(1.0)
+    got = _take_all(wb)
+    assert [int(check_window(w)[-1]) for w in got] == list(range(2999, 4000, 100)) and got[0].coalesced_before == 25
+    fast = make(500, 100, max_pending_windows=1000, max_pending_s=1.0)
+    _feed(fast, 40, 1000.0)
+    assert fast.counters()["pending_windows"] == 36
+
+
+def test_max_pending_s_zero_keeps_only_a_live_streams_newest_window() -> None:
+    wb = make(500, 100, max_pending_windows=1000, max_pending_s=0.0)
     _feed(wb, 40, 1.0)
     c = wb.counters()
     assert c["live"] and c["pending_windows"] == 1 and c["windows_coalesced"] == c["windows_closed"] - 1
     assert int(check_window(_take_all(wb)[0])[-1]) == 3999  # the newest
 
 
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf"), 90000.0, "5", True])
+def test_max_pending_s_is_validated(bad: object) -> None:
+    with pytest.raises(ConfigError, match=r"max_pending_s must be a number of seconds in \[0, 86400\]"):
+        StreamConfig(max_pending_s=bad)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="max_pending_s"):
+        config_from_mapping({"defaults": {"max_pending_s": bad}})
+    assert config_from_mapping({"streams": {"a": {"max_pending_s": 30}}}).for_stream("a").max_pending_s == 30
+
+
 def test_the_byte_bound_drops_the_oldest_waiting_windows() -> None:
     wb = make(500, 100, max_pending_windows=1000, max_pending_bytes=5 * 500 * 2 * 8)  # five windows of 500 samples x 2 signals
     _feed(wb, 40, None)
     c = wb.counters()
-    assert c["pending_windows"] == 5 and c["pending_bytes_peak"] <= 5 * 500 * 16 == c["pending_bytes_max"]
-    assert c["windows_coalesced"] == 31 and int(check_window(_take_all(wb)[0])[-1]) == 3599
+    # the windows share their samples: 500 + 20 x 100 <= 2,500 samples fit the bytes of five whole windows
+    assert c["pending_windows"] == 21 and c["pending_bytes_peak"] <= 5 * 500 * 16 == c["pending_bytes_max"]
+    assert c["pending_bytes"] == 2500 * 16
+    assert c["windows_coalesced"] == 15 and int(check_window(_take_all(wb)[0])[-1]) == 1999
 
 
 def test_max_pending_bytes_is_validated() -> None:

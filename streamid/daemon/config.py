@@ -202,6 +202,7 @@ _STREAM_KEYS: dict[str, tuple[str, str]] = {
     "cold_after_failures": ("int", "an integer >= 1"),
     "max_pending_windows": ("int", "an integer in [1, 1000]"),
     "max_pending_bytes": ("int", "an integer number of bytes >= 1"),
+    "max_pending_s": ("float", "a number of seconds in [0, 86400]"),
     "challenger_margin": ("float", "a number in [-1, 1] (an R^2 difference)"),
     "drift_detection": ("bool", "true or false"),
     "drift_generations": ("int", "an integer >= 1"),

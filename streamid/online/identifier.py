@@ -148,6 +148,12 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         return self._buffer.pending_windows + (1 if self._todo else 0)
 
     @property
+    def backlog(self) -> bool:
+        """Whether a live stream's windows wait behind the one being identified (a backlog to catch up): a
+        coevolution run due only by the schedule then waits until it is drained (:mod:`streamid.online.pending`)."""
+        return self._buffer.live and self._buffer.pending_windows > 0
+
+    @property
     def busy(self) -> bool:
         """Whether a job taken by :meth:`next_job` has not been finished yet."""
         return self._job is not None
@@ -159,6 +165,9 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         ``defer_scheduled``: the caller is loaded (other streams wait for its worker): a coevolution run due only
         by the schedule becomes a refresh, at most ``RefreshPolicy.max_every`` times in a row
         (:mod:`streamid.online.refresh`); a run forced by drift, failure or a failed re-validation never waits.
+        While a live stream's windows wait behind this one (:attr:`backlog`), a run due only by the schedule
+        becomes a refresh whatever the caller's load, until the backlog is drained (bounded by the backlog's own
+        bound, ``max_pending_s``).
         """
         if self._job is not None:
             return None
@@ -180,6 +189,8 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
             generations = self.config.drift_generations
         track = self._track(output)
         why = coevolve_reason(track, head, window, self.config)
+        if why and self.backlog and track.defer_for_backlog(why):  # a live backlog: caught up by refreshes first
+            why = ""
         if not why or (defer_scheduled and track.defer(why)):  # a refresh of the champion's weights
             self._job = refresh_job(track, head, window, self.config, self._next_version())
             return self._job
@@ -450,7 +461,7 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
             return False
         track = self._track(head.output)
         why = coevolve_reason(track, head, None, self.config)
-        return not why or (defer_scheduled and track.deferrable(why))
+        return not why or ((defer_scheduled or self.backlog) and track.deferrable(why, backlog=self.backlog))
 
     def _head(self, output: str) -> OutputHead:
         head = self._heads.get(output)

@@ -25,7 +25,8 @@ the previous final populations) is the next update
 * at once after a drift (the escalated runs of :mod:`streamid.online.drift`), after a failed or
   invalid update, and when the champion fails its re-validation (its free-run or one-step R^2 on the
   newest held-out data below the floors, or a refreshed challenger below them);
-* otherwise every ``every`` updates.  ``every`` starts at :attr:`RefreshPolicy.min_every`, doubles
+* otherwise every ``every`` updates (a run due so waits while a live stream's backlog of windows is worked
+  through, each window refreshed in order, and while the caller is loaded, at most ``max_every`` in a row).  ``every`` starts at :attr:`RefreshPolicy.min_every`, doubles
   (up to :attr:`RefreshPolicy.max_every`) each time a coevolution run's challenger loses to the champion
   (``not_better``: the champion keeps winning), and returns to ``min_every`` when a run's challenger is
   accepted or anything above forced a run.
@@ -302,6 +303,7 @@ class RefreshTrack:
     champion_kind: str = ""  # how the served champion was made
     deferred: int = 0  # scheduled runs deferred in a row (the caller was loaded)
     deferred_total: int = 0
+    deferred_backlog: int = 0  # of which behind a live backlog
 
     def plan(self, *, champion: Model | None, window: Window | None, signature: dict[str, Any] | None,
              champion_signature: dict[str, Any] | None, escalate: bool, failures_in_row: int,
@@ -335,10 +337,20 @@ class RefreshTrack:
             return f"scheduled (every {self.every or self.policy.min_every} updates)"
         return ""
 
-    def deferrable(self, reason: str) -> bool:
+    def deferrable(self, reason: str, *, backlog: bool = False) -> bool:
         """Whether a run due for ``reason`` may wait (a refresh instead) while the caller is loaded: only a scheduled
-        one, at most ``max_every`` updates in a row."""
-        return reason.startswith("scheduled") and self.deferred < self.policy.max_every
+        one, at most ``max_every`` updates in a row; behind a live backlog (``backlog``) as long as it lasts."""
+        return reason.startswith("scheduled") and (backlog or self.deferred < self.policy.max_every)
+
+    def defer_for_backlog(self, reason: str) -> bool:
+        """A scheduled run waits while a live stream's backlog is worked through (refreshes in order, each window
+        decided); counted with the other deferrals. The backlog's bound (``max_pending_s``) bounds the wait."""
+        if not self.deferrable(reason, backlog=True):
+            return False
+        self.deferred += 1
+        self.deferred_total += 1
+        self.deferred_backlog += 1
+        return True
 
     def defer(self, reason: str) -> bool:
         """:meth:`deferrable`, and if so count the deferral (the next update is a refresh)."""
@@ -384,6 +396,7 @@ class RefreshTrack:
         return {"every": self.every, "due_in": self.due_in, "force": self.force, "refreshed": self.refreshed,
                 "refreshes_accepted": self.refreshes_accepted, "identified": self.identified, "last": self.last,
                 "champion": self.champion_kind, "deferred": self.deferred, "deferred_total": self.deferred_total,
+                "deferred_backlog": self.deferred_backlog,
                 "normal": None if ne is None else {"basis": ne.basis, "a": ne.a.tolist(), "b": ne.b.tolist(),
                                                    "weight": ne.weight, "through_t_ns": ne.through_t_ns,
                                                    "rows": ne.rows}}
@@ -393,7 +406,7 @@ class RefreshTrack:
         leaves the track as new (the next update then reruns the coevolution)."""
         try:
             ints = {k: part[k] for k in ("every", "due_in", "refreshed", "refreshes_accepted", "identified")}
-            ints.update({k: part.get(k, 0) for k in ("deferred", "deferred_total")})  # (absent before deferrals)
+            ints.update({k: part.get(k, 0) for k in ("deferred", "deferred_total", "deferred_backlog")})  # (absent before)
             texts = {k: part[k] for k in ("force", "last", "champion")}
             if not all(isinstance(v, int) and not isinstance(v, bool) and v >= -1 for v in ints.values()) or \
                     not all(isinstance(v, str) for v in texts.values()):
@@ -411,6 +424,7 @@ class RefreshTrack:
         self.every, self.due_in = min(int(ints["every"]), self.policy.max_every), int(ints["due_in"])
         self.refreshed, self.refreshes_accepted, self.identified, self.deferred, self.deferred_total = (
             int(ints[k]) for k in ("refreshed", "refreshes_accepted", "identified", "deferred", "deferred_total"))
+        self.deferred_backlog = int(ints["deferred_backlog"])
         self.force, self.last, self.champion_kind = (str(texts[k])[:200] for k in ("force", "last", "champion"))
         self.normal = normal
         return ""
@@ -426,6 +440,7 @@ class RefreshTrack:
             "refreshes_accepted": self.refreshes_accepted,
             "identified": self.identified,
             "deferred": self.deferred_total,  # scheduled runs that waited (refreshes instead) while the daemon was loaded
+            "deferred_backlog": self.deferred_backlog,  # of them, while a live backlog was caught up
             "last": self.last or None,
             "champion": self.champion_kind or None,
             "rows": self.normal.rows if self.normal is not None else 0,

@@ -88,7 +88,12 @@ def stream_status(
             "pending": bool(c["pending"] or outputs_to_do),
             "outputs_to_do": outputs_to_do,  # outputs of the window being identified not done yet
             **{k: c[k] for k in ("pending_windows", "max_pending_windows", "pending_bytes",
-                                 "pending_windows_peak", "pending_bytes_peak", "pending_bytes_max", "live")},
+                                 "pending_windows_peak", "pending_bytes_peak", "pending_bytes_max", "live",
+                                 "max_pending_s")},
+            # the backlog: stream time from the oldest waiting window's end to the newest's, and how long the
+            # oldest has waited (the caller's clock; None without one)
+            "backlog_s": round(float(c["pending_span_s"]), 6),
+            "backlog_age_s": _age_s(now_ns, c.get("pending_oldest_received_ns")),
         },
         "identifications": {k: int(outcomes.get(k, 0)) for k in UPDATE_KINDS},
         "decisions": dict(decisions),
@@ -110,3 +115,10 @@ def stream_status(
         "events_dropped": events_dropped,
         **{k: c[k] for k in ("period_ns", "window_samples", "hop_samples", "inputs", "outputs")},
     }
+
+
+def _age_s(now_ns: int, since_ns: object) -> float | None:
+    """Seconds from ``since_ns`` to ``now_ns`` (None: either unknown, i.e. 0 or None)."""
+    if not isinstance(since_ns, int) or since_ns <= 0 or now_ns <= 0:
+        return None
+    return round(max(0, now_ns - since_ns) / 1e9, 3)

@@ -15,7 +15,7 @@ from typing import Any
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import ConfigError
 from streamid.online.refresh_policy import RefreshPolicy
-from streamid.online.window_types import MAX_PENDING_WINDOWS, WindowParams
+from streamid.online.window_types import DEFAULT_MAX_PENDING_S, MAX_PENDING_WINDOWS, WindowParams
 
 __all__ = ["StreamConfig", "ONLINE_LONG_LINEAR", "ONLINE_SELECTION", "ONLINE_SELECTIONS", "ENGINE_RESERVED"]
 
@@ -96,9 +96,17 @@ class StreamConfig:
         (:mod:`streamid.online.pending`).  While stream time runs faster than
         the caller's clock (a replayed log, ``learn_many`` on a record), every
         window waits its turn, oldest first, up to these bounds (default 1000
-        windows and 64 MiB per stream; beyond them the oldest waiting window is
-        coalesced, counted).  A live stream that falls behind keeps only the
-        newest window (coalescing the rest).  1: always only the newest.
+        windows and 64 MiB per stream, the samples of overlapping windows held
+        once; beyond them the oldest waiting window is coalesced, counted).  1:
+        always only the newest.
+    max_pending_s
+        A live stream (stream time at about the caller's clock) that falls behind
+        keeps its waiting windows too, in order, while the oldest ends at most this
+        many seconds of stream time before the newest (default
+        :data:`~streamid.online.window_types.DEFAULT_MAX_PENDING_S`, 120; older ones are
+        coalesced, counted); the identifier works through such a backlog with
+        refreshes of the champion (a coevolution run due by schedule waits until
+        it is drained).  0: a live stream keeps only its newest window.
     engine
         Other :class:`~streamid.engine.CoEAConfig` fields, as ``(name, value)`` pairs. ``selection`` is
         ``"fr_est"`` online unless set here (:data:`ONLINE_SELECTION`; ``"fitness"``: the paper's best pair).
@@ -144,6 +152,7 @@ class StreamConfig:
     cold_after_failures: int = 3
     max_pending_windows: int = MAX_PENDING_WINDOWS
     max_pending_bytes: int = 64 * 2**20
+    max_pending_s: float = DEFAULT_MAX_PENDING_S
     engine: tuple[tuple[str, Any], ...] = ()
     refresh: RefreshPolicy = RefreshPolicy()
 
@@ -194,6 +203,7 @@ class StreamConfig:
             max_abs_value=self.max_abs_value,
             max_pending_windows=self.max_pending_windows,
             max_pending_bytes=self.max_pending_bytes,
+            max_pending_s=self.max_pending_s,
         )
 
     def coea_config(self, *, cold: bool, generations: int | None = None) -> CoEAConfig:

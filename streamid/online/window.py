@@ -6,10 +6,9 @@ time) and keeps the newest samples in a preallocated ring, one row per signal.
 Every ``hop`` new complete samples a window of the newest ``window`` samples
 *closes*: it is copied out into the stream's bounded queue of *pending* windows
 (:mod:`streamid.online.pending`), which the identification worker empties when
-it is free.  When stream time runs faster than the caller's clock (a replayed
-log) every window waits its turn; on a live stream a window that closes while
-the previous one is still pending replaces it (counted as coalesced), so a slow
-identification never builds a queue.  Both within stated bounds (see
+it is free.  Every window waits its turn, oldest first; on a live stream the
+waiting windows span at most ``max_pending_s`` of stream time (older ones are
+counted as coalesced).  Both within stated bounds (see
 :mod:`streamid.online.pending`): memory stays flat on an endless stream.
 
 Time is integer nanoseconds.  Every sample gets an integer index
@@ -184,6 +183,9 @@ class WindowBuffer:
         out["pending_bytes_peak"] = self._queue.peak_bytes
         out["max_pending_windows"] = self._queue.limit
         out["pending_bytes_max"] = min(self._queue.limit * self._w * len(self._rows) * 8, self._queue.max_bytes)
+        out["pending_span_s"] = self._queue.span_ns() / 1e9
+        out["pending_oldest_received_ns"] = self._queue.oldest_received_ns()
+        out["max_pending_s"] = self.params.max_pending_s
         out["live"] = self.live
         out["inputs"] = list(self._inputs)
         out["outputs"] = list(self._outputs)
@@ -515,7 +517,7 @@ class WindowBuffer:
         n, keep = due_windows(self._next_close, complete, self._h, self._w, self._start, self._queue.limit)
         self._closes.append((self._anchor + (self._next_close + (n - 1) * self._h) * self._period, self._now_ns))  # type: ignore[operator]
         live = self.live
-        keep = keep[-1:] if live else keep
+        span_ns = round(self.params.max_pending_s * 1e9) if live else None  # a live backlog: bounded in stream time
         self._next_close += n * self._h
         closed0 = self._counts["windows_closed"]
         self._counts["windows_closed"] += n
@@ -537,12 +539,12 @@ class WindowBuffer:
                 received_ns=self._now_ns,
                 coalesced_before=0,  # set when taken (see PendingWindows.pop)
             )
-            coalesced += self._queue.push(closed0 + i + 1, window, newest_only=live)
+            coalesced += self._queue.push(closed0 + i + 1, window, max_span_ns=span_ns)
             self._counts["windows_emitted"] += 1
             self._event("window.closed", f"window {self._number} closed ({self._w} samples)")
         if coalesced:
-            why = ("a live stream keeps only the newest window" if live else f"bounds max_pending_windows="
-                   f"{self._queue.limit}, max_pending_bytes={self._queue.max_bytes}")
+            why = (f"bounds max_pending_windows={self._queue.limit}, max_pending_bytes={self._queue.max_bytes}"
+                   + (f", max_pending_s={self.params.max_pending_s:g} (a live stream)" if live else ""))
             self._event("window.coalesced", f"{coalesced} window(s) coalesced: identification is behind ({why})")
         self._counts["windows_coalesced"] += coalesced
         return bool(keep)

@@ -15,7 +15,7 @@ import numpy as np
 from streamid.errors import ConfigError
 
 __all__ = [
-    "DEFAULT_HOP_S", "DEFAULT_WINDOW_S", "MAX_PENDING_WINDOWS", "BatchLike", "Event", "Window", "WindowParams",
+    "DEFAULT_HOP_S", "DEFAULT_MAX_PENDING_S", "DEFAULT_WINDOW_S", "MAX_PENDING_WINDOWS", "BatchLike", "Event", "Window", "WindowParams",
     "estimate_period", "grid_runs",
 ]
 
@@ -24,6 +24,8 @@ DEFAULT_WINDOW_S = 10.0
 DEFAULT_HOP_S = 1.0
 #: Largest accepted ``max_pending_windows``: a hard bound, whatever the configuration.
 MAX_PENDING_WINDOWS = 1000
+#: A live stream's waiting windows span at most this many seconds of stream time by default (``max_pending_s``).
+DEFAULT_MAX_PENDING_S = 120.0
 
 
 class BatchLike(Protocol):
@@ -74,6 +76,12 @@ class WindowParams:
         How many closed windows may wait for identification (1 to
         :data:`~streamid.online.pending.MAX_PENDING_WINDOWS`); a window closing
         with that many waiting drops the oldest.  See :mod:`streamid.online.pending`.
+    max_pending_bytes
+        Most bytes of samples the waiting windows hold (each sample once).
+    max_pending_s
+        A live stream's waiting windows end at most this many seconds of stream time
+        before the newest (older ones are dropped, coalesced); 0: a live stream keeps
+        only its newest window.  Not applied while stream time runs faster than the clock.
     """
 
     window_s: float | None = None
@@ -87,6 +95,7 @@ class WindowParams:
     align_slack_samples: int | None = None
     max_pending_windows: int = 1
     max_pending_bytes: int = 64 * 2**20
+    max_pending_s: float = DEFAULT_MAX_PENDING_S
 
     def __post_init__(self) -> None:
         if self.window_s is None and self.window_samples is None:
@@ -113,6 +122,9 @@ class WindowParams:
         v = self.max_pending_bytes
         if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
             raise ConfigError(f"max_pending_bytes must be an integer number of bytes >= 1; got {v!r}")
+        v = self.max_pending_s
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= 86400):
+            raise ConfigError(f"max_pending_s must be a number of seconds in [0, 86400]; got {v!r}")
         if not (isinstance(self.max_abs_value, (int, float)) and self.max_abs_value > 0):
             raise ConfigError(f"max_abs_value must be a number > 0; got {self.max_abs_value!r}")
         for name in ("inputs", "outputs"):
