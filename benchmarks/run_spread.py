@@ -1,0 +1,94 @@
+"""How the restarts of one identification spread on the next experiment (issue 37, round 3).
+
+For each target of the two-experiment suite and each seed: every restart's own model (``Result.extra["run_models"]``,
+before the final choice, long linear part, means and refinement) scored on the validation experiment beside its
+estimation free-run R² (the score the final choice ranks it by), the kept model's validation R², and the median and
+the mean of the admissible runs' free runs (each run on its own past outputs, combined per sample)::
+
+    python -m benchmarks.run_spread piezo_sim,bouc_wen_sim --seeds 0,1,2,3,4
+    python -m benchmarks.run_spread mr_damper_sim --changes '{"centre_bounds": [-1, 1]}'
+
+The figures of docs/engine-results.md, "Issue 37, round 3", come from this.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from benchmarks.suite import Target, free_run_val, targets
+from streamid.engine import identify
+from streamid.engine.model import Model
+from streamid.engine.settings import DEFAULT
+from streamid.engine.validation import r2
+
+#: A run whose estimation score is at most this left no admissible candidate (streamid.engine.selection).
+INADMISSIBLE = -1e9
+
+
+def validation_run(model: Model, t: Target) -> NDArray[np.float64]:
+    """``model``'s free run on the validation experiment, aligned with ``t.y_val`` (periodic: the second pass)."""
+    L = model.max_lag
+    with np.errstate(all="ignore"):
+        if t.periodic_val:
+            return model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])[len(t.y_val):]
+        return model.simulate(t.u_val, t.y_val[:L])
+
+
+@dataclass(frozen=True)
+class Spread:
+    """One identification's runs on the validation experiment (R²; nan: no finite run to combine)."""
+
+    kept: float
+    median: float
+    mean: float
+    runs_val: tuple[float, ...]
+    runs_est: tuple[float, ...]
+
+
+def spread(t: Target, changes: dict[str, object], seed: int) -> Spread:
+    """One identification of ``t``: per run validation and estimation R², kept model's, median and mean of runs."""
+    res = identify(t.u_est, t.y_est, DEFAULT.replace(**changes), seed)
+    runs: tuple[Model, ...] = res.extra["run_models"]
+    est = [float(s) for s in res.model.metrics.get("run_scores", [])]
+    admissible = [k for k, s in enumerate(est) if s > INADMISSIBLE] or list(range(len(runs)))
+    paths = np.array([validation_run(runs[k], t) for k in admissible])
+    paths = paths[np.all(np.isfinite(paths), axis=1)]
+    first = max(m.max_lag for m in runs)
+    median = mean = float("nan")
+    if len(paths):
+        median = r2(t.y_val[first:], np.median(paths, axis=0)[first:])
+        mean = r2(t.y_val[first:], paths.mean(axis=0)[first:])
+    return Spread(free_run_val(res.model, t), median, mean, tuple(free_run_val(m, t) for m in runs), tuple(est))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.run_spread", description=__doc__.split("\n\n")[0])
+    ap.add_argument("systems", help="comma-separated names of benchmarks.suite.SYSTEMS")
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated seeds (default 0-4)")
+    ap.add_argument("--changes", default="{}", help="JSON object of CoEAConfig fields changed from the defaults")
+    a = ap.parse_args(argv)
+    changes = json.loads(a.changes)
+    seeds = [int(s) for s in a.seeds.split(",")]
+    for t in targets(tuple(a.systems.split(","))):
+        rows = []
+        for s in seeds:
+            o = spread(t, changes, s)
+            rows.append(o)
+            print(f"{t.name} seed {s}: kept {o.kept:.4g}, median of runs {o.median:.4g}, mean {o.mean:.4g}; "
+                  f"runs val {' '.join(f'{v:.4g}' for v in o.runs_val)} "
+                  f"(est {' '.join(f'{v:.4g}' for v in o.runs_est)})", flush=True)
+        for key in ("kept", "median", "mean"):
+            v = [float(getattr(o, key)) for o in rows]
+            print(f"{t.name}: {key} median {statistics.median(v):.4g} worst {min(v):.4g}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
