@@ -167,6 +167,7 @@ def trial(rate_hz: float, streams: int, seconds: float, *, daemon_toml: str = ""
                             "update": str(up.document.get("update", "identified")),
                             "r2_fr_val": up.metrics.get("r2_fr_val"), "t_s": time.monotonic() - t_start,
                             "coalesced_before": int(up.window.get("coalesced_before", 0) or 0),
+                            "identification_s": float(up.document.get("identification_s", math.nan) or math.nan),
                             "latency_s": (up.published_unix_ns - up.window_closed_unix_ns) / 1e9})
 
                 t_start = time.monotonic()
@@ -208,6 +209,8 @@ def _trial_figures(rate_hz: float, streams: int, seconds: float, decisions: dict
     counts = [len(ds) for ds in decisions.values()]
     after_first = sum(d["coalesced_before"] for ds in decisions.values() for d in ds[1:])
     first_t = [ds[0]["t_s"] for ds in decisions.values() if ds]
+    first_run_s = [ds[0]["identification_s"] for ds in decisions.values() if ds]
+    refresh_s = [d["identification_s"] for ds in decisions.values() for d in ds if d["update"] == "refreshed"]
     kinds = [d["update"] for ds in decisions.values() for d in ds]
     peak = max(rss) if rss else float("nan")
     return {
@@ -216,6 +219,9 @@ def _trial_figures(rate_hz: float, streams: int, seconds: float, decisions: dict
         "coalesced_streams": sum(1 for v in coalesced.values() if v),
         "coalesced_after_first": after_first,
         "first_decision_max_s": max(first_t) if len(first_t) == streams else float("inf"),
+        "first_decisions_s": sorted(round(t, 2) for t in first_t),
+        "first_run_s_median": statistics.median(first_run_s) if first_run_s else float("nan"),
+        "refresh_s_median": statistics.median(refresh_s) if refresh_s else float("nan"),
         "decisions_per_stream": counts,
         "decisions_min": min(counts) if counts else 0,
         "decisions_median": statistics.median(counts) if counts else 0,

@@ -171,6 +171,25 @@ def test_scheduler_oldest_waiting_first_and_short_jobs_only_between_generations(
     assert s.take(take, stop, 0.0) is None
 
 
+def test_scheduler_takes_a_streams_first_run_before_the_served_streams_jobs() -> None:
+    s: Scheduler[str] = Scheduler()
+    for name in ("a", "new1", "b", "new2", "c"):
+        s.wake(name)
+    first = {"new1", "new2"}
+    busy = {"new2"}
+
+    def take(name: str) -> str | None | bool:
+        return False if name in busy else f"job-{name}"
+
+    stop = threading.Event()
+    assert s.any_waiting(lambda n: n in first) and not s.any_waiting(lambda n: n == "x")
+    assert s.take(take, stop, 0.0, first=lambda n: n in first) == "job-new1"
+    assert s.take(take, stop, 0.0, first=lambda n: n in first) == "job-a"  # new2 busy: keeps its place
+    busy.clear()
+    assert [s.take(take, stop, 0.0, first=lambda n: n in first) for _ in range(3)] == ["job-new2", "job-b", "job-c"]
+    assert s.take(take, stop, 0.0, first=lambda n: n in first) is None
+
+
 # --------------------------------------------------------------------------- the attacks, end to end
 HEALTHY = StreamConfig(window_s=2.0, update_every_s=0.5, cold_generations=60, warm_generations=10, neurons=5,
                        max_lag_y=3, max_lag_u=3)
@@ -371,6 +390,11 @@ class _FakeIdent:
         self.stream, self.config, self.version = name, StreamConfig(), 1
         self.left, self.generations, self.gen_s = jobs, generations, gen_s
         self.out: Any = None
+        self.taken = 0
+
+    @property
+    def first_run_due(self) -> bool:
+        return self.taken == 0 and self.left > 0
 
     @property
     def busy(self) -> bool:
@@ -384,6 +408,7 @@ class _FakeIdent:
         if self.out is not None or self.left == 0:
             return None
         self.left -= 1
+        self.taken += 1
         self.out = _FakeJob(self.stream, self.generations, self.gen_s)
         return self.out
 
@@ -442,3 +467,36 @@ def _wait_for(cond: Any, timeout_s: float) -> bool:
             return True
         time.sleep(0.01)
     return bool(cond())
+
+
+def test_a_long_run_lets_no_short_job_in_while_a_stream_waits_for_its_first_run() -> None:
+    """First runs go before the served streams' next jobs: while a stream waits for its first run, the long run in
+    progress lets no other stream's short job in between its generations; once none waits, it does again."""
+    from collections import Counter as _Counter
+
+    from streamid.daemon.runner import JobRunner
+    from streamid.daemon.slots import StreamSlot
+
+    FAKE_RUNS.clear()
+    shorts = {f"s{i}": StreamSlot(_FakeIdent(f"s{i}", 10_000, 3, 0.01)) for i in range(3)}  # type: ignore[arg-type]
+    long = StreamSlot(_FakeIdent("long", 1, 20, 0.02))  # type: ignore[arg-type]
+    new = StreamSlot(_FakeIdent("new", 1, 20, 0.02))  # type: ignore[arg-type]
+    streams = {**shorts, "long": long, "new": new}
+    done: dict[str, list[float]] = {n: [] for n in streams}
+    stop = threading.Event()
+    runner = JobRunner(streams, DaemonConfig(), stop, _Counter(), lambda st, job, out: done[st.ident.stream].append(
+        time.monotonic()))
+    for name in ("s0", "s1", "s2", "long", "new"):  # every first run, in this order; "new" waits during "long"
+        runner.wake(name)
+    worker = threading.Thread(target=runner.worker_loop, daemon=True)
+    worker.start()
+    try:
+        assert _wait_for(lambda: bool(done["new"]), 20.0)
+    finally:
+        stop.set()
+        runner.scheduler.notify_all()
+        worker.join(10)
+    by_name = {r.name: r for r in FAKE_RUNS if r.name in ("long", "new")}
+    assert by_name["long"].paused_s == 0.0  # "new" waited for its first run all along: nothing nested
+    assert by_name["new"].paused_s > 0.0  # no first run waits any more: the short jobs go between its generations
+    assert done["new"][0] > done["long"][0]

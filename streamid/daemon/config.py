@@ -8,7 +8,7 @@ A configuration file is optional: every setting has an embedded default, so
     discover = false          # also serve streams not listed (default: true only when none listed)
     max_streams = 64
     status_every_s = 1.0
-    workers = 1
+    workers = 2               # identification worker threads (2: refreshes on the second core; see docs/daemon.md)
     helper = true             # one evaluation helper process per worker (the second core, idle CPU only)
     retain_memory = true      # keep freed working memory for reuse: flat RSS (glibc)
     max_payload_bytes = 16777216         # larger payloads are refused before decoding (16 MiB)
@@ -24,7 +24,8 @@ A configuration file is optional: every setting has an embedded default, so
     [defaults]                # per-stream settings applied to every stream
     window_s = 10.0
     update_every_s = 1.0
-    max_pending_windows = 1   # closed windows that may wait for identification (more: none skipped)
+    max_pending_windows = 1000  # closed windows that may wait for identification (1: only the newest)
+    max_pending_s = 120.0     # a live stream's waiting windows: at most this much stream time behind the newest
 
     [streams.bench1]          # overrides for one stream
     window_s = 0.5
@@ -73,7 +74,9 @@ class DaemonConfig:
     status_every_s
         Period of the status messages.
     workers
-        Identification worker threads.
+        Identification worker threads (default 2: while one runs a coevolution, the other refreshes other
+        streams' champions, numpy and the compiled loops releasing the GIL; 40 simulated 2 kHz streams decided
+        at least 64 windows each in 75 s with 2, 34 with 1, docs/benchmarks.md).
     helper
         Give every worker an :class:`~streamid.engine.parallel.EvalHelper`: a
         process that evaluates half of each population batch on an otherwise
@@ -131,7 +134,7 @@ class DaemonConfig:
     discover: bool = True
     max_streams: int = 64
     status_every_s: float = 1.0
-    workers: int = 1
+    workers: int = 2
     helper: bool = True
     retain_memory: bool = True
     max_payload_bytes: int = 16 * 2**20

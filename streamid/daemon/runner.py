@@ -79,7 +79,7 @@ class JobRunner:
     def worker_loop(self, helper: EvalHelper | None = None) -> None:
         """Serve jobs until the daemon stops (the body of a worker thread)."""
         while not self.stop.is_set():
-            nxt = self.scheduler.take(self._try_take, self.stop)
+            nxt = self.scheduler.take(self._try_take, self.stop, first=self._first_run)
             if nxt is None:
                 continue
             st, job = nxt
@@ -103,6 +103,15 @@ class JobRunner:
                 return False
             job = st.ident.next_job(defer_scheduled=loaded)
         return None if job is None else (st, job)
+
+    def _first_run(self, name: str) -> bool:
+        """Whether the stream's next job is its first (no update finished yet): taken first (the scheduler's lock
+        is held: the same order as _try_take)."""
+        st = self.streams.get(name)
+        if st is None:
+            return False
+        with st.lock:
+            return st.ident.first_run_due
 
     def _expected_s(self, name: str) -> float | None:
         """Expected seconds of the stream's next job (None: unknown)."""
@@ -174,9 +183,12 @@ class JobRunner:
         return out
 
     def _let_short_jobs_in(self, st: StreamSlot, deadline: Deadline) -> None:
-        """Between two generations of ``st``'s run: run other streams' short jobs to their end."""
+        """Between two generations of ``st``'s run: run other streams' short jobs to their end (none while a
+        stream waits for its first run: first runs go before the served streams' next jobs, see the scheduler)."""
         for _ in range(max(1, len(self.streams))):  # each waiting stream at most once per generation
             if deadline.paused_s > NESTED_SHARE * deadline.own_s:  # the long run keeps its share of the worker
+                return
+            if self.scheduler.any_waiting(self._first_run):
                 return
             nxt = self.scheduler.take_short(lambda n: self._try_take(n, loaded=True), self._expected_s,
                                             exclude=st.ident.stream)

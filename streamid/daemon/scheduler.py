@@ -7,6 +7,15 @@ Two rules keep one stream from starving the others:
   is not busy (a stream has at most one job out).  A stream is queued once,
   whatever the number of its windows, so a stream that closes many windows
   cannot push the others back.
+* **A stream's first run before the others' next jobs.**  A stream none of
+  whose updates has finished yet (it has no model: its first, cold, run) is
+  taken before the streams already served, oldest first among such streams.
+  Once served, a stream whose windows wait loses nothing by waiting (a live
+  stream keeps its backlog, :mod:`streamid.online.pending`, and catches up by
+  refreshes), while a stream without a model has nothing to serve; every
+  stream gets this precedence once (until its first update finishes), so it
+  cannot starve the others.  While such a stream waits, a long run lets no
+  short job in either (below).
 * **Short jobs go between the generations of long ones.**  A run polls its
   stop flag between generations; the daemon uses that point
   (:meth:`Scheduler.take_short`): once the running job has taken
@@ -88,17 +97,26 @@ class Scheduler(Generic[T]):
         with self._cond:
             return len(self._ready)
 
+    def any_waiting(self, which: Callable[[str], bool]) -> bool:
+        """Whether a queued stream satisfies ``which`` (called under the queue's lock)."""
+        with self._cond:
+            return any(which(name) for name in self._ready)
+
     def notify_all(self) -> None:
         """Wake every waiting worker (stop)."""
         with self._cond:
             self._cond.notify_all()
 
-    def take(self, try_take: TryTake[T], stop: threading.Event, wait_s: float = 0.2) -> T | None:
-        """The first job of the oldest waiting stream that is not busy; None after ``wait_s`` or on stop."""
+    def take(self, try_take: TryTake[T], stop: threading.Event, wait_s: float = 0.2,
+             first: Callable[[str], bool] | None = None) -> T | None:
+        """The first job of the oldest waiting stream that is not busy, the streams ``first`` names (their first
+        run) before the others; None after ``wait_s`` or on stop."""
         with self._cond:
             end = time.monotonic() + wait_s
             while not stop.is_set():
-                job = self._scan(try_take, None)
+                job = self._scan(try_take, first) if first is not None else None
+                if job is None:
+                    job = self._scan(try_take, None)
                 if job is not None:
                     return job
                 left = end - time.monotonic()

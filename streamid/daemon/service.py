@@ -7,9 +7,9 @@ lock.  The daemon only moves things in and out of it:
 * **Zenoh's callback threads** split the key, :func:`streamid.wire.codec.decode`
   the payload and :meth:`~OnlineIdentifier.push` the batch (with the receive time).
   A closed window wakes a worker.
-* **Worker threads** (``daemon.workers``, default 1) take the stream whose window
-  waited longest (:mod:`streamid.daemon.scheduler`: short jobs of other streams
-  also run between the generations of a long one), :meth:`~OnlineIdentifier.next_job`, run the job
+* **Worker threads** (``daemon.workers``, default 2) take the stream whose window
+  waited longest, a stream's first run before the others (:mod:`streamid.daemon.scheduler`:
+  short jobs of other streams also run between the generations of a long one), :meth:`~OnlineIdentifier.next_job`, run the job
   outside the lock (samples keep arriving meanwhile),
   :meth:`~OnlineIdentifier.finish` it -- the new state is saved to ``--state-dir``
   *before* an accepted model is handed out, so a version is never reused after a

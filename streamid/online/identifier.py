@@ -148,6 +148,12 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         return self._buffer.pending_windows + (1 if self._todo else 0)
 
     @property
+    def first_run_due(self) -> bool:
+        """Whether a window waits and no update of this stream has finished yet (no model, not even a refused one):
+        its next job is its first run (a caller serving many streams may take it first)."""
+        return self.pending > 0 and not sum(self._outcomes.values()) and all(h.model is None for h in self._heads.values())
+
+    @property
     def backlog(self) -> bool:
         """Whether a live stream's windows wait behind the one being identified (a backlog to catch up): a
         coevolution run due only by the schedule then waits until it is drained (:mod:`streamid.online.pending`)."""
