@@ -31,3 +31,10 @@ def test_main_prints_each_seed_and_the_summary(capsys: pytest.CaptureFixture[str
     out = capsys.readouterr().out
     assert out.count("median of runs") == 3  # three pairs of the reactor, one seed each
     assert out.count(": kept median") == 3 and out.count(": median median") == 3
+
+
+def test_finished_runs_are_given_the_final_stage() -> None:
+    t = targets(("reactor_sim",))[0]
+    raw, fin = spread(t, FAST, 3), spread(t, FAST, 3, finish=True)
+    assert raw.kept == fin.kept and raw.runs_est == fin.runs_est  # the same identification
+    assert fin.runs_val != raw.runs_val  # the refinement moved the runs' weights
