@@ -404,9 +404,11 @@ class _FakeIdent:
     def pending(self) -> int:
         return self.left
 
-    def next_job(self, defer_scheduled: bool = False) -> Any:
+    def next_job(self, defer_scheduled: bool = False, first_generations: int | None = None) -> Any:
         if self.out is not None or self.left == 0:
             return None
+        if self.taken == 0:
+            self.first_generations = first_generations
         self.left -= 1
         self.taken += 1
         self.out = _FakeJob(self.stream, self.generations, self.gen_s)
@@ -500,3 +502,8 @@ def test_a_long_run_lets_no_short_job_in_while_a_stream_waits_for_its_first_run(
     assert by_name["long"].paused_s == 0.0  # "new" waited for its first run all along: nothing nested
     assert by_name["new"].paused_s > 0.0  # no first run waits any more: the short jobs go between its generations
     assert done["new"][0] > done["long"][0]
+    # a first run while another stream waits for its own is shortened (FIRST_RUN_SHARE of the cold generations)
+    from streamid.daemon.runner import FIRST_RUN_SHARE
+
+    assert long.ident.first_generations == round(FIRST_RUN_SHARE * StreamConfig().cold_generations) == 200
+    assert new.ident.first_generations is None and shorts["s0"].ident.first_generations is not None

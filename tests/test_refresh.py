@@ -251,3 +251,19 @@ def test_a_live_backlog_is_refreshed_in_order_before_a_scheduled_run(damper: tup
     st = ident.status()
     assert st["refresh"]["deferred_backlog"] == 5 and st["windows"]["backlog_s"] == 0.0
     assert st["windows"]["backlog_age_s"] is None
+
+
+def test_a_shortened_first_run_only_for_a_streams_first_update(damper: tuple[np.ndarray, ...]) -> None:
+    """A caller with other streams waiting may shorten a stream's first run (first_generations); it is not an
+    escalation, and later runs have their usual generations."""
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper", refresh=RefreshPolicy(min_every=1, max_every=2))
+    ident.learn_many(t[:1400], u[:1400], y[:1400], **NAMES)  # 4 windows
+    job = ident.next_job(first_generations=10)
+    assert job is not None and job.generations == 10 and job.shortened_first
+    up = ident.finish(job, job.run())
+    assert up.document is not None and up.document["generations"] == 10 and up.accepted
+    nxt = ident.next_job(first_generations=10)  # the first update has finished: not shortened again
+    assert nxt is not None and not nxt.shortened_first and nxt.generations is None
+    out = nxt.run()
+    assert isinstance(nxt, RefreshJob) or out.generations == CFG.warm_generations

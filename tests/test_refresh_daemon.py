@@ -75,6 +75,11 @@ def test_a_daemon_publishes_refreshes_as_challengers_and_shows_its_policy(tmp_pa
     assert policy["enabled"] is True and policy["min_every"] >= 1 and policy["max_every"] >= policy["min_every"]
     assert doc["refresh"]["refreshed"] >= 3 and doc["refresh"]["identified"] >= 1
     assert doc["refresh"]["next"] in ("refresh", "coevolution")
+    # the backlog policy (streamid.online.pending): its bound, the backlog's length in stream time and its age
+    w = doc["windows"]
+    assert w["max_pending_s"] == 120.0 and isinstance(w["backlog_s"], float) and w["backlog_s"] >= 0.0
+    assert w["backlog_age_s"] is None or w["backlog_age_s"] >= 0.0
+    assert isinstance(doc["refresh"]["deferred_backlog"], int) and not w["live"]  # a 10x replay: not live
     header, line = table.stdout.splitlines()[:2]
     column = header.index("next update")
     assert line[column:].startswith(("refresh (run in ", "coevolution")), line

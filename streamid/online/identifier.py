@@ -164,7 +164,7 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         """Whether a job taken by :meth:`next_job` has not been finished yet."""
         return self._job is not None
 
-    def next_job(self, *, defer_scheduled: bool = False) -> UpdateJob | None:
+    def next_job(self, *, defer_scheduled: bool = False, first_generations: int | None = None) -> UpdateJob | None:
         """Take the next (window, output) to identify as an :class:`UpdateJob` (None: nothing due, or a job is out).
 
         A window is identified once per modelled output, one job each, before the next window is taken.
@@ -174,6 +174,9 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         While a live stream's windows wait behind this one (:attr:`backlog`), a run due only by the schedule
         becomes a refresh whatever the caller's load, until the backlog is drained (bounded by the backlog's own
         bound, ``max_pending_s``).
+        ``first_generations``: the stream's first run (no update finished yet, no populations) runs at most this
+        many generations (a caller with other streams waiting for their first runs: every stream served sooner;
+        the usual warm runs go on from its populations).
         """
         if self._job is not None:
             return None
@@ -200,10 +203,14 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         if not why or (defer_scheduled and track.defer(why)):  # a refresh of the champion's weights
             self._job = refresh_job(track, head, window, self.config, self._next_version())
             return self._job
+        first = (first_generations is not None and generations is None and head.coea_state is None
+                 and head.model is None and not sum(self._outcomes.values()))
+        if first:
+            generations = max(1, min(int(first_generations or 1), self.config.cold_generations))
         self._job = UpdateJob(
             window, self.config, self._next_version(), head.coea_state, head.signature,
             force_cold=head.failures_in_row >= self.config.cold_after_failures, output=output,
-            champion=head.model, generations=generations, cut_t_ns=cut,
+            champion=head.model, generations=generations, cut_t_ns=cut, shortened_first=first,
         )
         return self._job
 
@@ -247,7 +254,8 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
             self._last["outcome"] = outcome.kind
             return self._refuse(job, outcome, outcome.kind, outcome.reason, outcome.code or outcome.kind, now_ns)
         assert outcome.model is not None and outcome.summary is not None
-        if job.generations is not None:  # escalated: until a champion is accepted, at most ESCALATED_RUNS runs
+        if job.generations is not None and not job.shortened_first:  # escalated: until a champion is accepted, at
+            # most ESCALATED_RUNS runs
             head.escalated_runs += 1
             head.escalate = head.escalated_runs < ESCALATED_RUNS
         if outcome.champion_metrics is not None and head.model is not None:

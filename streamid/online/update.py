@@ -150,6 +150,8 @@ class UpdateJob:
     cut_t_ns
         Identify only the samples from this stream time on (after a drift: the data before the change
         would teach the old dynamics); None: the whole window.
+    shortened_first
+        ``generations`` is a stream's shortened first run (others wait for theirs), not an escalation.
     """
 
     window: Window
@@ -162,6 +164,7 @@ class UpdateJob:
     champion: Model | None = None
     generations: int | None = None
     cut_t_ns: int | None = None
+    shortened_first: bool = False
 
     def run(
         self,
