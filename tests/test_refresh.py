@@ -267,3 +267,26 @@ def test_a_shortened_first_run_only_for_a_streams_first_update(damper: tuple[np.
     assert nxt is not None and not nxt.shortened_first and nxt.generations is None
     out = nxt.run()
     assert isinstance(nxt, RefreshJob) or out.generations == CFG.warm_generations
+
+
+def test_a_live_stream_left_without_a_model_keeps_only_its_newest_window(damper: tuple[np.ndarray, ...]) -> None:
+    """A live backlog is kept only while it can be refreshed through: a stream whose first update left it without
+    a model (here: failed) keeps only its newest window, and the status says so (windows.backlog_kept)."""
+    from streamid.online.update import Outcome
+
+    t, u, y = damper
+    ident = OnlineIdentifier(CFG, stream="damper")
+
+    def feed(a: int, b: int) -> None:  # 1 s chunks at 200 Hz, each arriving as its last sample is taken: live
+        for k in range(a, b, 200):
+            ident.learn_many(t[k:k + 200], u[k:k + 200], y[k:k + 200], now_ns=int(t[k + 199]) + 10**9, **NAMES)
+
+    feed(0, 1000)  # windows ending at 4 and 5 s
+    assert ident.status()["windows"]["backlog_kept"] is True
+    job = ident.next_job()
+    assert job is not None
+    ident.finish(job, Outcome("failed", "injected", "exception"))
+    assert ident.status()["windows"]["backlog_kept"] is False
+    feed(1000, 2000)  # windows ending at 6 ... 10 s: each replaces the one waiting
+    w = ident.status()["windows"]
+    assert w["live"] and w["pending_windows"] == 1 and w["coalesced"] == 5

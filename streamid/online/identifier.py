@@ -151,7 +151,8 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
     def first_run_due(self) -> bool:
         """Whether a window waits and no update of this stream has finished yet (no model, not even a refused one):
         its next job is its first run (a caller serving many streams may take it first)."""
-        return self.pending > 0 and not sum(self._outcomes.values()) and all(h.model is None for h in self._heads.values())
+        return (self._job is None and self.pending > 0 and not sum(self._outcomes.values())
+                and all(h.model is None for h in self._heads.values()))
 
     @property
     def backlog(self) -> bool:
@@ -226,6 +227,19 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
         self._floor = max(self._floor, int(version))
 
     def finish(self, job: UpdateJob, outcome: Outcome, *, now_ns: int = 0, persist: Persist | None = None) -> Update:
+        """Judge a job's outcome (see :meth:`_finish`); then whether a live backlog is still kept."""
+        try:
+            return self._finish(job, outcome, now_ns=now_ns, persist=persist)
+        finally:
+            self._buffer.backlog_kept = self._can_catch_up()
+
+    def _can_catch_up(self) -> bool:
+        """Whether a live backlog can be worked through cheaply: no update has finished yet (the first run will
+        serve the stream), or an output has a champion to refresh. A stream whose first updates left it without
+        a model would decide each waiting window by a full run: it keeps only its newest window until served."""
+        return not sum(self._outcomes.values()) or any(h.model is not None for h in self._heads.values())
+
+    def _finish(self, job: UpdateJob, outcome: Outcome, *, now_ns: int = 0, persist: Persist | None = None) -> Update:
         """Judge a job's outcome: the challenger becomes the champion with the next version, or is refused.
 
         ``now_ns`` is recorded as the document's ``published_unix_ns``.  ``persist``, when given, is
@@ -420,6 +434,7 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
             head = restored_head(part, name, warnings)
             if head is not None:
                 self._heads[head.output] = head
+        self._buffer.backlog_kept = True  # (a restored champion: a backlog can be refreshed through)
         self._tracks.clear()
         for output, part in state.refresh.items():
             if output in self._heads and (why := self._track(output).restore(part)):

@@ -89,7 +89,7 @@ def stream_status(
             "outputs_to_do": outputs_to_do,  # outputs of the window being identified not done yet
             **{k: c[k] for k in ("pending_windows", "max_pending_windows", "pending_bytes",
                                  "pending_windows_peak", "pending_bytes_peak", "pending_bytes_max", "live",
-                                 "max_pending_s")},
+                                 "max_pending_s", "backlog_kept")},
             # the backlog: stream time from the oldest waiting window's end to the newest's, and how long the
             # oldest has waited (the caller's clock; None without one)
             "backlog_s": round(float(c["pending_span_s"]), 6),
