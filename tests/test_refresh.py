@@ -270,8 +270,8 @@ def test_a_shortened_first_run_only_for_a_streams_first_update(damper: tuple[np.
 
 
 def test_a_live_stream_left_without_a_model_keeps_only_its_newest_window(damper: tuple[np.ndarray, ...]) -> None:
-    """A live backlog is kept only while it can be refreshed through: a stream whose first update left it without
-    a model (here: failed) keeps only its newest window, and the status says so (windows.backlog_kept)."""
+    """A live backlog is kept only while it can be worked through: a stream without a model whose last update
+    failed keeps only its newest window, and the status says so (windows.backlog_kept)."""
     from streamid.online.update import Outcome
 
     t, u, y = damper

@@ -234,10 +234,12 @@ class OnlineIdentifier(StreamIntake, ChampionViews):
             self._buffer.backlog_kept = self._can_catch_up()
 
     def _can_catch_up(self) -> bool:
-        """Whether a live backlog can be worked through cheaply: no update has finished yet (the first run will
-        serve the stream), or an output has a champion to refresh. A stream whose first updates left it without
-        a model would decide each waiting window by a full run: it keeps only its newest window until served."""
-        return not sum(self._outcomes.values()) or any(h.model is not None for h in self._heads.values())
+        """Whether a live backlog can be worked through: an output has a champion to refresh, or the stream's last
+        update did not fail (no update yet, or a refused challenger: its next runs are warm, from its populations).
+        A stream without a model whose last update failed (an engine error, a run stopped at
+        ``max_identification_s``) would decide each waiting window by another such run: it keeps only its newest
+        window until it has a model."""
+        return any(h.model is not None for h in self._heads.values()) or self._last.get("outcome") != "failed"
 
     def _finish(self, job: UpdateJob, outcome: Outcome, *, now_ns: int = 0, persist: Persist | None = None) -> Update:
         """Judge a job's outcome: the challenger becomes the champion with the next version, or is refused.
