@@ -15,7 +15,10 @@ measures it over the last 16 windows closed):
   long run of another stream, is worked through by cheap refreshes of the
   champion (:mod:`streamid.online.refresh`) once it has one.  Past that bound
   the oldest waiting windows are dropped (*coalesced*): the backlog is then
-  older than the bound says a decision is still worth making.
+  older than the bound says a decision is still worth making.  A stream
+  without a model whose last update failed keeps only its newest window (its
+  identifier clears ``WindowBuffer.backlog_kept``): each waiting window would
+  cost another such run.
 
 Both are bounded by ``max_pending_windows`` and ``max_pending_bytes`` (per
 stream settings, default 1000 windows and 64 MiB); past them the oldest waiting
