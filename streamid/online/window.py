@@ -106,9 +106,7 @@ class WindowBuffer:
         self._src_vote: dict[str, int] = {}  # source -> the other period it sends
         self._last_bad: dict[str, object] = {}
         self._queue = PendingWindows(params.max_pending_windows, params.max_pending_bytes)
-        #: Whether a live stream keeps its waiting windows (set by the identifier: False while the stream has no
-        #: model after its first update, its backlog could not be refreshed through); False: only the newest.
-        self.backlog_kept = True
+        self.backlog_kept = True  # a live stream keeps its waiting windows (False, set by its identifier: the newest)
         self._last_t_ns: int | None = None
         self._closes: deque[tuple[int, int]] = deque(maxlen=16)  # (stream t_ns, caller's now_ns) of recent closes
 
@@ -186,10 +184,8 @@ class WindowBuffer:
         out["pending_bytes_peak"] = self._queue.peak_bytes
         out["max_pending_windows"] = self._queue.limit
         out["pending_bytes_max"] = min(self._queue.limit * self._w * len(self._rows) * 8, self._queue.max_bytes)
-        out["pending_span_s"] = self._queue.span_ns() / 1e9
-        out["pending_oldest_received_ns"] = self._queue.oldest_received_ns()
-        out["max_pending_s"] = self.params.max_pending_s
-        out["backlog_kept"] = self.backlog_kept
+        out.update(pending_span_s=self._queue.span_ns() / 1e9, pending_oldest_received_ns=self._queue.oldest_received_ns(),
+                   max_pending_s=self.params.max_pending_s, backlog_kept=self.backlog_kept)
         out["live"] = self.live
         out["inputs"] = list(self._inputs)
         out["outputs"] = list(self._outputs)
@@ -521,8 +517,7 @@ class WindowBuffer:
         n, keep = due_windows(self._next_close, complete, self._h, self._w, self._start, self._queue.limit)
         self._closes.append((self._anchor + (self._next_close + (n - 1) * self._h) * self._period, self._now_ns))  # type: ignore[operator]
         live = self.live
-        # a live backlog: bounded in stream time, and kept only while the identifier can catch it up (backlog_kept)
-        span_ns = (round(self.params.max_pending_s * 1e9) if self.backlog_kept else 0) if live else None
+        span_ns = (round(self.params.max_pending_s * 1e9) if self.backlog_kept else 0) if live else None  # a live backlog
         self._next_close += n * self._h
         closed0 = self._counts["windows_closed"]
         self._counts["windows_closed"] += n
@@ -548,9 +543,8 @@ class WindowBuffer:
             self._counts["windows_emitted"] += 1
             self._event("window.closed", f"window {self._number} closed ({self._w} samples)")
         if coalesced:
-            why = (f"bounds max_pending_windows={self._queue.limit}, max_pending_bytes={self._queue.max_bytes}"
-                   + ((f", max_pending_s={self.params.max_pending_s:g} (a live stream)" if self.backlog_kept else
-                       "; a live stream without a model keeps only its newest window") if live else ""))
+            why = (f"bounds max_pending_windows={self._queue.limit}, max_pending_bytes={self._queue.max_bytes}" + (
+                (f", max_pending_s={self.params.max_pending_s:g} (live)" if self.backlog_kept else "; live, no model: newest only") if live else ""))
             self._event("window.coalesced", f"{coalesced} window(s) coalesced: identification is behind ({why})")
         self._counts["windows_coalesced"] += coalesced
         return bool(keep)
