@@ -193,7 +193,7 @@ def test_restart_after_damaged_or_lost_state_never_silences_subscribers(tmp_path
     procs: list[subprocess.Popen[str]] = []
     with Bus(ZenohSettings(mode="router", listen=(ep,))) as _router, \
             ModelSubscriber(ZenohSettings(mode="client", connect=(ep,)), "mr_damper", seen.append,
-                            fetch_latest=False) as sub:
+                            fetch_latest=False):
         watch = subprocess.Popen([*STREAMID, "watch", "--mode", "client", "--connect", ep, "--stream", "mr_damper",
                                   "--json", "--duration", "150"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                  text=True)

@@ -22,7 +22,6 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-import pytest
 
 from conftest import STREAMID, endpoint
 from replay.player import ReplayConfig, replay_log
