@@ -239,6 +239,12 @@ def _trial_figures(rate_hz: float, streams: int, seconds: float, decisions: dict
 
 
 # --------------------------------------------------------------------------- the engine against record length
+#: The online engine lengths' common validation record: this many samples of the same simulated damper under
+#: another seed's excitation, so the figures of 10k, 100k and 1M-sample windows compare on the same data.
+COMMON_VAL_SAMPLES = 20_000
+COMMON_VAL_SEED = 7919
+
+
 def engine_main(n: int, seed: int, mode: str = "offline") -> None:
     """Child process body: one cold identification of ``n`` samples (``mode``: ``online`` update of an ``n``-sample
     window, or ``offline`` ``identify``); prints its JSON figures."""
@@ -259,7 +265,16 @@ def engine_main(n: int, seed: int, mode: str = "offline") -> None:
         seconds = time.perf_counter() - t0
         after = proc_memory_mb_self()
         fr = up.metrics.get("r2_fr_val", float("nan")) if up is not None else float("nan")
-        print(json.dumps({"n": n, "seconds": seconds, "r2_fr": fr, "peak_mb": after[1],
+        common = float("nan")  # the same record for every length: another excitation of the same damper
+        model = up.outcome.model if up is not None else None
+        if model is not None:
+            _, _, _, val = _device_records(2000.0, 1, COMMON_VAL_SAMPLES / 2000.0, seed + COMMON_VAL_SEED)
+            vu, vy = val[0]
+            L = model.max_lag
+            with np.errstate(all="ignore"):
+                sim = model.simulate(vu, vy[:L])
+            common = r2(vy[L:], sim[L:]) if np.all(np.isfinite(sim)) else float("-inf")
+        print(json.dumps({"n": n, "seconds": seconds, "r2_fr": fr, "r2_fr_common": common, "peak_mb": after[1],
                           "peak_over_start_mb": after[1] - before[0], "kind": up.kind if up else None}), flush=True)
         return
     n_next = min(20_000, max(2_000, n // 5))
@@ -366,6 +381,9 @@ def capacity_measurements(plan: CapacityPlan) -> Iterator[Measurement]:
                           f"process peak RSS; {e['peak_over_start_mb']:.0f} MB over its start")
         yield Measurement(SECTION, case, "R2 FR held out", "", (e["r2_fr"],),
                           "the window's newest 30 %" if mode == "online" else "free run on the samples after")
+        if "r2_fr_common" in e:
+            yield Measurement(SECTION, case, "R2 FR common record", "", (e["r2_fr_common"],),
+                              f"free run on one {COMMON_VAL_SAMPLES}-sample record of another excitation, every length")
     yield Measurement(SECTION, "refresh of the champion's weights (2 kHz, 2,000 new rows)", "time per new sample",
                       "us", (refresh_us_per_sample(plan.seed),), "blocked least squares with forgetting, solve included")
 

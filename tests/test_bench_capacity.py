@@ -46,5 +46,8 @@ def test_a_tiny_capacity_run_gives_every_row() -> None:
         assert by[(engine, "identification time")].median > 0 and by[(engine, "peak memory")].median > 50
         fr = by[(engine, "R2 FR held out")].median
         assert math.isnan(fr) or fr <= 1.0  # NaN: the free run diverged on the held-out samples (a figure too)
+    common = by[("online cold update, 2000-sample window (2 kHz MR damper)", "R2 FR common record")]
+    assert "another excitation" in common.note and (math.isnan(common.median) or common.median <= 1.0)
+    assert ("offline identify, 2000 samples (2 kHz MR damper, online settings)", "R2 FR common record") not in by
     refresh = [m for m in rows if m.metric == "time per new sample"]
     assert len(refresh) == 1 and 0 < refresh[0].median < 1000  # microseconds (a sanity bound, not a timing claim)
