@@ -24,9 +24,8 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from benchmarks.suite import Target, free_run_val, targets
+from benchmarks.suite import Target, free_run_val, targets, validation_run
 from streamid.engine import identify
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
@@ -36,15 +35,6 @@ from streamid.engine.validation import r2
 
 #: A run whose estimation score is at most this left no admissible candidate (streamid.engine.selection).
 INADMISSIBLE = -1e9
-
-
-def validation_run(model: Model, t: Target) -> NDArray[np.float64]:
-    """``model``'s free run on the validation experiment, aligned with ``t.y_val`` (periodic: the second pass)."""
-    L = model.max_lag
-    with np.errstate(all="ignore"):
-        if t.periodic_val:
-            return model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])[len(t.y_val):]
-        return model.simulate(t.u_val, t.y_val[:L])
 
 
 @dataclass(frozen=True)

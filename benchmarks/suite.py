@@ -69,7 +69,7 @@ from streamid.engine.parallel import EvalHelper
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.validation import r2
 
-__all__ = ["Target", "SYSTEMS", "targets", "free_run_val", "run_suite", "run_table", "bench"]
+__all__ = ["Target", "SYSTEMS", "targets", "free_run_val", "validation_run", "run_suite", "run_table", "bench"]
 
 SUITE_PAPER = PAPER.replace(neurons=10, generations=400)
 
@@ -201,16 +201,21 @@ def targets(names: tuple[str, ...] | None = None) -> list[Target]:
     return [t for name in (names or tuple(SYSTEMS)) for t in SYSTEMS[name]()]
 
 
-def free_run_val(model: Model, t: Target) -> float:
-    """Free-run R^2 of ``model`` on the validation part (periodic: the second pass scored);
-    -inf when the free run diverges (only a model with a linear part can: its output is unbounded)."""
+def validation_run(model: Model, t: Target) -> np.ndarray:
+    """``model``'s free run on the validation part, aligned with ``t.y_val`` (periodic: the second pass, whole;
+    else from the measured first ``max_lag`` outputs on)."""
     L = model.max_lag
     with np.errstate(over="ignore", invalid="ignore"):
         if t.periodic_val:
-            sim = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])[len(t.y_val) :]
-            ref = t.y_val
-        else:
-            sim, ref = model.simulate(t.u_val, t.y_val[:L])[L:], t.y_val[L:]
+            return model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L])[len(t.y_val) :]
+        return model.simulate(t.u_val, t.y_val[:L])
+
+
+def free_run_val(model: Model, t: Target) -> float:
+    """Free-run R^2 of ``model`` on the validation part (periodic: the second pass scored);
+    -inf when the free run diverges (only a model with a linear part can: its output is unbounded)."""
+    first = 0 if t.periodic_val else model.max_lag
+    sim, ref = validation_run(model, t)[first:], t.y_val[first:]
     if not np.all(np.isfinite(sim)):
         return float("-inf")
     return r2(ref, sim)

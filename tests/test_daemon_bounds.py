@@ -440,15 +440,8 @@ def test_short_jobs_nested_in_a_long_run_leave_it_half_of_the_worker() -> None:
         time.monotonic()))
     for name in ("s0", "s1", "s2", "long"):  # the short streams run once alone first: then they are known short
         runner.wake(name)
-    worker = threading.Thread(target=runner.worker_loop, daemon=True)
     t0 = time.monotonic()
-    worker.start()
-    try:
-        assert _wait_for(lambda: bool(done["long"]), 20.0)
-    finally:
-        stop.set()
-        runner.scheduler.notify_all()
-        worker.join(10)
+    _work_until(runner, stop, lambda: bool(done["long"]))
     wall = done["long"][0] - t0
     nested = sum(st.nested_runs for st in shorts.values())
     assert nested >= 5  # short jobs did go between its generations
@@ -460,6 +453,18 @@ def test_short_jobs_nested_in_a_long_run_leave_it_half_of_the_worker() -> None:
     run = next(r for r in FAKE_RUNS if r.name == "long")
     one = max(r.took_s for r in FAKE_RUNS if r.name != "long")
     assert run.paused_s <= NESTED_SHARE * run.own_s + one, (run.paused_s, run.own_s, one, nested, wall)
+
+
+def _work_until(runner: Any, stop: threading.Event, cond: Any, timeout_s: float = 20.0) -> None:
+    """One worker thread serves ``runner``'s jobs until ``cond()`` holds (asserted within ``timeout_s``), then stops."""
+    worker = threading.Thread(target=runner.worker_loop, daemon=True)
+    worker.start()
+    try:
+        assert _wait_for(cond, timeout_s)
+    finally:
+        stop.set()
+        runner.scheduler.notify_all()
+        worker.join(10)
 
 
 def _wait_for(cond: Any, timeout_s: float) -> bool:
@@ -490,14 +495,7 @@ def test_a_long_run_lets_no_short_job_in_while_a_stream_waits_for_its_first_run(
         time.monotonic()))
     for name in ("s0", "s1", "s2", "long", "new"):  # every first run, in this order; "new" waits during "long"
         runner.wake(name)
-    worker = threading.Thread(target=runner.worker_loop, daemon=True)
-    worker.start()
-    try:
-        assert _wait_for(lambda: bool(done["new"]), 20.0)
-    finally:
-        stop.set()
-        runner.scheduler.notify_all()
-        worker.join(10)
+    _work_until(runner, stop, lambda: bool(done["new"]))
     by_name = {r.name: r for r in FAKE_RUNS if r.name in ("long", "new")}
     assert by_name["long"].paused_s == 0.0  # "new" waited for its first run all along: nothing nested
     assert by_name["new"].paused_s > 0.0  # no first run waits any more: the short jobs go between its generations
