@@ -8,14 +8,18 @@ from streamid.commands.status import HEADER, output_lines, status_line
 
 def test_the_status_line_puts_each_value_under_its_header_and_shows_the_drifts() -> None:
     doc = {"stream": "dev1", "daemon": {"origin": {"daemon": "alpha"}, "sharing": {"members": ["a", "b"]}},
-           "version": 12, "champion": {"age_s": 3.2, "current": {"r2_fr_val": 0.9812}}, "drifts": 3, "degraded": False}
+           "version": 12, "champion": {"age_s": 3.2, "current": {"r2_fr_val": 0.9812}}, "drifts": 3, "degraded": False,
+           "windows": {"pending_windows": 3, "backlog_s": 2.0}}
     line = status_line(doc)
-    for column, value in (("FR R2 now", "0.9812"), ("drifts", "3"), ("daemons", "2")):
+    for column, value in (("FR R2 now", "0.9812"), ("drifts", "3"), ("backlog", "3 / 2.0 s"), ("daemons", "2")):
         end = HEADER.index(column) + len(column)  # right-aligned under its header
         assert line[end - len(value) : end] == value, (column, line)
     assert line.split()[:3] == ["dev1", "alpha", "v12"] and line.endswith("ok")
     bare = status_line({"stream": "dev2", "degraded": True, "degraded_reason": "no data"})
     assert bare[HEADER.index("drifts") + len("drifts") - 1] == "-" and bare.endswith("DEGRADED: no data")
+    assert bare[HEADER.index("backlog") + len("backlog") - 1] == "-"  # the status does not say
+    idle = status_line({**doc, "windows": {"pending_windows": 0, "backlog_s": 0.0}})
+    assert idle[HEADER.index("backlog") + len("backlog") - 1] == "0"
     assert output_lines(doc) == []  # one output: its champion is on the stream's line
 
 

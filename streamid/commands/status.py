@@ -91,7 +91,7 @@ def status_line(doc: dict[str, Any], conflict: str | None = None) -> str:
         state = f"{conflict}; {state}"
     text = (f"{str(doc.get('stream', '?')):<20} {str(origin.get('daemon', '?')):<18} "
             f"{_model_columns(doc.get('version'), champ, doc.get('drifts'))} {next_update(doc):<20} "
-            f"{len(members) or 1:>7}  {state}")
+            f"{backlog(doc):>12} {len(members) or 1:>7}  {state}")
     return printable(text, 400)
 
 
@@ -102,6 +102,17 @@ def next_update(doc: dict[str, Any]) -> str:
     if r.get("next") == "refresh":
         return f"refresh (run in {_num(r.get('refreshes_before_coevolution'), 'd')}/{_num(r.get('coevolution_every'), 'd')})"
     return "coevolution" if r.get("next") == "coevolution" else "-"
+
+
+def backlog(doc: dict[str, Any]) -> str:
+    """The backlog column: windows waiting and the stream time from the oldest's end to the newest's (``3 / 2.0 s``;
+    ``0`` when none waits; ``-`` when the status does not say): a stream falling behind shows here before any window
+    is coalesced (docs/daemon.md, "Windows, updates, backlog")."""
+    w = _table(doc, "windows")
+    n, span = w.get("pending_windows"), w.get("backlog_s")
+    if not isinstance(n, int) or isinstance(n, bool):
+        return "-"
+    return "0" if n == 0 else f"{n} / {_num(span, '.1f')} s"
 
 
 def output_lines(doc: dict[str, Any]) -> list[str]:
@@ -119,7 +130,7 @@ def output_lines(doc: dict[str, Any]) -> list[str]:
 
 
 HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'drifts':>6} "
-          f"{'next update':<20} {'daemons':>7}  state")
+          f"{'next update':<20} {'backlog':>12} {'daemons':>7}  state")
 
 
 def run(args: argparse.Namespace) -> int:
