@@ -27,9 +27,10 @@ import numpy as np
 
 from benchmarks.suite import Target, free_run_val, targets, validation_run
 from streamid.engine import identify
+from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
-from streamid.engine.refine import refine_weights
+from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
 from streamid.engine.settings import DEFAULT, CoEAConfig
 from streamid.engine.validation import r2
 
@@ -52,11 +53,11 @@ def finished(model: Model, run: int, score: float, t: Target, cfg: CoEAConfig) -
     """``model`` given identify's final stage as if it were the kept one (long linear part, then refinement)."""
     u, y = t.u_est.reshape(len(t.y_est), -1), t.y_est
     if cfg.long_linear and score < cfg.more_below:
-        ll, _ = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, cfg.range_margin, cfg.ridge,
+        ll, _ = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, cfg.ridge,
                                    [(run, model)], run)
         model = model if ll is None else ll
     if cfg.refine_iterations:
-        model, _ = refine_weights(model, u, y, cfg.refine_iterations, cfg.refine_above, cfg.range_margin)
+        model, _ = refine_weights(model, u, y, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN)
     return model
 
 

@@ -11,7 +11,7 @@ from benchmarks.suite import free_run_val, targets
 from streamid.engine import identify
 from streamid.engine.settings import DEFAULT
 
-FAST = {"generations": 8, "lag_search_generations": 8, "restarts": 2, "more_restarts": 0}
+FAST = {"generations": 8, "restarts": 2, "more_restarts": 0}
 
 
 def test_spread_scores_every_run_and_the_kept_model_as_the_suite_does() -> None:
@@ -26,7 +26,7 @@ def test_spread_scores_every_run_and_the_kept_model_as_the_suite_does() -> None:
 
 
 def test_main_prints_each_seed_and_the_summary(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["reactor_sim", "--seeds", "0", "--changes", '{"generations": 8, "lag_search_generations": 8, '
+    assert main(["reactor_sim", "--seeds", "0", "--changes", '{"generations": 8, '
                  '"restarts": 2, "more_restarts": 0}']) == 0
     out = capsys.readouterr().out
     assert out.count("median of runs") == 3  # three pairs of the reactor, one seed each

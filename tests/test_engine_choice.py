@@ -58,7 +58,7 @@ def test_scoring_a_tail_uses_the_simulation_from_the_start(reactor, good_model) 
 
 def test_search_on_a_sample_of_rows_is_seeded_and_refits_on_all(reactor) -> None:  # type: ignore[no-untyped-def]
     u, y = reactor
-    cfg = PAPER.replace(neurons=8, generations=20, lag_search_neurons=5, lag_search_generations=20, restarts=2,
+    cfg = PAPER.replace(neurons=8, generations=20, lag_search_neurons=5, restarts=2,
                         selection="fr_est", search_rows=120)
     a = identify(u, y, cfg, 5)
     b = identify(u, y, cfg, 5)
@@ -77,8 +77,7 @@ def test_search_on_a_sample_of_rows_is_seeded_and_refits_on_all(reactor) -> None
 
 @pytest.mark.parametrize(
     ("field", "value", "text"),
-    [("search_rows", -1, "search_rows must be an integer >= 0"), ("search_rows", 5, "search_rows must be 0"),
-     ("range_margin", -0.1, "range_margin must be a number in [0.0, 100.0]")],
+    [("search_rows", -1, "search_rows must be an integer >= 0"), ("search_rows", 5, "search_rows must be 0")],
 )
 def test_bad_settings_name_the_field_and_the_accepted_form(field: str, value: object, text: str) -> None:
     with pytest.raises(ConfigError, match=text.replace("[", r"\[").replace("]", r"\]")):

@@ -66,7 +66,7 @@ def _narx_record() -> tuple[np.ndarray, np.ndarray]:
 
 def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
     u, y = _narx_record()
-    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, fallback_neurons=(8,),
+    cfg = DEFAULT.replace(generations=10, max_lag_cap=0, fallback_neurons=(8,),
                           fallback_below=1.0, more_restarts=0,
                           run_ensembles=False)  # the single network's choice (ensembles: test_engine_ensemble.py)
     res = identify(u, y, cfg, 0)
@@ -132,7 +132,7 @@ def test_pruned_and_padded_networks() -> None:
 
 def test_prune_lets_a_smaller_network_compete_and_says_so() -> None:
     u, y = _narx_record()
-    cfg = DEFAULT.replace(generations=10, lag_search_generations=10, max_lag_cap=0, prune_runs=4)
+    cfg = DEFAULT.replace(generations=10, max_lag_cap=0, prune_runs=4)
     res = identify(u, y, cfg, 0)
     assert res.model.metrics["complexity"]["neurons"] == res.model.neurons
     ev = res.model.metrics["neuron_choice"]  # the chosen run's network against its pruned versions
@@ -152,7 +152,7 @@ def test_fallback_runs_are_made_while_the_best_fit_is_poor() -> None:
     y = np.zeros(500)
     for t in range(1, 500):  # mostly noise: no model free-runs well
         y[t] = 0.3 * np.tanh(u[t - 1]) + rng.normal()
-    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, max_lag_cap=0, restarts=2, prune_runs=0,
+    cfg = DEFAULT.replace(generations=5, max_lag_cap=0, restarts=2, prune_runs=0,
                          more_restarts=0)
     poor = identify(u, y, cfg.replace(fallback_below=0.9), 0)
     assert max(r.score for r in poor.runs[:2]) <= 0.9

@@ -211,11 +211,11 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
     for name, seed in (("reactor", 0), ("robot_arm", 2)):
         t = targets((name,))[0]
         # round 11 offers every candidate with a linear part too: off here, as when these models were recorded
-        got = identify(t.u_est, t.y_est, DEFAULT.replace(run_ensembles=False, refine_iterations=0, linear_terms=False,
-                                                         linear_search=True), seed).model.to_dict()
+        got = identify(t.u_est, t.y_est, DEFAULT.replace(run_ensembles=False, refine_iterations=0, linear_terms=False),
+                       seed).model.to_dict()
         assert got["config"].pop("run_ensembles") is False
         # fields added after these models were recorded (round 8: off by default, so nothing else changes)
-        assert got["config"].pop("refine_iterations") == 0 and got["config"].pop("refine_above") == 0.8
+        assert got["config"].pop("refine_iterations") == 0
         # round 9: more runs only below an estimation fit of 0.95; these records fit above it, so none were made
         assert got["config"].pop("more_restarts") == 4 and got["config"].pop("more_below") == 0.95
         assert got["metrics"].pop("more_restarts") == 0
@@ -227,9 +227,13 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
         # the same model to rounding: the free runs that score the candidates are compiled since round 8
         # (streamid.engine._kernels, sums in another order than the numpy loop that recorded these)
         want = json.loads((DATA / f"{name}_seed{seed}.json").read_text())
-        # issue 37 retired seven fields; these records had them at the values that did nothing, and no hold-out
+        # issue 37 retired these fields; these records had them at the values that did nothing (no hold-out, no
+        # decay, the linear part off so never searched with, the lag search's generations those of the second stage)
         retired = {"holdout_fraction": 0.25, "cv_folds": 2, "neuron_alternatives": [], "agree_tol": 0.0,
-                   "linear_alternation": False, "lag_search_rows": 0, "ensemble": 0}
+                   "linear_alternation": False, "lag_search_rows": 0, "ensemble": 0, "weight_decay": 0.0,
+                   "linear_search": True, "lag_search_generations": 100, "lag_alternation": True, "hedge_neurons": 10,
+                   "range_margin": 0.25, "screen_rows": False}
+        assert want["config"]["generations"] == 100 and want["config"]["lag_search_neurons"] == 10
         assert {k: want["config"].pop(k) for k in retired} == retired
         assert want["metrics"].pop("holdout_samples") == 0 and want["metrics"].pop("restarts_skipped") == []
         # the search's best fitness is the batched evaluator's own sum (BLAS kernels: its rounding depends on the

@@ -80,7 +80,7 @@ def test_direct_terms_are_candidates_with_min_lag_u_0() -> None:
 
 def test_identify_tests_the_record_and_keeps_the_direct_term() -> None:
     u, y = _plant(900, 0.8, 4)
-    cfg = DEFAULT.replace(generations=15, lag_search_generations=15, neurons=8, restarts=2, more_restarts=0)
+    cfg = DEFAULT.replace(generations=15, neurons=8, restarts=2, more_restarts=0)
     assert DEFAULT.feedthrough_test is True and PAPER.feedthrough_test is False and PAPER.min_lag_u == 1
     with_test = identify(u, y, cfg, 0)
     m = with_test.model
@@ -108,7 +108,7 @@ def test_identify_cli_reports_the_test_and_obeys_direct_terms(tmp_path: Path) ->
     np.savetxt(data, np.column_stack([u[:, 0], y]), delimiter=",", header="volt,pos", comments="", fmt="%.17g")
     mod = tmp_path / "m.json"
     args = [sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos", "--generations",
-            "5", "--lag-search-generations", "5", "--restarts", "2", "--more-restarts", "0", "--workers", "1",
+            "5", "--restarts", "2", "--more-restarts", "0", "--workers", "1",
             "--progress", "never", "--model", str(mod)]
     p = subprocess.run(args, capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr

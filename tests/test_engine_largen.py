@@ -76,7 +76,7 @@ def test_more_runs_only_where_the_record_is_half_explained() -> None:
 
 def test_more_restarts_add_runs_after_the_same_first_ones(reactor: tuple[np.ndarray, np.ndarray]) -> None:
     u, y = reactor
-    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, lag_search_generations=10, restarts=2,
+    cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, restarts=2,
                         selection="fr_est", more_restarts=2)
     plain = identify(u, y, cfg.replace(more_below=0.5), 6)  # the reactor's runs fit above 0.5: none added
     seen: list[tuple[int, int]] = []
@@ -110,7 +110,7 @@ def test_identify_cli_reports_the_runs_added(tmp_path: Path) -> None:
     np.savetxt(data, np.column_stack([u, y]), delimiter=",", header="volt,pos", comments="", fmt="%.17g")
     mod = tmp_path / "m.json"
     args = [sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos",
-            "--generations", "5", "--lag-search-generations", "5", "--workers", "1", "--progress", "never"]
+            "--generations", "5", "--workers", "1", "--progress", "never"]
     p = subprocess.run(args + ["--more-restarts", "2", "--model", str(mod)], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     m = Model.load(mod).metrics

@@ -118,7 +118,7 @@ def _arx(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def test_linear_terms_fit_a_near_linear_system_and_refit_keeps_them() -> None:
     u, y = _arx(900, 0)
-    cfg = DEFAULT.replace(generations=20, lag_search_generations=20, restarts=2, max_lag_cap=0)
+    cfg = DEFAULT.replace(generations=20, restarts=2, max_lag_cap=0)
     lin = identify(u[:600], y[:600], cfg.replace(linear_terms=True), 0).model
     plain = identify(u[:600], y[:600], cfg.replace(linear_terms=False), 0).model
     assert lin.linear is not None and plain.linear is None
@@ -132,13 +132,13 @@ def test_linear_terms_fit_a_near_linear_system_and_refit_keeps_them() -> None:
 
 
 def test_identify_cli_offers_the_linear_part_by_default_reports_it_and_obeys_no_linear(tmp_path: Path) -> None:
-    assert DEFAULT.linear_terms is True and DEFAULT.linear_search is False  # the default since round 11
+    assert DEFAULT.linear_terms is True  # the default since round 11
     u, y = _arx(900, 1)  # a linear plant: the kind with the linear part wins by AIC
     data = tmp_path / "arx.csv"
     np.savetxt(data, np.column_stack([u, y]), delimiter=",", header="volt,pos", comments="", fmt="%.17g")
     mod = tmp_path / "m.json"
     args = [sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos", "--generations",
-            "5", "--lag-search-generations", "5", "--restarts", "2", "--more-restarts", "0", "--no-ensembles",
+            "5", "--restarts", "2", "--more-restarts", "0", "--no-ensembles",
             "--workers", "1", "--progress", "never", "--model", str(mod)]
     p = subprocess.run(args, capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr

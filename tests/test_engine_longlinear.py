@@ -182,7 +182,7 @@ def _resonance(n: int, seed: int, multisine: bool) -> tuple[np.ndarray, np.ndarr
 def test_the_choice_fits_long_memory_and_validates_on_another_excitation() -> None:
     u, y = _resonance(3000, 0, multisine=False)
     uv, yv = _resonance(3000, 1, multisine=True)
-    cfg = DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=(), hedge_neurons=0, refine_iterations=0)
+    cfg = DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=(), refine_iterations=0)
     without = identify(u, y, cfg.replace(long_linear=0), 0).model
     res = identify(u, y, cfg, 0)
     ev = res.model.metrics["complexity"]["long_linear"]
@@ -213,7 +213,7 @@ def test_not_taken_where_the_network_explains_the_record() -> None:
     y = np.zeros(1500)
     for t in range(1, 1500):
         y[t] = 0.5 * y[t - 1] + np.tanh(2 * u[t - 1])
-    res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=(), hedge_neurons=0), 0)
+    res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=()), 0)
     assert res.model.metrics["free_run_choice"]["score"] > DEFAULT.more_below
     assert "long_linear" not in res.model.metrics["complexity"] and res.model.linear_regressors is None
     got, ev = long_linear_choice(res.model, 1.0 - 1e-12, "aic", 64, u.reshape(-1, 1), y, 0.25, 1e-10)
@@ -251,7 +251,7 @@ def test_a_part_that_leaves_the_range_on_a_second_pass_is_refused() -> None:
     rng = np.random.default_rng(7)
     u = 0.3 + rng.uniform(-1, 1, 1200)
     y = np.cumsum(np.concatenate([[0.0], u[:-1]])) + 0.01 * rng.normal(size=1200)
-    res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=(), hedge_neurons=0,
+    res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=(),
                                          refine_iterations=0), 0)
     got, ev = long_linear_choice(res.model, -0.5, "aic", 64, u.reshape(-1, 1), y, 0.25, 1e-10)
     assert got is None and not ev["taken"]

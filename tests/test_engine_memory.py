@@ -56,7 +56,7 @@ def test_a_slow_output_takes_the_cap() -> None:
 
 def test_identify_reports_the_chosen_maximum_lag() -> None:
     u, y = _delayed(12, n=800)
-    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, restarts=1, neurons=8, lag_search_neurons=4,
+    cfg = DEFAULT.replace(generations=5, restarts=1, neurons=8, lag_search_neurons=4,
                           max_lag_cap=30)
     m = identify(u, y, cfg, 0).model
     assert m.metrics["max_lag_choice"]["max_lag"] == 30
@@ -107,7 +107,7 @@ def test_a_lag_set_without_an_input_gets_one() -> None:
 def test_smaller_networks_are_tried_when_no_run_is_admissible(reactor) -> None:
     u, y = reactor
     # With no input lag at all nothing is ever admissible: every fallback size is tried, in order.
-    cfg = DEFAULT.replace(generations=4, lag_search_generations=4, restarts=2, neurons=10, lag_search_neurons=4,
+    cfg = DEFAULT.replace(generations=4, restarts=2, neurons=10, lag_search_neurons=4,
                           max_lag_u=0, max_lag_cap=0, fallback_neurons=(6, 3))
     res = identify(u, y, cfg, 0)
     m = res.model.metrics
@@ -120,13 +120,14 @@ def test_smaller_networks_are_tried_when_no_run_is_admissible(reactor) -> None:
 
 def test_a_long_lag_space_is_hedged_by_short_restarts() -> None:
     u, y = _delayed(12, n=800)
-    cfg = DEFAULT.replace(generations=3, lag_search_generations=3, neurons=8, lag_search_neurons=4, restarts=4,
-                          max_lag_cap=30, lag_alternation=True, hedge_neurons=5, more_restarts=0)
+    cfg = DEFAULT.replace(generations=3, neurons=8, lag_search_neurons=5, restarts=4,
+                          max_lag_cap=30, more_restarts=0)
     m = identify(u, y, cfg, 0).model.metrics
     assert m["run_max_lags"] == [30, 10, 30, 10]
-    assert m["run_neurons"] == [8, 5, 8, 8]
-    plain = identify(u, y, cfg.replace(lag_alternation=False), 0).model.metrics
-    assert plain["run_max_lags"] == [30, 30, 30, 30] and plain["run_neurons"] == [8, 8, 8, 8]
+    assert m["run_neurons"] == [8, 5, 8, 8]  # restart 1 of every 4: the lag search's size
+    # a lag space chosen under twice the floor (the cap 15 binds: 3 x the dead time 12 is 36) is not hedged
+    plain = identify(u, y, cfg.replace(max_lag_cap=15), 0).model.metrics
+    assert plain["run_max_lags"] == [15, 15, 15, 15] and plain["run_neurons"] == [8, 8, 8, 8]
     more = identify(u, y, cfg.replace(more_restarts=4, more_below=1.0), 0).model.metrics  # runs added: the same pattern
     assert more["more_restarts"] == 4 and more["run_max_lags"] == [30, 10, 30, 10] * 2
     assert more["run_neurons"] == [8, 5, 8, 8] * 2
@@ -136,10 +137,10 @@ def test_screening_on_the_search_rows_refits_the_chosen_model_on_all_rows(reacto
     from streamid.engine.selection import select_model
 
     u, y = reactor
-    cfg = PAPER.replace(generations=15, search_rows=200, screen_rows=True, fr_candidates=5, selection="fr_est")
+    cfg = PAPER.replace(generations=15, search_rows=200, fr_candidates=5, selection="fr_est")
     rows = np.sort(np.random.default_rng(0).choice(len(y) - cfg.max_lag, 200, replace=False))
     run = Coevolution(u, y, cfg, 0, rows=rows).solve()
-    model, score = select_model(run, u, y, "fr_est")
+    model, score = select_model(run, u, y, "fr_est", screen_rows=True)
     ev = model.metrics["free_run_choice"]
     assert ev["screened_on_rows"] == 200 and ev["candidates"] == 6
     full = [run.model_for(h, x) for h, x in run.candidate_pairs(5)]  # fitted on every row
@@ -149,8 +150,7 @@ def test_screening_on_the_search_rows_refits_the_chosen_model_on_all_rows(reacto
 
 def test_a_warm_start_takes_the_lag_space_of_its_state() -> None:
     u, y = _delayed(12, n=800)
-    cfg = DEFAULT.replace(generations=3, lag_search_generations=3, neurons=8, lag_search_neurons=4, restarts=2,
-                          max_lag_cap=30, hedge_neurons=0)
+    cfg = DEFAULT.replace(generations=3, neurons=8, lag_search_neurons=4, restarts=1, max_lag_cap=30)
     first = identify(u, y, cfg, 0)
     assert first.state.max_lag_y == 30
     again = identify(u, y, cfg, 1, warm_start=first.state)  # lags 1..30 and 8 neurons, as the state's

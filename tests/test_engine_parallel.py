@@ -87,7 +87,7 @@ def test_the_faster_path_is_chosen_by_measuring(helper, data):
 def test_the_helper_computes_exactly_what_the_local_evaluator_computes(helper, data):
     ue, ye = data
     run = Coevolution(ue, ye, CFG, np.random.default_rng(5), helper=helper)
-    local = BatchEvaluator(run.R, run.target, CFG.neurons, CFG.population, CFG.ridge, CFG.weight_decay)
+    local = BatchEvaluator(run.R, run.target, CFG.neurons, CFG.population, CFG.ridge)
     binding = run._batch
     rng = np.random.default_rng(9)
     c, w = run._split(run.X[:10])
@@ -129,7 +129,7 @@ def test_the_defaults_with_a_helper_give_the_same_model(helper, data):
     from streamid.engine import DEFAULT
 
     ue, ye = data
-    cfg = DEFAULT.replace(generations=15, lag_search_generations=15, max_lag_cap=0, max_lag_y=4, max_lag_u=4)
+    cfg = DEFAULT.replace(generations=15, max_lag_cap=0, max_lag_y=4, max_lag_u=4)
     a = identify(ue, ye, cfg, 2)
     b = identify(ue, ye, cfg, 2, helper=helper)
     assert a.model.to_json() == b.model.to_json() and a.model.metrics["refinement"] == b.model.metrics["refinement"]
@@ -161,7 +161,7 @@ def test_close_ends_the_process_and_removes_its_files():
     assert h._proc.poll() is not None
     assert not os.path.exists(folder)
     with pytest.raises(StreamidError, match="closed"):
-        h.bind(np.zeros((30, 2)), np.zeros(30), 2, 20, 1e-10, 0.0, BatchEvaluator(np.zeros((30, 2)), np.zeros(30), 2, 20))
+        h.bind(np.zeros((30, 2)), np.zeros(30), 2, 20, 1e-10, BatchEvaluator(np.zeros((30, 2)), np.zeros(30), 2, 20))
     h.close()  # twice is fine
 
 

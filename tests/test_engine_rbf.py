@@ -117,14 +117,6 @@ def test_capacity_checked() -> None:
         ev.evaluate(masks, centres, widths)
 
 
-def test_weight_decay_shrinks_weights() -> None:
-    R, y, masks, centres, widths = _problem(7)
-    a_mse, a_w = BatchEvaluator(R, y, 6, 7).evaluate(masks, centres, widths, return_weights=True)
-    b_mse, b_w = BatchEvaluator(R, y, 6, 7, weight_decay=1e-2).evaluate(masks, centres, widths, return_weights=True)
-    assert np.all(b_mse >= a_mse - 1e-12)
-    assert np.all(np.abs(b_w).sum(axis=1) <= np.abs(a_w).sum(axis=1) + 1e-9)
-
-
 def test_batched_solve_and_its_singular_fallback() -> None:
     from streamid.engine.batch import _solve
 
@@ -202,8 +194,8 @@ def test_compiled_gram_is_numpys_product_for_every_block_shape() -> None:
 
 
 def test_both_paths_of_the_evaluator_give_the_same_fitness(monkeypatch: pytest.MonkeyPatch) -> None:
-    """numpy's path (AVX-512 machines) and the compiled kernels' agree on a batch's fitness and weights, with and
-    without the linear part and with per-member and shared masks."""
+    """numpy's path (AVX-512 machines) and the compiled kernels' agree on a batch's fitness and weights, with
+    per-member and shared masks."""
     import streamid.engine.rbf as rbf
 
     rng = np.random.default_rng(5)
@@ -217,14 +209,12 @@ def test_both_paths_of_the_evaluator_give_the_same_fitness(monkeypatch: pytest.M
     out = {}
     for numpy_path in (True, False):
         monkeypatch.setattr(rbf, "NUMPY_PATH", numpy_path)
-        for linear in (False, True):
-            ev = BatchEvaluator(R, y, M, P, linear=linear)
-            for shared in (False, True):
-                mk = np.repeat(masks[:1], P, axis=0) if shared else masks
-                out[numpy_path, linear, shared] = ev.evaluate(mk, centres, widths, return_weights=True, shared=shared)
-    for linear in (False, True):
+        ev = BatchEvaluator(R, y, M, P)
         for shared in (False, True):
-            (m0, w0), (m1, w1) = out[True, linear, shared], out[False, linear, shared]
-            assert np.all(m0 > 0)
-            np.testing.assert_allclose(m1, m0, rtol=1e-9)
-            np.testing.assert_allclose(w1, w0, rtol=1e-6, atol=1e-9)
+            mk = np.repeat(masks[:1], P, axis=0) if shared else masks
+            out[numpy_path, shared] = ev.evaluate(mk, centres, widths, return_weights=True, shared=shared)
+    for shared in (False, True):
+        (m0, w0), (m1, w1) = out[True, shared], out[False, shared]
+        assert np.all(m0 > 0)
+        np.testing.assert_allclose(m1, m0, rtol=1e-9)
+        np.testing.assert_allclose(w1, w0, rtol=1e-6, atol=1e-9)

@@ -17,6 +17,7 @@ from streamid.engine.ensemble import EnsembleModel, ensemble_of, members_of
 from streamid.engine._kernels import free_run_sensitivities
 from streamid.engine.freerun import free_run
 from streamid.engine.refine import parts, refine_weights, sensitivities
+from streamid.engine.settings import REFINE_ABOVE
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError
@@ -159,13 +160,14 @@ def test_an_ensemble_is_refined_jointly_on_the_mean_of_its_free_runs() -> None:
 
 def test_identify_reports_the_refinement_and_off_adds_nothing() -> None:
     u, y = _plant(500)
-    assert DEFAULT.refine_iterations == 10 and DEFAULT.refine_above == 0.8  # the default since round 8
-    quick = DEFAULT.replace(generations=15, lag_search_generations=15, restarts=2, max_lag_cap=0, max_lag_y=3,
-                            max_lag_u=3, neurons=8, lag_search_neurons=5, fallback_neurons=(), hedge_neurons=0)
+    assert DEFAULT.refine_iterations == 10 and REFINE_ABOVE == 0.8  # the default since round 8
+    quick = DEFAULT.replace(generations=15, restarts=2, max_lag_cap=0, max_lag_y=3,
+                            max_lag_u=3, neurons=8, lag_search_neurons=5, fallback_neurons=())
     off = identify(u, y, quick.replace(refine_iterations=0), rng=5).model
-    on = identify(u, y, quick.replace(refine_iterations=10, refine_above=0.0), rng=5).model
+    on = identify(u, y, quick.replace(refine_iterations=10), rng=5).model
     assert "refinement" not in off.metrics
     ev = on.metrics["refinement"]
+    assert ev["gate"] == REFINE_ABOVE and _fr(off, u, y) >= REFINE_ABOVE  # the gate open on this record
     assert ev["iterations"] >= 1 and ev["r2_fr_est_before"] == pytest.approx(_fr(off, u, y), abs=1e-9)
     assert ev["taken"] is True  # this record's chosen model fits its free run better after refinement
     assert _fr(on, u, y) == pytest.approx(ev["r2_fr_est_after"], abs=1e-9) and _fr(on, u, y) > _fr(off, u, y)
@@ -177,7 +179,6 @@ def test_identify_reports_the_refinement_and_off_adds_nothing() -> None:
 @pytest.mark.parametrize("field, value, text", [
     ("refine_iterations", -1, "refine_iterations must be an integer in [0, 1000]; got -1"),
     ("refine_iterations", 2.5, "refine_iterations must be an integer in [0, 1000]; got 2.5"),
-    ("refine_above", 1.5, "refine_above"),
 ])
 def test_bad_refinement_settings_are_refused_by_name(field: str, value: object, text: str) -> None:
     with pytest.raises(ConfigError, match=text.replace("[", r"\[").replace("]", r"\]")):
@@ -190,7 +191,7 @@ def test_identify_cli_refines_and_reports_it(tmp_path: Path) -> None:
     np.savetxt(data, np.column_stack([u, y]), delimiter=",", header="volt,pos", comments="", fmt="%.17g")
     mod, rep = tmp_path / "m.json", tmp_path / "r.json"
     p = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos",
-                        "--refine", "10", "--generations", "20", "--lag-search-generations", "20", "--workers", "1",
+                        "--refine", "10", "--generations", "20", "--workers", "1",
                         "--progress", "never", "--model", str(mod), "--report", str(rep)],
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr

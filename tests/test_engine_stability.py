@@ -88,7 +88,7 @@ def test_identify_keeps_a_model_that_stays_bounded_far_from_its_record() -> None
     y = np.zeros(n)
     for t in range(2, n):
         y[t] = 1.2 * y[t - 1] - 0.45 * y[t - 2] + 0.5 * np.tanh(2.0 * u[t - 1])
-    res = identify(u, y, DEFAULT.replace(restarts=2, more_restarts=0, generations=20, lag_search_generations=20), 0)
+    res = identify(u, y, DEFAULT.replace(restarts=2, more_restarts=0, generations=20), 0)
     kept = res.model
     assert is_bounded(kept)
     span = float(np.ptp(y))

@@ -100,7 +100,7 @@ def test_run_table_validates_every_run_and_marks_the_one_taken() -> None:
 
     t = targets(("reactor",))[0]
     # the choice as made: unrefined, and one run's network (no mean of networks, which the 5-generation runs can take)
-    cfg = DEFAULT.replace(generations=5, lag_search_generations=5, refine_iterations=0, run_ensembles=False)
+    cfg = DEFAULT.replace(generations=5, refine_iterations=0, run_ensembles=False)
     table = run_table(t, cfg, 0)
     runs = table["runs"]
     assert len(runs) >= cfg.restarts and [r["run"] for r in runs] == list(range(len(runs)))

@@ -21,11 +21,11 @@ def _narx(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def test_restarts_in_process_report_every_generation() -> None:
     u, y = _narx(300, 1)
-    cfg = DEFAULT.replace(neurons=5, generations=6, lag_search_neurons=3, lag_search_generations=4, restarts=3,
+    cfg = DEFAULT.replace(neurons=5, generations=6, lag_search_neurons=3, restarts=3,
                           population=10, max_lag_y=3, max_lag_u=3, workers=1)
     seen: list[Progress] = []
     res = identify(u, y, cfg, 0, callback=seen.append)
-    per_run = 6 + 4
+    per_run = 6 + 6  # the lag search stage and the second stage, each of `generations`
     gens = [p.generation for p in seen]
     assert len(seen) >= cfg.restarts * cfg.generations, gens  # every generation, not once per finished run
     assert gens == sorted(gens) and gens[-1] == per_run * cfg.restarts, gens
@@ -45,15 +45,15 @@ def test_cli_bar_moves_within_one_run_on_a_pipe() -> None:
     import sys
 
     p = subprocess.run([sys.executable, "-m", "streamid", "identify", "mr_damper", "--est", "2000", "--progress",
-                        "always", "--json", "--restarts", "2", "--generations", "150", "--lag-search-neurons", "10",
-                        "--lag-search-generations", "100", *([] if EvalHelper.supported() else ["--workers", "1"])],
+                        "always", "--json", "--restarts", "2", "--generations", "125", "--lag-search-neurons", "10",
+                        *([] if EvalHelper.supported() else ["--workers", "1"])],
                        capture_output=True, timeout=120)  # bytes: text mode turns \r into \n
     stderr, stdout = p.stderr.decode(), p.stdout.decode()
     assert p.returncode == 0, stderr
     draws = re.findall(r"\ridentify \[[# ]{30}\] +([0-9.]+)% generation (\d+)/(\d+), (\d+) evaluations", stderr)
     gens = [int(g) for _, g, _, _ in draws]
     total = {int(t) for _, _, t, _ in draws}
-    assert total == {500}, total  # 2 restarts x (100 lag-search + 150 final generations)
+    assert total == {500}, total  # 2 restarts x (125 lag-search + 125 final generations)
     inside = [g for g in gens if g % 250]  # not at the end of a restart
     assert len(draws) >= 6 and len(inside) >= 4, gens  # drawn between restarts' ends: it moves within a run
     assert gens == sorted(gens) and gens[-1] == 500 and float(draws[-1][0]) == 100.0, gens

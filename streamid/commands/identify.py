@@ -36,7 +36,7 @@ import argparse
 from typing import Any
 
 from streamid.commands.identify_io import add_reading_flags, data_help
-from streamid.engine.settings import DEFAULT, PAPER, SELECTIONS, CoEAConfig
+from streamid.engine.settings import DEFAULT, PAPER, REFINE_ABOVE, SELECTIONS, CoEAConfig
 from streamid.errors import ConfigError
 
 __all__ = ["register", "run"]
@@ -80,12 +80,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="M1",
         help=f"two-stage runs: neurons of the lag-search stage, 0 = one stage (default {DEFAULT.lag_search_neurons}; --paper 0)",
     )
-    p.add_argument(
-        "--lag-search-generations",
-        type=int,
-        metavar="G1",
-        help=f"two-stage runs: generations of the lag-search stage (default {DEFAULT.lag_search_generations})",
-    )
     p.add_argument("--restarts", type=int, metavar="K", help=f"coevolution runs per identification (default {DEFAULT.restarts}; --paper 1)")
     p.add_argument("--direct-terms", choices=("test", "on", "off"),
                    help="each input's u(t) among the candidate lags: test (the default: when a likelihood-ratio test of "
@@ -108,7 +102,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         f"(default {DEFAULT.long_linear}; 0: off; never with --paper)")
     p.add_argument("--refine", type=int, metavar="N",
                    help="at most N iterations fitting the kept model's weights to its free run on the estimation data, "
-                        f"when that free run's R2 is at least {DEFAULT.refine_above} (default {DEFAULT.refine_iterations}; "
+                        f"when that free run's R2 is at least {REFINE_ABOVE} (default {DEFAULT.refine_iterations}; "
                         "0: off, the search's one-step weights; never with --paper)")
     p.add_argument("--selection", choices=SELECTIONS, help=f"how the final model is chosen among candidates (default {DEFAULT.selection})")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first run (default 0)")
@@ -137,7 +131,6 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         ("more_restarts", "more_restarts"),
         ("selection", "selection"),
         ("lag_search_neurons", "lag_search_neurons"),
-        ("lag_search_generations", "lag_search_generations"),
     ):
         v = getattr(args, flag)
         if v is not None:

@@ -178,7 +178,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         + f", generations {cfg.generations}, "
         f"population {cfg.population}, restarts {cfg.restarts}, selection {cfg.selection}"
         + (
-            f", lag search with {cfg.lag_search_neurons} neurons for {cfg.lag_search_generations} generations"
+            f", lag search with {cfg.lag_search_neurons} neurons for {cfg.generations} generations"
             if cfg.lag_search_neurons
             else ""
         )

@@ -111,7 +111,7 @@ def serve(ctl_path: str, wake_fd: int, spin_s: float, owner_pid: int | None = No
                     with open(raw, "r+b") as f:
                         dmm = mmap.mmap(f.fileno(), max(lay["_size"][0], 1))
                     v = _views(dmm, lay)
-                    ev = BatchEvaluator(v["R"], v["target"], m, cap, float(fctl[0]), float(fctl[1]))
+                    ev = BatchEvaluator(v["R"], v["target"], m, cap, float(fctl[0]))
                     ctl[_BIND_ACK] = b
                 except (OSError, ValueError):  # a newer bind already replaced this one
                     ctl[_BIND_ACK] = -b

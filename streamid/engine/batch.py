@@ -102,15 +102,11 @@ class BatchEvaluator:
         neurons: int,
         capacity: int,
         ridge: float = 1e-10,
-        weight_decay: float = 0.0,
-        linear: bool = False,
     ) -> None:
         R = np.ascontiguousarray(regressors, dtype=np.float64)
         n, D = R.shape
         self.n, self.D, self.M, self.capacity = n, D, int(neurons), int(capacity)
-        self.linear = bool(linear)
         self.ridge = max(float(ridge), 1e-14)
-        self.decay = float(weight_decay) * n
         self.target = np.ascontiguousarray(target, dtype=np.float64)
         M, P = self.M, self.capacity
         # Feature rows: r_j (D rows), then one row per member for -||h_p o r||^2 / 2 (filled per
@@ -132,14 +128,9 @@ class BatchEvaluator:
         self._a2 = np.empty((P, M))
         self._s = np.empty((P, M))
         self._active = np.empty((P, M), dtype=bool)
-        # Row 0 of each block: target; rows 1..M: activations; with a linear part, row M + 1: ones,
-        # rows M + 2..: the member's selected regressors (packed to the left, see _evaluate_linear).
-        self._ext = np.empty((P, M + 1 + (D + 1 if self.linear else 0), n))
+        # Row 0 of each block: target; rows 1..M: activations.
+        self._ext = np.empty((P, M + 1, n))
         self._ext[:, 0, :] = self.target
-        if self.linear:
-            self._ext[:, M + 1, :] = 1.0
-        self._lin_key: bytes | None = None  # the mask whose regressors fill the linear rows of every block
-        self._packed: tuple[NDArray[np.float64], NDArray[np.bool_], int] | None = None
         self._gb = np.empty((P, M + 1, M))
         self._diag_g = self._gb.reshape(P, (M + 1) * M)[:, M :: M + 1]  # diag(G_p), a view
         self._gs = np.empty((P, M, M))
@@ -226,8 +217,6 @@ class BatchEvaluator:
             feat = self._feat[: p * K * n].reshape(p, K, n)
             self._table.take(idx, axis=0, out=feat, mode="clip")  # indices valid; 'raise' is 3x slower
             k = kk
-            if self.linear:
-                self._packed = (feat, hp, kk)
         cs = cext[:, :, :k]
         np.vecdot(cs, cs, out=cext[:, :, k + 1])
         coef = self._coef[: p * M * K].reshape(p, M, K)
@@ -276,8 +265,6 @@ class BatchEvaluator:
         mse : ndarray, shape (p,)
         weights : ndarray, shape (p, M), only with ``return_weights``
         """
-        if self.linear:
-            return self._evaluate_linear(masks, centres, widths, return_weights, shared)
         p = masks.shape[0]
         self.activations_into(masks, centres, widths, shared)  # rows 1..M of each member's block of self._ext
         ext, _, gbt, sb, sb3, s, dg, active, gs, dgs, v, w, res, r0, s_col, s_row = self._views(p)[:16]
@@ -290,8 +277,6 @@ class BatchEvaluator:
         gs *= gbt  # S G S
         sb *= s  # S b
         dgs += self.ridge
-        if self.decay:
-            dgs += self.decay * s * s
         z = _solve(gs, sb3)
         np.multiply(z[:, :, 0], s, out=w)  # w = S z
         np.matmul(v, ext, out=res)  # w^T Phi - y
@@ -299,58 +284,4 @@ class BatchEvaluator:
         mse /= self.n
         if return_weights:
             return mse, w.copy()
-        return mse
-
-    def _evaluate_linear(
-        self,
-        masks: NDArray[np.bool_],
-        centres: NDArray[np.float64],
-        widths: NDArray[np.float64],
-        return_weights: bool,
-        shared: bool | None,
-    ) -> NDArray[np.float64] | tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """:meth:`evaluate` of the RBF network with a direct linear part, ``w' phi(r) + a' r_sel + b``.
-
-        Each member's design is ``Z_p = [Phi_p; 1; r_sel,p]`` (its activations, a row of ones and
-        its selected regressors, packed to the left; packed slots beyond its own count are zero
-        rows, which the Jacobi scaling treats as inactive: weight 0). The Gram of ``[y; Z_p]`` with
-        ``Z_p`` is one batched product; then the same scaled, ridge-regularised solve as
-        :meth:`evaluate`, and the MSE of the actual residual. With one mask shared by the batch
-        (the second stage of a run) the linear rows are written once per mask, for every block.
-        """
-        p = masks.shape[0]
-        if shared is None:
-            shared = p == 1 or not np.any(masks[1:] != masks[0])
-        self.activations_into(masks, centres, widths, shared)
-        M = self.M
-        if shared:
-            key = masks[0].tobytes()
-            k = int(self._shared_cols.size)
-            if key != self._lin_key:
-                self._ext[:, M + 2 : M + 2 + k, :] = self._shared_feat[:k]
-                self._lin_key = key
-        else:
-            assert self._packed is not None
-            feat, hp, k = self._packed
-            np.multiply(feat[:, :k, :], hp[:, :, None], out=self._ext[:p, M + 2 : M + 2 + k, :])
-            self._lin_key = None
-        nz = M + 1 + k  # design rows: activations, ones, regressors
-        ext = self._ext[:p, : nz + 1, :]
-        gb = gram_block(self._ext, p, nz + 1, np.empty((p, nz + 1, nz)))  # row 0: Z y; rows 1..: Z Z^T
-        g = gb[:, 1:, :]
-        dg = np.diagonal(g, axis1=1, axis2=2)
-        active = dg > MIN_NORM**2
-        s = np.where(active, 1.0 / np.sqrt(dg + TINY), 0.0)
-        gs = g * s[:, :, None] * s[:, None, :]
-        lam = self.ridge + (self.decay * s * s if self.decay else 0.0)
-        gs[:, np.arange(nz), np.arange(nz)] += lam
-        z = _solve(gs, (gb[:, 0, :] * s)[:, :, None])
-        v = np.empty((p, 1, nz + 1))
-        v[:, 0, 0] = -1.0
-        np.multiply(z[:, :, 0], s, out=v[:, 0, 1:])  # [-1, w, b, a]: the residual is v @ [y; Z]
-        res = np.matmul(v, ext)[:, 0, :]
-        mse: NDArray[np.float64] = np.vecdot(res, res)
-        mse /= self.n
-        if return_weights:
-            return mse, v[:, 0, 1 : M + 1].copy()
         return mse

@@ -22,6 +22,10 @@ input (an autonomous oscillator can fit an estimation record and says nothing of
 another). Nor is one whose linear part has an unstable autoregression
 (:mod:`streamid.engine.stability`: only a stable one bounds the free run on every input). If no candidate is admissible, the choice falls back to the candidate with the
 smallest excursion beyond the widened range (the report says ``admissible: 0``).
+
+The margin is :data:`RANGE_MARGIN` (a quarter of the span each side: the measured output's own range is never
+left on the estimation record, and a quarter more leaves room for a model's error at the extremes). It was a
+``CoEAConfig`` field (``range_margin``) that no preset, measurement or stream ever set to anything else (issue 37).
 """
 
 from __future__ import annotations
@@ -73,13 +77,17 @@ def _linear_parts(models: list[Model]) -> NDArray[np.float64] | None:
     k = len(regs) + 1
     return np.stack([np.zeros(k) if m.linear is None else m.linear for m in models])
 
+#: The range guard's widening, in spans of the estimation output on each side (the module docstring).
+RANGE_MARGIN = 0.25
+
+
 @dataclass(frozen=True)
 class FreeRunScores:
     """Per candidate: score (R^2 over the scored part, -inf when not admissible) and excursion."""
 
     scores: tuple[float, ...]
     excursions: tuple[float, ...]  # largest distance beyond the widened range, in spans (0 = admissible)
-    range_margin: float = 0.25
+    range_margin: float = 0.25  # (RANGE_MARGIN)
     #: Each candidate's free run over the record in output units (first ``max_lag`` measured; None: not finite).
     paths: tuple[NDArray[np.float64] | None, ...] = field(default=(), compare=False, repr=False)
 
@@ -113,7 +121,7 @@ def free_run_scores(
     y: NDArray[np.float64],
     *,
     score_from: int | None = None,
-    range_margin: float = 0.25,
+    range_margin: float = 0.25,  # (RANGE_MARGIN)
     threads: int = 1,
 ) -> FreeRunScores:
     """Free-run scores and range guard of ``models`` on ``(u, y)`` (``u`` of shape (N, n_inputs)).

@@ -106,11 +106,6 @@ class Coevolution:
         The search's fitness uses only these rows of the regressor matrix (row
         ``k`` is time ``max_lag + k``): a large record searched on a sample of
         its rows. Models (:meth:`model_for`) are still fitted on every row.
-    linear_search : bool, optional
-        Whether the search's fitness fits a direct linear part with the weights
-        (:meth:`~streamid.engine.batch.BatchEvaluator.evaluate`); default ``config.linear_terms and
-        config.linear_search``.
-        A helper process is not used when it does (it evaluates the RBF-only fitness).
 
     Raises
     ------
@@ -135,7 +130,6 @@ class Coevolution:
         normalisation: Normalisation | None = None,
         helper: EvalHelper | None = None,
         rows: NDArray[np.intp] | None = None,
-        linear_search: bool | None = None,
     ) -> None:
         cfg = CoEAConfig() if config is None else config
         if not isinstance(cfg, CoEAConfig):
@@ -176,10 +170,9 @@ class Coevolution:
         r_s, t_s = (self.R, self.target) if rows is None else (self.R[rows], self.target[rows])
         self._rows = rows
         self.search_rows = int(t_s.shape[0])
-        # The search's fitness includes the linear part with linear_terms (unless the caller says otherwise:
-        # the lag search of a two-stage run stays RBF-only, streamid.engine.identification).
-        self.linear_search = cfg.linear_terms and cfg.linear_search if linear_search is None else bool(linear_search)
-        self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay, linear=self.linear_search)
+        # The search's fitness is the RBF network's alone: a linear part (linear_terms) enters when candidates
+        # are fitted (searched with it, round 11 of docs/engine-results.md: the F-16 accel3 median 0.425 -> 0.298).
+        self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
@@ -198,8 +191,8 @@ class Coevolution:
         self._improviser = harmony.Improviser(P, self.D, P, block=block)
         self._uni = np.empty(block * (self._n_de + self._n_hs))
         self._batch: BatchEvaluator | HelperBinding = self.evaluator  # or half of each batch in a helper
-        if helper is not None and not self.linear_search:  # the helper evaluates the RBF-only fitness
-            self._batch = helper.bind(r_s, t_s, M, P, cfg.ridge, cfg.weight_decay, self.evaluator,
+        if helper is not None:
+            self._batch = helper.bind(r_s, t_s, M, P, cfg.ridge, self.evaluator,
                                       uniforms=self._uni.shape[0])
         self._k = self._planned = 0  # generation k of a planned block of `_planned`
         self._frozen: NDArray[np.bool_] | None = None
@@ -455,10 +448,10 @@ class Coevolution:
         M, D = self.config.neurons, self.D
         lin = None
         if self.config.linear_terms if linear is None else linear:  # the RBF network with linear terms: one least squares for both
-            w, lin = fit_linear_rbf(phi, r, target, self.config.ridge, self.config.weight_decay)
+            w, lin = fit_linear_rbf(phi, r, target, self.config.ridge)
             fit = phi @ w + r @ lin[:-1] + lin[-1]
         else:
-            w = fit_weights(phi, target, self.config.ridge, self.config.weight_decay)
+            w = fit_weights(phi, target, self.config.ridge)
             fit = phi @ w
         mse = float(np.mean((fit - target) ** 2)) * self.scale
         if not np.all(np.isfinite(w)) or not np.isfinite(mse) or (lin is not None and not np.all(np.isfinite(lin))):

@@ -145,7 +145,7 @@ def ols_order(phi: NDArray[np.float64], target: NDArray[np.float64]) -> list[int
 
 
 def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: tuple[int, ...],
-           ridge: float, weight_decay: float = 0.0) -> list[Model]:
+           ridge: float) -> list[Model]:
     """Smaller networks made of ``model``'s first neurons in :func:`ols_order` on ``(u, y)``, weights refitted.
 
     One network per size in ``sizes`` below ``model.neurons`` (same regressors, centres
@@ -163,9 +163,9 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
         keep = np.sort(np.asarray(order[:m], dtype=np.intp))
         lin = None
         if model.linear is None:
-            w = fit_weights(phi[:, keep], target, ridge, weight_decay)
+            w = fit_weights(phi[:, keep], target, ridge)
         else:
-            w, lin = fit_linear_rbf(phi[:, keep], r, target, ridge, weight_decay)
+            w, lin = fit_linear_rbf(phi[:, keep], r, target, ridge)
         fit = phi[:, keep] @ w + (0.0 if lin is None else r @ lin[:-1] + lin[-1])
         mse = float(np.mean((fit - target) ** 2)) * model.normalisation.y_half_range**2
         if np.all(np.isfinite(w)) and (lin is None or np.all(np.isfinite(lin))) and math.isfinite(mse):

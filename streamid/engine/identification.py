@@ -17,8 +17,8 @@ Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
 
 Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen from the estimation data
 (:mod:`streamid.engine.lagspace`; evidence in ``metrics.max_lag_choice``); when ``L`` is at least twice the floor
-and ``lag_alternation`` is set, the odd restarts keep ``1..floor`` (restart 1 of every 4 with ``hedge_neurons``
-neurons when > 0). A two-stage run's second stage always trains on a lag set with an input term. After the runs,
+the odd restarts keep ``1..floor`` (restart 1 of every 4 with ``lag_search_neurons`` neurons when > 0: the
+paper's size by default). A two-stage run's second stage always trains on a lag set with an input term. After the runs,
 if no run has an admissible candidate, one more run is made with each of ``fallback_neurons`` in turn until one
 has (``metrics.fallback_runs``; with ``fallback_below``, also while the best run's score is at most that). Before
 those, with ``more_restarts``, that many more runs when the best run's score lies in ``(0, more_below)``
@@ -47,9 +47,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
+from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.complexity import choose as choose_complexity
 from streamid.engine.ensemble_choice import choose_ensemble
-from streamid.engine.refine import refine_weights
+from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
 from streamid.engine.restarts import report_after, wants_more
 from streamid.engine.fanout import fan_out
 from streamid.engine.feedthrough import direct_terms
@@ -144,7 +145,7 @@ def _threads(helper: EvalHelper | None) -> int:
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
-    if job.get("neurons", cfg.neurons) != cfg.neurons:  # this restart's size (hedge_neurons, fallback_neurons)
+    if job.get("neurons", cfg.neurons) != cfg.neurons:  # this restart's size (the hedge's, fallback_neurons)
         cfg = cfg.replace(neurons=int(job["neurons"]))
     if job.get("max_lag", cfg.max_lag) != cfg.max_lag:  # this restart's lag space (max_lag_cap)
         cfg = cfg.replace(max_lag_y=int(job["max_lag"]), max_lag_u=int(job["max_lag"]), max_lag_cap=0)
@@ -169,9 +170,9 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     if cfg.lag_search_neurons and warm is None:
         # Two-stage run: a small network's coevolution chooses the lags...
         lag_cfg = cfg.replace(
-            neurons=cfg.lag_search_neurons, generations=cfg.lag_search_generations, harmony_stop=1.0
+            neurons=cfg.lag_search_neurons, harmony_stop=1.0
         )
-        lag_run = Coevolution(u, y, lag_cfg, rng, linear_search=False,  # RBF-only: cheap
+        lag_run = Coevolution(u, y, lag_cfg, rng,
                               **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.lagspace)...
@@ -302,7 +303,7 @@ def identify(
 
     seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.restarts)]
     # A long lag space chosen from the data (>= twice the floor) is hedged: the odd restarts use the floor's.
-    hedge = cfg.lag_alternation and lag_evidence is not None and cfg.max_lag >= 2 * floor
+    hedge = lag_evidence is not None and cfg.max_lag >= 2 * floor
     base = {
         "config": cfg.to_dict(),
         "normalisation": norm.to_dict(),
@@ -312,13 +313,13 @@ def identify(
         "output_name": output_name,
         "window": win,
     }
-    per_run = cfg.generations + (cfg.lag_search_generations if cfg.lag_search_neurons else 0)
+    per_run = cfg.generations * (2 if cfg.lag_search_neurons else 1)
     total_gen = per_run * cfg.restarts  # (grows when more_restarts are made)
     done: list[dict[str, Any]] = []  # finished runs (in-process progress)
 
     def restart(i: int, s: int, n_jobs: int) -> dict[str, Any]:  # restart i's job: the pattern repeats every 4
         job = {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
-               "neurons": (cfg.hedge_neurons or cfg.neurons) if (hedge and i % 4 == 1) else cfg.neurons,
+               "neurons": (cfg.lag_search_neurons or cfg.neurons) if (hedge and i % 4 == 1) else cfg.neurons,
                "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1}
         if callback is not None and executor is None and min(cfg.workers, n_jobs) <= 1:
             job["tick"] = lambda p: callback(Progress(  # runs made here report every generation, as one run does
@@ -376,24 +377,24 @@ def identify(
                             key=lambda c: (c["criterion"], c["run"]))[: cfg.prune_runs]
             for c in ranked:
                 i = int(c["run"])
-                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, cfg.range_margin, paths[i])
+                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, RANGE_MARGIN, paths[i])
             chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
     else:
         chosen = int(np.argmax(scores))
     final, score = models[chosen], float(outs[chosen]["score"])
     if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.ensemble_choice)
-        ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya, cfg.range_margin)
+        ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya, RANGE_MARGIN)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     own = scores[chosen] if final is models[chosen] else score
     if cfg.long_linear and complexity is not None and own < cfg.more_below:  # a dense linear ARX part competes
         offered = [(int(c["run"]), models[int(c["run"])]) for c in complexity["candidates"] if c["criterion"] is not None]
         ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.complexity, cfg.long_linear, ua, ya,
-                                                           cfg.range_margin, cfg.ridge, offered, chosen)
+                                                           RANGE_MARGIN, cfg.ridge, offered, chosen)
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
-        final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, cfg.refine_above, cfg.range_margin,
+        final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
                                         threads=_threads(helper))
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = final.with_metrics(

@@ -11,8 +11,8 @@ falls below 0.5 (a slow output needs its own past that far back; one that never
 falls within the cap takes the cap). Candidate lags are then ``1..L`` for the output
 and every input. The evidence (``k_u``, ``k_y``, ``L``) is in the model's metrics
 (``max_lag_choice``) and the identify report. The cost grows only where the data
-call for it, and a long lag space is hedged by restarts on ``1..floor``
-(``CoEAConfig.lag_alternation``, ``hedge_neurons``): the final choice decides.
+call for it, and a long lag space (at least twice the floor) is hedged by restarts on ``1..floor``, the first of
+every four of them with ``lag_search_neurons`` neurons (the paper's 10 by default): the final choice decides.
 
 The input-term rule (every run with ``require_input``; the two-stage runs' second stage always)
 ----------------------------------------------------------------------------------------------

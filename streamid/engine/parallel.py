@@ -220,7 +220,6 @@ class EvalHelper:
         neurons: int,
         capacity: int,
         ridge: float,
-        weight_decay: float,
         local: BatchEvaluator,
         uniforms: int = 0,
     ) -> HelperBinding:
@@ -253,7 +252,7 @@ class EvalHelper:
                 _unlink(old[0])
             ctl = self._ctl
             ctl[_N], ctl[_D], ctl[_M], ctl[_CAP], ctl[_UNIFORMS] = n, d, int(neurons), cap, max(0, int(uniforms))
-            self._fctl[0], self._fctl[1] = float(ridge), float(weight_decay)
+            self._fctl[0] = float(ridge)
             raw = path.encode()
             if len(raw) >= _PATH_MAX - _PATH_AT:
                 raise ConfigError(f"temporary path too long for the helper: {path!r}")

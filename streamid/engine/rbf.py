@@ -133,7 +133,7 @@ def rbf_output(
 
 
 def fit_weights(
-    phi: NDArray[np.float64], y: NDArray[np.float64], ridge: float, weight_decay: float = 0.0
+    phi: NDArray[np.float64], y: NDArray[np.float64], ridge: float
 ) -> NDArray[np.float64]:
     """Output weights minimising ``||y - phi w||^2 + ridge ||S^-1 w||^2`` accurately (QR; SVD without a ridge).
 
@@ -153,11 +153,11 @@ def fit_weights(
     ndarray, shape (M,)
     """
     if phi.shape[0] > FIT_BLOCK_ROWS:  # a long record: the same solution, the QR streamed over blocks of rows
-        return _streamed_fit(lambda a, b: phi[a:b], phi.shape[0], phi.shape[1], y, ridge, weight_decay)
+        return _streamed_fit(lambda a, b: phi[a:b], phi.shape[0], phi.shape[1], y, ridge)
     n2 = (phi * phi).sum(axis=0)
     s = np.where(n2 > MIN_NORM**2, 1.0 / np.sqrt(n2 + TINY), 0.0)  # as the search's BatchEvaluator: inactive -> w = 0
     a = phi * s
-    lam = ridge + weight_decay * phi.shape[0] * s * s
+    lam = np.full(phi.shape[1], float(ridge))
     if np.any(lam > 0):
         a = np.vstack([a, np.diag(np.sqrt(lam))])
         rhs = np.concatenate([y, np.zeros(phi.shape[1])])
@@ -170,7 +170,6 @@ def fit_weights(
 
 def _streamed_fit(
     rows: Callable[[int, int], NDArray[np.float64]], n: int, m: int, y: NDArray[np.float64], ridge: float,
-    weight_decay: float,
 ) -> NDArray[np.float64]:
     """:func:`fit_weights` of the ``(n, m)`` design whose rows ``a:b`` are ``rows(a, b)``, in blocks of
     :data:`FIT_BLOCK_ROWS` rows: memory ``O(FIT_BLOCK_ROWS m)`` beyond the design, whatever ``n``.
@@ -186,7 +185,7 @@ def _streamed_fit(
         blk = rows(a, min(n, a + FIT_BLOCK_ROWS))
         n2 += np.einsum("tm,tm->m", blk, blk)
     s = np.where(n2 > MIN_NORM**2, 1.0 / np.sqrt(n2 + TINY), 0.0)
-    lam = ridge + weight_decay * n * s * s
+    lam = np.full(m, float(ridge))
     tri, qty = np.zeros((0, m)), np.zeros(0)
     for a in range(0, n, FIT_BLOCK_ROWS):
         b = min(n, a + FIT_BLOCK_ROWS)
@@ -229,7 +228,7 @@ def _qr_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.floa
 
 
 def fit_linear_rbf(
-    phi: NDArray[np.float64], r: NDArray[np.float64], y: NDArray[np.float64], ridge: float, weight_decay: float = 0.0
+    phi: NDArray[np.float64], r: NDArray[np.float64], y: NDArray[np.float64], ridge: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Weights of an RBF network with a direct linear part, in one least-squares solve.
 
@@ -240,9 +239,9 @@ def fit_linear_rbf(
     n = phi.shape[0]
     if n > FIT_BLOCK_ROWS:  # a long record: the design built block by block, never whole
         z = _streamed_fit(lambda a, b: np.hstack([phi[a:b], r[a:b], np.ones((b - a, 1))]), n,
-                          phi.shape[1] + r.shape[1] + 1, y, ridge, weight_decay)
+                          phi.shape[1] + r.shape[1] + 1, y, ridge)
     else:
-        z = fit_weights(np.hstack([phi, r, np.ones((n, 1))]), y, ridge, weight_decay)
+        z = fit_weights(np.hstack([phi, r, np.ones((n, 1))]), y, ridge)
     M = phi.shape[1]
     return z[:M], z[M:]
 

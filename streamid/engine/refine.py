@@ -27,7 +27,7 @@ error, or when one lowers it by less than 1e-4 of itself.
 The rule (applied by :func:`~streamid.engine.identification.identify` after the final choice)
 -----------------------------------------------------------------------------------------
 * **Gate:** refined only when the chosen model's free-run R^2 on the estimation record is at
-  least ``refine_above`` (0.8). Below it the network's structure does not explain the record, and
+  least :data:`ABOVE` (0.8; a ``CoEAConfig`` field, ``refine_above``, until issue 37: never set otherwise). Below it the network's structure does not explain the record, and
   fitting its weights to the free run fits that structure's error: on the F-16 (estimation free-run
   R^2 0.20-0.73, validated at another excitation level) refined models validated lower on 11 of 15
   seeds (accel1 seed 3 0.69 -> -0.19, accel3 seed 1 0.28 -> -0.26), while the suite systems whose
@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine.settings import REFINE_ABOVE as ABOVE
 from streamid.engine._kernels import free_run_sensitivities
 from streamid.engine.choice import path_score
 from streamid.engine.stability import is_bounded
@@ -63,7 +64,7 @@ from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
 
-__all__ = ["DAMPING", "RIDGE", "parts", "refine_weights", "sensitivities"]
+__all__ = ["ABOVE", "DAMPING", "RIDGE", "parts", "refine_weights", "sensitivities"]
 
 #: Levenberg-Marquardt damping (times the diagonal of J'J): the first, the least, and the most before giving up.
 DAMPING = (1e-2, 1e-4, 1e2)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
-from streamid.engine.choice import FreeRunScores, free_run_scores, group_free_run
+from streamid.engine.choice import RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run
 from streamid.engine.complexity import criterion, padded, parameter_count, pruned
 from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.model import Model
@@ -30,14 +30,14 @@ if TYPE_CHECKING:
 __all__ = ["free_run_r2", "pruned_choice", "refit_weights", "select_model", "select_model_path"]
 
 
-def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight_decay: float = 0.0) -> Model:
+def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Model:
     """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
 
     A model with a linear part has it refitted in the same least squares. The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.rbf.fit_weights`.
     An ensemble has every member refitted (each on its own regressors); its ``fitness`` is then the mean's.
     """
     if isinstance(model, EnsembleModel):
-        ens = model.map_members(lambda m: refit_weights(m, u, y, ridge, weight_decay))
+        ens = model.map_members(lambda m: refit_weights(m, u, y, ridge))
         ua, ya = as_data(u, y, min_samples=ens.max_lag + 2)
         L = ens.max_lag
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
@@ -48,12 +48,12 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float, weight
         phi = activations(r, model.centres, model.widths)
         lin = None
         if model.linear is None:
-            w = fit_weights(phi, target, ridge, weight_decay)
+            w = fit_weights(phi, target, ridge)
             fit = phi @ w
         else:
             rl = r if model.linear_regressors is None else model.linear_rows(ua, ya)
             if model.linear_regressors is None:
-                w, lin = fit_linear_rbf(phi, rl, target, ridge, weight_decay)
+                w, lin = fit_linear_rbf(phi, rl, target, ridge)
             else:  # a long linear part: fitted as it was built (streamid.engine.longlinear)
                 w, lin = long_linear_fit(model.linear_regressors, phi, rl, target, ridge)
             fit = phi @ w + rl @ lin[:-1] + lin[-1]
@@ -108,12 +108,13 @@ def select_model(
     selection: str,
     *,
     range_margin: float | None = None,
+    screen_rows: bool = False,
 ) -> tuple[Model, float]:
     """The model of a finished run by the selection rule, and its score (higher is better).
 
     See :func:`select_model_path` (the same choice, with the chosen model's estimation free run).
     """
-    model, score, _ = select_model_path(run, u, y, selection, range_margin=range_margin)
+    model, score, _ = select_model_path(run, u, y, selection, range_margin=range_margin, screen_rows=screen_rows)
     return model, score
 
 
@@ -125,6 +126,7 @@ def select_model_path(
     *,
     range_margin: float | None = None,
     threads: int = 1,
+    screen_rows: bool = False,
 ) -> tuple[Model, float, NDArray[np.float64] | None]:
     """The model of a finished run by the selection rule, its score (higher is better) and, with
     ``"fr_est"``, its free run over the estimation record in output units when the choice made
@@ -143,7 +145,10 @@ def select_model_path(
     without it (the same centres and widths, weights refitted); the run's model is the admissible one of
     the lowest ``config.complexity`` criterion (:func:`_by_criterion`).
 
-    ``range_margin`` defaults to the run's ``config.range_margin``. ``threads`` > 1: the candidates are fitted
+    ``screen_rows`` (a run searched on a sample of its rows, the online updates): the candidates are fitted on
+    the search's rows only for the free-run choice, and the chosen one is refitted on all rows and scored again
+    (the full way if that refit is not admissible); otherwise every candidate is fitted on all rows.
+    ``range_margin`` defaults to :data:`~streamid.engine.choice.RANGE_MARGIN`. ``threads`` > 1: the candidates are fitted
     and simulated in that many threads (for a caller with a core to spare; the same result). A run with no
     candidate in range scores below -1e9 (any run with one wins over it); its model says ``admissible: 0``.
     """
@@ -153,8 +158,8 @@ def select_model_path(
     if selection != "fr_est":
         raise ConfigError(f"selection must be one of 'fitness', 'fr_est'; got {selection!r}")
     n = len(y)
-    margin = run.config.range_margin if range_margin is None else float(range_margin)
-    if run.config.screen_rows and run.search_rows < len(run.target):
+    margin = RANGE_MARGIN if range_margin is None else float(range_margin)
+    if screen_rows and run.search_rows < len(run.target):
         screened = _screened(run, u, y, margin)
         if screened is not None:
             return screened
@@ -186,7 +191,7 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     model's). Evidence in ``metrics.neuron_choice``."""
     M = model.neurons
     with one_blas_thread():
-        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), cfg.ridge, cfg.weight_decay)
+        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), cfg.ridge)
         if not smaller:
             return model, score, path
         fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run

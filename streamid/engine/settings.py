@@ -16,7 +16,11 @@ from typing import Any
 
 from streamid.errors import ConfigError
 
-__all__ = ["CoEAConfig", "PAPER", "DEFAULT", "SELECTIONS"]
+__all__ = ["CoEAConfig", "PAPER", "DEFAULT", "REFINE_ABOVE", "SELECTIONS"]
+
+#: The refinement's gate (:mod:`streamid.engine.refine`): a model is refined only when its estimation free-run R^2 is
+#: at least this; 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
+REFINE_ABOVE = 0.8
 
 #: Ways :func:`~streamid.engine.identification.identify` chooses among restarts.
 SELECTIONS = ("fr_est", "fitness")
@@ -24,7 +28,8 @@ SELECTIONS = ("fr_est", "fitness")
 
 #: Fields of earlier versions, measured and removed (issue 37): a document naming one is refused with this reason.
 RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
-                  "lag_search_rows", "ensemble")
+                  "lag_search_rows", "ensemble", "weight_decay", "linear_search", "lag_search_generations",
+                  "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows")
 
 
 def _int(name: str, value: object, low: int, high: int | None = None) -> int:
@@ -62,22 +67,22 @@ def _bounds(name: str, value: object, positive: bool) -> tuple[float, float]:
 #: Integer fields and their accepted ranges (None: no upper bound), checked in this order.
 _INT_RANGES: dict[str, tuple[int, int | None]] = {
     "neurons": (1, 1000), "max_lag_y": (0, 1000), "max_lag_u": (0, 1000), "generations": (0, None),
-    "population": (4, 10000), "lag_search_neurons": (0, 1000), "lag_search_generations": (0, None),
+    "population": (4, 10000), "lag_search_neurons": (0, 1000),
     "restarts": (1, 10000), "workers": (1, 1024), "search_rows": (0, None),
-    "fr_candidates": (0, 10000), "hedge_neurons": (0, 1000),
+    "fr_candidates": (0, 10000),
     "prune_runs": (0, 10000), "more_restarts": (0, 100), "min_lag_u": (0, 1), "refine_iterations": (0, 1000),
     "long_linear": (0, 1000), "max_lag_cap": (0, 1000),
 }
 #: Number fields: (low, high, whether low itself is refused).
 _FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
     "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop")},
-    "ridge": (0.0, 1.0, False), "weight_decay": (0.0, 1.0, False),
-    "range_margin": (0.0, 100.0, False), "fallback_below": (-1e9, 1.0, False),
-    "more_below": (0.0, 1.0, True), "refine_above": (-1e9, 1.0, False),
+    "ridge": (0.0, 1.0, False),
+    "fallback_below": (-1e9, 1.0, False),
+    "more_below": (0.0, 1.0, True),
 }
 #: Fields that must be true or false.
-_BOOL_FIELDS = ("feedthrough_test", "linear_terms", "linear_search", "run_ensembles",
-                "screen_rows", "lag_alternation", "require_input")
+_BOOL_FIELDS = ("feedthrough_test", "linear_terms", "run_ensembles",
+                "require_input")
 
 
 @dataclass(frozen=True)
@@ -118,20 +123,15 @@ class CoEAConfig:
         equations are scaled to unit diagonal and ``ridge`` is added to it
         (see :mod:`streamid.engine.rbf`). The final model's weights are refitted
         by an SVD least squares with the same floor on singular values.
-    weight_decay : float
-        Penalty ``weight_decay * n * ||w||^2`` on the output weights (normalised
-        units, ``n`` rows), in both the search and the final fit; 0 = none (the paper).
     lag_search_neurons : int
         0 (the paper): lags, centres and widths coevolve in one run of
         ``generations``. > 0: a two-stage run (:func:`~streamid.engine.identification.identify`):
         first the paper's coevolution with this many neurons for
-        ``lag_search_generations`` generations, the lag population evolving
+        ``generations`` generations, the lag population evolving
         throughout, chooses the lags; then ``generations`` of DE search the
         centres and widths of ``neurons`` neurons for those lags. The cheap small
         network finds the lags; the large one, whose least squares cost grows
         with ``neurons^2``, is only trained on them.
-    lag_search_generations : int
-        Generations of the first stage of a two-stage run.
     restarts : int
         Independent coevolution runs made by :func:`~streamid.engine.identification.identify`;
         the final model is chosen among them (see ``selection``).
@@ -173,22 +173,16 @@ class CoEAConfig:
     more_below : float
         The upper end of that band (0.95: between the heat exchanger's and the F-16's best runs,
         0.90-0.92 and 0.12-0.73, which gained, and Bouc-Wen's and the MR damper's, 0.975-0.987).
-    range_margin : float
-        With ``selection="fr_est"``: a candidate whose free run
-        over the whole estimation record leaves the measured output's range widened
-        by this fraction of its span on both sides is never chosen while another
-        stays inside (see :mod:`streamid.engine.choice`).
     max_lag_cap : int
         0: candidate lags ``1..max_lag_y`` and ``1..max_lag_u``. > 0 (with restarts or a
         two-stage run, :func:`~streamid.engine.identification.identify`): the maximum lag
         ``L`` is chosen from the estimation data between ``max(max_lag_y, max_lag_u)``
-        and this cap (:mod:`streamid.engine.lagspace`), and both use ``1..L``.
-    lag_alternation : bool
-        With ``max_lag_cap``: False, every restart uses the lags ``1..L`` chosen from the
-        data; True, when that ``L`` is at least twice the floor ``max(max_lag_y, max_lag_u)``,
-        the odd restarts use ``1..floor`` instead and the final choice decides between
-        the two lag spaces (a hedge: a long lag space fits some records' estimation
-        data better and their validation data worse, e.g. the F-16's accelerations).
+        and this cap (:mod:`streamid.engine.lagspace`), and both use ``1..L``. When that ``L`` is at least
+        twice the floor ``max(max_lag_y, max_lag_u)`` the odd restarts use ``1..floor`` instead, restart 1 of
+        every 4 with ``lag_search_neurons`` neurons (when > 0), and the final choice decides between the two lag
+        spaces (a hedge: a long lag space fits some records' estimation data better and their validation data
+        worse). (Issue 37 folded ``lag_alternation`` and ``hedge_neurons`` into this: both were on, at 10 = the
+        lag search's neurons, wherever the lags were chosen from the data.)
     fallback_neurons : tuple of int
         With a free-run selection: when no run has an admissible candidate (every
         free run leaves the data's range or ignores the input), one more run with
@@ -197,15 +191,6 @@ class CoEAConfig:
     fallback_below : float
         The ``fallback_neurons`` runs are also made while the best run's selection score
         (estimation free-run R^2) is at most this (-1e9: only when no run is admissible).
-    hedge_neurons : int
-        With the ``lag_alternation`` hedge: 0, the hedged restarts keep ``neurons``;
-        > 0, restart 1 of every 4 (lags ``1..floor``) trains this many neurons instead
-        (restart 3 keeps ``neurons``): a small and a large model on the short lag space.
-    screen_rows : bool
-        With ``search_rows`` in effect (a large record) and ``selection="fr_est"``: the
-        candidates are fitted on the search's rows only for the free-run choice, and
-        the chosen one is refitted on all rows and scored again (the full way if that
-        refit is not admissible). False: every candidate is fitted on all rows.
     linear_terms : bool
         False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate model
         gets a direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same
@@ -214,11 +199,6 @@ class CoEAConfig:
         each candidate is also offered without the linear part (the same centres and widths)
         and a run keeps the admissible candidate of the lowest ``complexity`` criterion
         (``p`` counts the linear part's ``k + 1`` weights).
-    linear_search : bool
-        With ``linear_terms``: True, the search's fitness (second stage of a two-stage run;
-        the lag search stays RBF-only) fits the linear part with the weights, so that DE
-        places the neurons on what the linear part cannot explain; False, the search is the
-        RBF-only one and the linear part only enters when candidates are fitted.
     complexity : str
         With ``selection="fr_est"`` and several runs: how the final model's size is
         chosen among the runs' candidates (:mod:`streamid.engine.complexity`):
@@ -243,10 +223,8 @@ class CoEAConfig:
         0 (the paper): the final model's weights are the search's one-step least squares. N > 0:
         at most N Levenberg-Marquardt iterations fit them to the model's free run on the estimation
         record (:mod:`streamid.engine.refine`; centres, widths and lags kept), when that free run's
-        R^2 is at least ``refine_above``; kept only if the whole record's free run is then better
+        R^2 is at least 0.8 (:data:`streamid.engine.refine.ABOVE`); kept only if the whole record's free run is then better
         and within the range guard (evidence in ``metrics.refinement``).
-    refine_above : float
-        The gate of ``refine_iterations`` (see :mod:`streamid.engine.refine` for why 0.8).
     long_linear : int
         0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
         up to N (chosen by the ``complexity`` criterion) competes with it, and so do the means of the two and
@@ -276,23 +254,16 @@ class CoEAConfig:
     width_bounds: tuple[float, float] = (0.01, 20.0)
     harmony_stop: float = 0.5
     ridge: float = 1e-10
-    weight_decay: float = 0.0
     lag_search_neurons: int = 0
-    lag_search_generations: int = 100
     restarts: int = 1
     workers: int = 1
     selection: str = "fitness"
     search_rows: int = 0
-    range_margin: float = 0.25
     fr_candidates: int = 0
     require_input: bool = False
     max_lag_cap: int = 0
     fallback_neurons: tuple[int, ...] = ()
-    lag_alternation: bool = False
-    hedge_neurons: int = 0
-    screen_rows: bool = False
     linear_terms: bool = False
-    linear_search: bool = True
     complexity: str = "score"
     prune_runs: int = 0
     fallback_below: float = -1e9
@@ -302,7 +273,6 @@ class CoEAConfig:
     feedthrough_test: bool = False
     run_ensembles: bool = False
     refine_iterations: int = 0
-    refine_above: float = 0.8
     long_linear: int = 0
 
     def __post_init__(self) -> None:
@@ -349,7 +319,7 @@ class CoEAConfig:
     def evaluations_per_run(self) -> int:
         """Fitness evaluations of one run: 2 P initial + P per generation (two-stage: both stages)."""
         if self.lag_search_neurons:
-            return self.population * (self.lag_search_generations + 2) + self.population * (self.generations + 1)
+            return self.population * (self.generations + 2) + self.population * (self.generations + 1)
         return self.population * (self.generations + 2)
 
     def replace(self, **changes: Any) -> CoEAConfig:
@@ -410,44 +380,19 @@ class CoEAConfig:
         finds the output responds within the sample (``feedthrough_test``).
 
         Every run's candidates are offered with a direct linear part and without it (``linear_terms``, the same
-        centres and widths from the RBF-only search, ``linear_search=False``), the kind chosen by AIC.
+        centres and widths from the RBF-only search), the kind chosen by AIC.
         Then (``complexity="aic"``, ``prune_runs=2``, ``run_ensembles``, ``refine_iterations=10``) the size by
         AIC on the estimation free run with the two best runs' pruned networks competing, the means of the best
         runs' networks competing by the same AIC, and the kept model's weights (and linear part) fitted to its
         free run.
 
-        What drove each default (``streamid bench --suite``, 5 seeds, validation free-run R^2 median / min;
-        the full record: docs/engine-results.md, rounds 1-8): ``require_input`` (robot arm -577 -> 0.21 on
-        its failing seeds, heat exchanger median 0.006 -> 0.48); lags from the data (robot arm 0.975 / -577 ->
-        0.997 / 0.994, heat exchanger 0.006 / -2.28 -> 0.56 / 0.53, MR damper kept); the 1..10 hedge and its
-        10-neuron restart (F-16 accelerations 2 and 3: every restart at 30 gave -1.15 / 0.02; hedged 0.216 /
-        0.372); M = 30, one process, 2000 search rows (the MR damper's 0.98; 10,000 samples in about 3 s);
-        AIC with the weights counted and pruning (heat exchanger 0.568 / 0.527 -> 0.610 / 0.541; counting
-        centres and widths cost the MR damper 0.980 -> 0.970); the fallback runs below 0.5 (F-16 accel3
-        worst seed 0.049 -> 0.277); ensembles (heat exchanger worst seed 0.541 -> 0.597, F-16 accel2 -1.61
-        -> -0.124, Bouc-Wen 0.984 / 0.982 -> 0.991 / 0.987); refinement (MR damper ten seeds 0.9799 / 0.9746
-        -> 0.9812 / 0.9795, Bouc-Wen 0.9906 / 0.9868 -> 0.9938 / 0.9921, heat exchanger 0.610 -> 0.645; its
-        gate from the F-16, its penalty from Bouc-Wen and the MR damper); four more runs where the record is
-        half explained (heat exchanger 0.645 / 0.607 -> 0.650 / 0.638, F-16 accel1 / 2 / 3 worst seeds 0.636 /
-        -0.124 / 0.277 -> 0.675 / 0.039 / 0.343; eight runs everywhere cost Bouc-Wen 0.9938 / 0.9921 -> 0.9927 /
-        0.9902 and doubled its time); the direct terms by test (heat exchanger 0.650 / 0.638 -> 0.943 / 0.936, MR
-        damper ten seeds 0.9847 / 0.9821, F-16 accel1 / 2 0.711 / 0.352 -> 0.765 / 0.407 median; accel3 0.472 ->
-        0.422; offered to every record, Bouc-Wen's seed 2 fell to -3.4, hence the test); the linear part offered
-        beside the RBF-only candidates and refined with the weights (round 11: heat exchanger 0.943 / 0.936 ->
-        0.960 / 0.942, CSTR Ca / T medians 0.999848 / 0.999914 -> 0.999889 / 0.999919, F-16 medians up, accel3 worst
-        seed 0.280 -> 0.335; cost: accel2 worst seed 0.323 -> 0.196, Bouc-Wen 0.9938 / 0.9921 -> 0.9940 / 0.9867;
-        searched with the linear part, ``linear_search``, the F-16 accel3 median fell to 0.30 and the ball and
-        beam's free runs diverged); the long linear part where the networks explain the record in part (rounds
-        12-13: the F-16, medians 0.77 / 0.42 / 0.43 -> 0.94 / 0.91 / 0.90) and the means of its best candidates
-        (round 14: the F-16's accel3 worst seed 0.876 -> 0.885, median 0.898 -> 0.897), every mean's ``p`` its members'
-        mean (round 14: the heat exchanger's worst seed 0.942 -> 0.951). Measured and not defaults (and retired in issue 37): ``selection="cv_fr"`` and ``neuron_alternatives`` (MR damper 0.975 and 0.977), more restarts
-        (Bouc-Wen's worst seed 0.982 -> 0.958, +50 % time).
+        What drove each default, with the figures that did: docs/method.md (one bullet per step, measured) and
+        docs/engine-results.md (rounds 1-14; issue 37 round 4: what each step earns on the two-experiment suite).
         """
         base = {
             "neurons": 30,
             "generations": 100,
             "lag_search_neurons": 10,
-            "lag_search_generations": 100,
             "restarts": 4,
             "workers": 1,
             "selection": "fr_est",
@@ -455,8 +400,6 @@ class CoEAConfig:
             "fr_candidates": 10,
             "require_input": True,
             "max_lag_cap": 30,
-            "lag_alternation": True,
-            "hedge_neurons": 10,
             "fallback_neurons": (15, 8),
             "complexity": "aic",
             "prune_runs": 2,
@@ -466,7 +409,6 @@ class CoEAConfig:
             "run_ensembles": True,
             "refine_iterations": 10,
             "linear_terms": True,
-            "linear_search": False,
             "long_linear": 512,
         }
         return cls(**{**base, **changes})

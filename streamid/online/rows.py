@@ -45,7 +45,7 @@ Which rows (:func:`informative_rows`)
     one it had without sampling.
 
 After the search
-    The candidates are screened on the same rows (``CoEAConfig.screen_rows``),
+    The candidates are screened on the same rows (``select_model(..., screen_rows=True)``),
     chosen by their free run over the whole estimation part, and the chosen one
     is refitted on every row (the least squares streamed in blocks:
     :func:`streamid.engine.rbf.fit_weights`) and validated on the whole held-out

@@ -41,10 +41,11 @@ import numpy as np
 
 from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
 from streamid.engine._blas import one_blas_thread
+from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.feedthrough import direct_terms
 from streamid.engine.identification import select_model
 from streamid.engine.longlinear import long_linear_choice
-from streamid.engine.refine import refine_weights
+from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
 from streamid.engine.settings import CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.recalibrate import recalibrate
@@ -330,12 +331,12 @@ def identify_window(
     sample = informative_rows(n_est - engine_cfg.max_lag, bound, rng.spawn(1)[0])  # its own stream: the search's is kept
     try:
         try:
-            co = _start(u_est, y_est, _screened(engine_cfg, sample), rng, warm_state if warm else None, window,
+            co = _start(u_est, y_est, engine_cfg, rng, warm_state if warm else None, window,
                         out_name, meta, helper, sample)
         except _WarmMismatch:  # the saved populations do not fit this data: start cold
             warm = False
             engine_cfg, _ = direct_terms(cfg.coea_config(cold=True, generations=generations), u_est, y_est, None)
-            co = _start(u_est, y_est, _screened(engine_cfg, sample), rng, None, window, out_name, meta, helper, sample)
+            co = _start(u_est, y_est, engine_cfg, rng, None, window, out_name, meta, helper, sample)
     except StreamidError as exc:
         return Outcome("failed", f"identification could not start: {exc}", "engine_error", signature=sig, **common)
     try:
@@ -344,15 +345,17 @@ def identify_window(
                 raise Stopped
             if on_generation is not None:
                 on_generation(window.stream, progress)
-        model, score = select_model(co, u_est, y_est, engine_cfg.selection)
+        # with a sample of rows the candidates are screened on it and only the chosen one refitted on every row:
+        # fitting all of them on every row would cost what the sample saved
+        model, score = select_model(co, u_est, y_est, engine_cfg.selection, screen_rows=sample is not None)
         model, score = long_linear_part(model, score, engine_cfg, u_est, y_est)
         if engine_cfg.selection != "fitness":
             model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
         if sample is not None:
             model = model.with_metrics(search_rows=sample.evidence())
         if engine_cfg.refine_iterations:  # opt-in online (engine.refine_iterations): the weights fitted to the free run
-            model, refined = refine_weights(model, u_est, y_est, engine_cfg.refine_iterations, engine_cfg.refine_above,
-                                            engine_cfg.range_margin)
+            model, refined = refine_weights(model, u_est, y_est, engine_cfg.refine_iterations, REFINE_ABOVE,
+                                            RANGE_MARGIN)
             model = model.with_metrics(refinement=refined)
         state = co.state()
         fitness = np.asarray(co.history, dtype=np.float64)
@@ -415,7 +418,7 @@ def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray,
     """
     if not cfg.long_linear or cfg.selection != "fr_est" or not score < cfg.more_below:
         return model, score
-    ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, cfg.range_margin, cfg.ridge,
+    ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, cfg.ridge,
                                 min_order=max(cfg.max_lag_y, cfg.max_lag_u) + 1, max_design_bytes=LONG_LINEAR_DESIGN_BYTES)
     if ll is None:
         return model, score
@@ -427,12 +430,6 @@ def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray,
 
 class _WarmMismatch(Exception):
     pass
-
-
-def _screened(engine_cfg: CoEAConfig, sample: RowSample | None) -> CoEAConfig:
-    """With a sample of rows, the candidates are screened on it and only the chosen one refitted on every row
-    (``screen_rows``): fitting all of them on every row would cost what the sample saved."""
-    return engine_cfg if sample is None else dataclasses.replace(engine_cfg, screen_rows=True)
 
 
 def _start(
