@@ -447,6 +447,8 @@ def _main(argv: list[str]) -> int:
     t.add_argument("rate_hz", type=float)
     t.add_argument("streams", type=int)
     t.add_argument("--seconds", type=float, default=75.0)
+    t.add_argument("--config", default="", metavar="DAEMON.toml",
+                   help="the daemon's configuration file (default: none, its defaults), e.g. a larger daemon.max_streams")
     e = sub.add_parser("engine")
     e.add_argument("n", type=int, nargs="+")
     e.add_argument("--timeout", type=float, default=900.0)
@@ -455,7 +457,8 @@ def _main(argv: list[str]) -> int:
                    help="one run per seed (the seed draws both the device's excitation and the engine's)")
     a = p.parse_args(argv)
     if a.what == "trial":
-        r = trial(a.rate_hz, a.streams, a.seconds)
+        r = trial(a.rate_hz, a.streams, a.seconds,
+                  daemon_toml=Path(a.config).read_text(encoding="utf-8") if a.config else "")
         r.pop("latencies_s")
         print(json.dumps(r))
     else:
