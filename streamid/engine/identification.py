@@ -169,11 +169,8 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     lag_rule = "search"
     if cfg.lag_search_neurons and warm is None:
         # Two-stage run: a small network's coevolution chooses the lags...
-        lag_cfg = cfg.replace(
-            neurons=cfg.lag_search_neurons, harmony_stop=1.0
-        )
-        lag_run = Coevolution(u, y, lag_cfg, rng,
-                              **common).solve(_stage(tick, 0, 0))
+        lag_cfg = cfg.replace(neurons=cfg.lag_search_neurons, harmony_stop=1.0)  # RBF-only, as every search
+        lag_run = Coevolution(u, y, lag_cfg, rng, **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.lagspace)...
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,
