@@ -20,9 +20,10 @@ import math
 import statistics
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from functools import lru_cache
 from typing import Any
 
-from benchmarks.suite import free_run_val, targets
+from benchmarks.suite import Target, free_run_val, targets
 from streamid.engine import identify
 from streamid.engine.settings import DEFAULT
 
@@ -54,9 +55,15 @@ SYSTEMS = ("piezo_sim", "mr_damper_sim", "bouc_wen_sim", "reactor_sim", "rlc", "
            "piezo_p885")
 
 
+@lru_cache(maxsize=None)
+def _targets(system: str) -> tuple[Target, ...]:
+    """A system's targets, loaded or simulated once per process (every seed of a row uses the same)."""
+    return tuple(targets((system,)))
+
+
 def _one(job: tuple[str, int, int, dict[str, Any]]) -> tuple[int, int, float]:
     system, index, seed, changes = job
-    t = targets((system,))[index]
+    t = _targets(system)[index]
     res = identify(t.u_est, t.y_est, DEFAULT.replace(**changes), seed)
     fr = free_run_val(res.model, t)
     return index, seed, fr if math.isfinite(fr) else -1e300
@@ -80,15 +87,15 @@ def verdict(name: str, median: float, worst: float) -> str:
 
 def run(systems: tuple[str, ...], seeds: tuple[int, ...], changes: dict[str, Any], jobs: int) -> list[dict[str, Any]]:
     """One row per target: name, validation R² per seed, median, worst, verdict."""
-    plan = [(s, i, seed, changes) for s in systems for i, _ in enumerate(targets((s,))) for seed in seeds]
+    plan = [(s, i, seed, changes) for s in systems for i, _ in enumerate(_targets(s)) for seed in seeds]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        results = list(pool.map(_one, plan))
+        results = dict(zip(((s, i, seed) for s, i, seed, _ in plan), (fr for _, _, fr in pool.map(_one, plan))))
     rows = []
     for s in systems:
-        for i, t in enumerate(targets((s,))):
+        for i, t in enumerate(_targets(s)):
             if t.kind == "half" and t.name not in MARKS:
                 continue
-            fr = [r for (sy, ii, _, _), (_, _, r) in zip(plan, results) if sy == s and ii == i]
+            fr = [results[s, i, seed] for seed in seeds]
             med, worst = statistics.median(fr), min(fr)
             rows.append({"target": t.name, "fr_val": fr, "median": med, "worst": worst,
                          "verdict": verdict(t.name, med, worst)})
