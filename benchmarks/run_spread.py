@@ -31,7 +31,7 @@ from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
 from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
-from streamid.engine.settings import DEFAULT, CoEAConfig
+from streamid.engine.settings import DEFAULT, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.engine.validation import r2
 
 #: A run whose estimation score is at most this left no admissible candidate (streamid.engine.selection).
@@ -52,8 +52,8 @@ class Spread:
 def finished(model: Model, run: int, score: float, t: Target, cfg: CoEAConfig) -> Model:
     """``model`` given identify's final stage as if it were the kept one (long linear part, then refinement)."""
     u, y = t.u_est.reshape(len(t.y_est), -1), t.y_est
-    if cfg.long_linear and score < cfg.more_below:
-        ll, _ = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, cfg.ridge,
+    if cfg.long_linear and score < MORE_BELOW:
+        ll, _ = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, RIDGE,
                                    [(run, model)], run)
         model = model if ll is None else ll
     if cfg.refine_iterations:

@@ -327,7 +327,7 @@ def bench(options: Any) -> Iterator[Any]:
     cfgs = {"paper": SUITE_PAPER, "default": DEFAULT}
     if quick:  # a smoke run of the same code paths, not for quoting
         cfgs = {"paper": SUITE_PAPER.replace(generations=10),
-                "default": DEFAULT.replace(generations=5, workers=1)}
+                "default": DEFAULT.replace(generations=5)}
     # Both cores, as `streamid identify` uses them: an EvalHelper evaluates half of every search batch (the same
     # results; docs/engine-results.md, "The second core"). Where it is not supported the engine goes alone.
     with ExitStack() as stack:

@@ -17,6 +17,7 @@ from conftest import endpoint, stop_process, wait_until, start_daemon
 
 from streamid.daemon.admission import check_batch, identification_bytes, stream_bytes
 from streamid.engine import rbf
+from streamid.engine.settings import RIDGE
 from streamid.engine._kernels import warm_up_kernels
 from streamid.engine.selection import refit_weights
 from streamid.errors import ConfigError
@@ -97,7 +98,7 @@ def test_a_long_window_is_searched_on_the_bound_and_refitted_on_every_row() -> N
     n_est = out.window_meta["n_estimation"]
     assert out.model.metrics["search_rows"] == {"rows": 4096, "of": n_est - 10, "bound": 4096, "sampling": "stratified"}
     u_est, y_est = w.u[:n_est], w.y[:n_est, 0]
-    again = refit_weights(out.model, u_est, y_est, cfg.coea_config(cold=True).ridge)
+    again = refit_weights(out.model, u_est, y_est, RIDGE)
     np.testing.assert_allclose(out.model.weights, again.weights, rtol=1e-6,
                                atol=1e-6 * np.abs(again.weights).max())  # the weights of every row, not the sample's
     assert out.summary.metrics["r2_fr_val"] > 0.9, out.summary.metrics

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import DEFAULT, CoEAConfig, Model, identify
+from streamid.engine.settings import FALLBACK_BELOW
 from streamid.engine.complexity import choose, criterion, parameter_count
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.errors import ConfigError
@@ -64,10 +65,10 @@ def _narx_record() -> tuple[np.ndarray, np.ndarray]:
     return u, y
 
 
-def test_identify_reports_every_candidate_size_and_its_criterion() -> None:
+def test_identify_reports_every_candidate_size_and_its_criterion(monkeypatch: pytest.MonkeyPatch) -> None:
     u, y = _narx_record()
-    cfg = DEFAULT.replace(generations=10, max_lag_cap=0, fallback_neurons=(8,),
-                          fallback_below=1.0, more_restarts=0,
+    monkeypatch.setattr("streamid.engine.identification.FALLBACK_BELOW", 1.0)  # a fallback run is always made
+    cfg = DEFAULT.replace(generations=10, max_lag_cap=0, fallback_neurons=(8,), more_restarts=0,
                           run_ensembles=False)  # the single network's choice (ensembles: test_engine_ensemble.py)
     res = identify(u, y, cfg, 0)
     ev = res.model.metrics["complexity"]
@@ -146,7 +147,7 @@ def test_prune_lets_a_smaller_network_compete_and_says_so() -> None:
     assert "neuron_choice" not in plain.model.metrics and plain.model.neurons == 30
 
 
-def test_fallback_runs_are_made_while_the_best_fit_is_poor() -> None:
+def test_fallback_runs_are_made_while_the_best_fit_is_poor(monkeypatch: pytest.MonkeyPatch) -> None:
     rng = np.random.default_rng(5)
     u = rng.uniform(-1, 1, 500)
     y = np.zeros(500)
@@ -154,10 +155,12 @@ def test_fallback_runs_are_made_while_the_best_fit_is_poor() -> None:
         y[t] = 0.3 * np.tanh(u[t - 1]) + rng.normal()
     cfg = DEFAULT.replace(generations=5, max_lag_cap=0, restarts=2, prune_runs=0,
                          more_restarts=0)
-    poor = identify(u, y, cfg.replace(fallback_below=0.9), 0)
-    assert max(r.score for r in poor.runs[:2]) <= 0.9
+    poor = identify(u, y, cfg, 0)
+    assert max(r.score for r in poor.runs[:2]) <= FALLBACK_BELOW
     assert poor.model.metrics["fallback_runs"] == [15, 8] and len(poor.runs) == 4
     assert poor.model.metrics["run_neurons"][2:] == [15, 8]
-    assert identify(u, y, cfg.replace(fallback_below=-1e9), 0).model.metrics["fallback_runs"] == []
-    with pytest.raises(ConfigError, match="fallback_below"):
-        CoEAConfig(fallback_below=2.0)
+    assert identify(u, y, cfg.replace(fallback_neurons=()), 0).model.metrics["fallback_runs"] == []
+    monkeypatch.setattr("streamid.engine.identification.FALLBACK_BELOW", -1e9)  # only when no run is admissible
+    assert identify(u, y, cfg, 0).model.metrics["fallback_runs"] == []
+    with pytest.raises(ConfigError, match="retired"):
+        CoEAConfig.from_dict({"fallback_below": 0.5})

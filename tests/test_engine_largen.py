@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import PAPER, identify
+from streamid.engine.settings import MORE_BELOW
 from streamid.engine.coevolution import Coevolution
 from streamid.engine.restarts import wants_more
 from streamid.engine.model import Model
@@ -64,7 +65,8 @@ def _out(score: float, neurons: int = 30, max_lag: int = 10) -> dict[str, object
 
 
 def test_more_runs_only_where_the_record_is_half_explained() -> None:
-    cfg = PAPER.replace(more_restarts=4, more_below=0.95, selection="fr_est")
+    cfg = PAPER.replace(more_restarts=4, selection="fr_est")
+    assert MORE_BELOW == 0.95
     assert wants_more([_out(0.3), _out(0.92)], cfg)  # the heat exchanger's and the F-16's band
     assert not wants_more([_out(0.3), _out(0.97)], cfg)  # one run explains most of the record
     assert not wants_more([_out(-1e9), _out(-0.8)], cfg)  # none explains anything: the fallback runs' case
@@ -74,27 +76,29 @@ def test_more_runs_only_where_the_record_is_half_explained() -> None:
     assert not wants_more([_out(0.5)], cfg.replace(selection="fitness"))  # its scores are not R^2
 
 
-def test_more_restarts_add_runs_after_the_same_first_ones(reactor: tuple[np.ndarray, np.ndarray]) -> None:
+def test_more_restarts_add_runs_after_the_same_first_ones(reactor: tuple[np.ndarray, np.ndarray],
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     u, y = reactor
     cfg = PAPER.replace(neurons=8, generations=10, lag_search_neurons=4, restarts=2,
                         selection="fr_est", more_restarts=2)
-    plain = identify(u, y, cfg.replace(more_below=0.5), 6)  # the reactor's runs fit above 0.5: none added
+    monkeypatch.setattr("streamid.engine.restarts.MORE_BELOW", 0.5)
+    plain = identify(u, y, cfg, 6)  # the reactor's runs fit above 0.5: none added
+    monkeypatch.setattr("streamid.engine.restarts.MORE_BELOW", 1.0)
     seen: list[tuple[int, int]] = []
-    more = identify(u, y, cfg.replace(more_below=1.0), 6, callback=lambda p: seen.append((p.generation, p.generations)))
+    more = identify(u, y, cfg, 6, callback=lambda p: seen.append((p.generation, p.generations)))
     assert min(r.score for r in plain.runs) > 0.5
     assert plain.model.metrics["more_restarts"] == 0 and len(plain.runs) == 2
     assert more.model.metrics["more_restarts"] == 2 and len(more.runs) == 4
     assert [r.score for r in more.runs[:2]] == [r.score for r in plain.runs]  # the same first runs, then new seeds
     assert len({r.seed for r in more.runs}) == 4
-    again = identify(u, y, cfg.replace(more_below=1.0), 6)
+    again = identify(u, y, cfg, 6)
     assert again.model.to_json() == more.model.to_json()  # same seed, same result
     per_run = 20
     assert seen[-1] == (4 * per_run, 4 * per_run)  # the bar's total grew with the runs added
     assert all(g <= total for g, total in seen) and [g for g, _ in seen] == sorted(g for g, _ in seen)
 
 
-@pytest.mark.parametrize("field, value", [("more_restarts", -1), ("more_restarts", 1.5), ("more_below", 0.0),
-                                          ("more_below", 1.5)])
+@pytest.mark.parametrize("field, value", [("more_restarts", -1), ("more_restarts", 1.5)])
 def test_more_restarts_settings_are_checked(field: str, value: object) -> None:
     with pytest.raises(ConfigError, match=f"CoEAConfig.{field} must be"):
         PAPER.replace(**{field: value})

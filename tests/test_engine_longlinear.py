@@ -14,6 +14,7 @@ import pytest
 from scipy.signal import lfilter
 
 from streamid.engine import DEFAULT, Model, identify
+from streamid.engine.settings import MORE_BELOW, RIDGE
 from streamid.engine.choice import free_run_scores, group_free_run
 from streamid.engine.complexity import parameter_count
 from streamid.engine.ensemble import EnsembleModel
@@ -194,7 +195,7 @@ def test_the_choice_fits_long_memory_and_validates_on_another_excitation() -> No
     # measured: 0.908 with it (order 128), 0.031 without (the networks' lags end at 30 here, a period is 33-83)
     assert val > 0.85 and val > val0 + 0.5, (val, val0)
     # the kept model survives the final steps: a refit keeps its structure, the refinement leaves it alone
-    again = refit_weights(res.model, u, y, cfg.ridge)
+    again = refit_weights(res.model, u, y, RIDGE)
     assert again.linear_regressors == res.model.linear_regressors
     # The refit is the same rule (streamid.engine.longlinear.long_linear_fit) on the model's own rows (the choice
     # fitted on the rows every offer shares, which start later): with the linear part's own autoregression (this
@@ -214,7 +215,7 @@ def test_not_taken_where_the_network_explains_the_record() -> None:
     for t in range(1, 1500):
         y[t] = 0.5 * y[t - 1] + np.tanh(2 * u[t - 1])
     res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=()), 0)
-    assert res.model.metrics["free_run_choice"]["score"] > DEFAULT.more_below
+    assert res.model.metrics["free_run_choice"]["score"] > MORE_BELOW
     assert "long_linear" not in res.model.metrics["complexity"] and res.model.linear_regressors is None
     got, ev = long_linear_choice(res.model, 1.0 - 1e-12, "aic", 64, u.reshape(-1, 1), y, 0.25, 1e-10)
     assert got is None and not ev["taken"] and ev["orders"]

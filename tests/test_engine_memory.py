@@ -128,7 +128,9 @@ def test_a_long_lag_space_is_hedged_by_short_restarts() -> None:
     # a lag space chosen under twice the floor (the cap 15 binds: 3 x the dead time 12 is 36) is not hedged
     plain = identify(u, y, cfg.replace(max_lag_cap=15), 0).model.metrics
     assert plain["run_max_lags"] == [15, 15, 15, 15] and plain["run_neurons"] == [8, 8, 8, 8]
-    more = identify(u, y, cfg.replace(more_restarts=4, more_below=1.0), 0).model.metrics  # runs added: the same pattern
+    with pytest.MonkeyPatch.context() as mp:  # every run's fit is below 1: runs are added
+        mp.setattr("streamid.engine.restarts.MORE_BELOW", 1.0)
+        more = identify(u, y, cfg.replace(more_restarts=4), 0).model.metrics  # runs added: the same pattern
     assert more["more_restarts"] == 4 and more["run_max_lags"] == [30, 10, 30, 10] * 2
     assert more["run_neurons"] == [8, 5, 8, 8] * 2
 

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import CoEAConfig, Coevolution, EvalHelper, identify
+from streamid.engine.settings import RIDGE
 from benchmarks.engine_cases import reactor_data
 from streamid.engine.batch import BatchEvaluator
 from streamid.errors import StreamidError
@@ -87,7 +88,7 @@ def test_the_faster_path_is_chosen_by_measuring(helper, data):
 def test_the_helper_computes_exactly_what_the_local_evaluator_computes(helper, data):
     ue, ye = data
     run = Coevolution(ue, ye, CFG, np.random.default_rng(5), helper=helper)
-    local = BatchEvaluator(run.R, run.target, CFG.neurons, CFG.population, CFG.ridge)
+    local = BatchEvaluator(run.R, run.target, CFG.neurons, CFG.population, RIDGE)
     binding = run._batch
     rng = np.random.default_rng(9)
     c, w = run._split(run.X[:10])

@@ -10,7 +10,7 @@ import pytest
 from streamid.logs.datafile import load_dataset, load_table, split_index
 from streamid.engine import CoEAConfig
 from streamid.engine.identification import free_run_r2, identify
-from streamid.errors import DataError
+from streamid.errors import ConfigError, DataError
 
 DATA = Path(__file__).parent / "data"
 SMALL = CoEAConfig(neurons=6, max_lag_y=3, max_lag_u=3, generations=12)
@@ -28,11 +28,13 @@ def narx(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def test_worker_processes_give_the_same_result_as_in_process() -> None:
     u, y = narx(300, 0)
     cfg = SMALL.replace(restarts=2, selection="fr_est")
-    here = identify(u, y, cfg.replace(workers=1), 3)
-    there = identify(u, y, cfg.replace(workers=2), 3)  # spawned processes
+    here = identify(u, y, cfg, 3, workers=1)
+    there = identify(u, y, cfg, 3, workers=2)  # spawned processes
     a, b = here.model.to_dict(), there.model.to_dict()
-    assert a.pop("config")["workers"] == 1 and b.pop("config")["workers"] == 2
+    assert "workers" not in a["config"]  # how the runs were made is not a setting of the method
     assert a == b
+    with pytest.raises(ConfigError, match=r"workers must be an integer in \[1, 1024\].*got 0"):
+        identify(u, y, cfg, 3, workers=0)
     assert [r.seed for r in here.runs] == [r.seed for r in there.runs]
 
 

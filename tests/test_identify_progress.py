@@ -22,7 +22,7 @@ def _narx(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def test_restarts_in_process_report_every_generation() -> None:
     u, y = _narx(300, 1)
     cfg = DEFAULT.replace(neurons=5, generations=6, lag_search_neurons=3, restarts=3,
-                          population=10, max_lag_y=3, max_lag_u=3, workers=1)
+                          population=10, max_lag_y=3, max_lag_u=3)
     seen: list[Progress] = []
     res = identify(u, y, cfg, 0, callback=seen.append)
     per_run = 6 + 6  # the lag search stage and the second stage, each of `generations`

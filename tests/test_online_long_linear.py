@@ -10,6 +10,7 @@ import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
 from streamid.engine import Model
+from streamid.engine.settings import MORE_BELOW, RIDGE
 from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.identification import free_run_r2
 from streamid.engine.longlinear import long_linear_choice
@@ -76,9 +77,9 @@ def test_only_orders_above_the_lag_search_are_offered(f16: tuple) -> None:
     ue, ye = u[:2800], y[:2800, 2]
     score = float(without.metrics["selection_score"])
     cfg = StreamConfig().coea_config(cold=True)
-    _, ev = long_linear_choice(without, score, cfg.complexity, 512, ue, ye, RANGE_MARGIN, cfg.ridge, min_order=11)
+    _, ev = long_linear_choice(without, score, cfg.complexity, 512, ue, ye, RANGE_MARGIN, RIDGE, min_order=11)
     assert ev["orders"] and min(r["order"] for r in ev["orders"]) == 12, ev["orders"]
-    _, ev2 = long_linear_choice(without, score, cfg.complexity, 512, ue, ye, RANGE_MARGIN, cfg.ridge)
+    _, ev2 = long_linear_choice(without, score, cfg.complexity, 512, ue, ye, RANGE_MARGIN, RIDGE)
     assert min(r["order"] for r in ev2["orders"]) == 2
     got, s = long_linear_part(without, score, cfg, ue, ye)
     assert got.metrics["long_linear"]["order"] >= 12 and s == got.metrics["long_linear"]["r2_fr_est"]
@@ -89,6 +90,6 @@ def test_only_orders_above_the_lag_search_are_offered(f16: tuple) -> None:
     big, _ = long_linear_part(without, float(score_big), cfg, u[:8000], y[:8000, 2])
     assert 12 <= big.metrics["long_linear"]["order"] <= cap, (big.metrics["long_linear"], cap)
     # not tried where the network explains the window, nor with "fitness" (its score is not an R^2), nor when off
-    for c, sc in ((cfg, cfg.more_below), (replace(cfg, selection="fitness"), score), (replace(cfg, long_linear=0), score)):
+    for c, sc in ((cfg, MORE_BELOW), (replace(cfg, selection="fitness"), score), (replace(cfg, long_linear=0), score)):
         same, s2 = long_linear_part(without, sc, c, ue, ye)
         assert same is without and s2 == sc

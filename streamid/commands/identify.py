@@ -36,7 +36,7 @@ import argparse
 from typing import Any
 
 from streamid.commands.identify_io import add_reading_flags, data_help
-from streamid.engine.settings import DEFAULT, PAPER, REFINE_ABOVE, SELECTIONS, CoEAConfig
+from streamid.engine.settings import DEFAULT, MORE_BELOW, PAPER, REFINE_ABOVE, SELECTIONS, CoEAConfig
 from streamid.errors import ConfigError
 
 __all__ = ["register", "run"]
@@ -86,7 +86,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "a linear ARX model finds the output responds within the sample), on (always) or off (the paper: "
                         "u(t-1) on; --paper)")
     p.add_argument("--more-restarts", type=int, metavar="N",
-                   help=f"N more runs when the best run's estimation free-run R2 is between 0 and {DEFAULT.more_below} "
+                   help=f"N more runs when the best run's estimation free-run R2 is between 0 and {MORE_BELOW} "
                         f"(a record explained in part; default {DEFAULT.more_restarts}; 0: never; --paper 0)")
     p.add_argument("--ensembles", action=argparse.BooleanOptionalAction, default=None,
                    help="the means of the best 2, 3 and all admissible restarts' networks compete in the final choice "
@@ -97,7 +97,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         f"{'on' if DEFAULT.linear_terms else 'off'}; never with --paper)")
     p.add_argument("--long-linear", type=int, metavar="N", dest="long_linear",
                    help="where the networks explain the estimation record in part (free-run R2 below "
-                        f"{DEFAULT.more_below}), offer the kept network with a dense linear ARX part of order up to N, "
+                        f"{MORE_BELOW}), offer the kept network with a dense linear ARX part of order up to N, "
                         f"the order chosen by the same criterion, and the means of the best 2 and 3 such candidates compete "
                         f"(default {DEFAULT.long_linear}; 0: off; never with --paper)")
     p.add_argument("--refine", type=int, metavar="N",
@@ -175,7 +175,6 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         raise ConfigError(f"--runs must be an integer >= 1; got {args.runs}")
     if args.seed < 0:
         raise ConfigError(f"--seed must be an integer >= 0; got {args.seed}")
-    changes["workers"] = args.workers if args.runs == 1 else 1
     try:
         return base.replace(**changes)
     except ConfigError as exc:

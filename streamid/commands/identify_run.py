@@ -14,7 +14,7 @@ import numpy as np
 from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit_report, load, r2_text, read_text,
                                            split_text)
 from streamid.logs.datafile import Dataset
-from streamid.engine.settings import CoEAConfig
+from streamid.engine.settings import MORE_BELOW, CoEAConfig
 from streamid.engine.caveats import model_caveats, size_caveat
 from streamid.engine.complexity import parameter_count
 from streamid.engine.ensemble import members_of
@@ -41,6 +41,7 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
         output_name=ds.output_name,
         window=ds.window(),
         helper=helper,
+        workers=job.get("workers", 1),
     )
     return validated_run(res.model, ds, seed=job["seed"], seconds=res.seconds, evaluations=res.evaluations,
                          fitness=res.fitness, history=[float(f) for f in res.fitness_history])
@@ -75,12 +76,14 @@ def identify_runs(
     workers: int,
     bar: Bar | None = None,
     helper: EvalHelper | None = None,
+    restart_workers: int = 1,
 ) -> list[dict[str, Any]]:
     """Run one identification per seed (over ``workers`` processes when several) and validate each.
 
-    ``helper`` (an :class:`EvalHelper`) is used by the runs made in this process.
+    ``helper`` (an :class:`EvalHelper`) is used by the runs made in this process; ``restart_workers``: processes
+    for one identification's restarts (``identify``'s ``workers``).
     """
-    jobs = [{"dataset": ds, "config": cfg.to_dict(), "seed": s} for s in seeds]
+    jobs = [{"dataset": ds, "config": cfg.to_dict(), "seed": s, "workers": restart_workers} for s in seeds]
     if bar is not None and (len(jobs) == 1 or workers <= 1):  # runs made here report every generation
         for i, job in enumerate(jobs):
             run = f"run {i + 1}/{len(jobs)}: " if len(jobs) > 1 else ""
@@ -217,7 +220,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         first = len(made["run_scores"]) - made.get("more_restarts", 0) - len(made.get("fallback_runs", ()))
         w(f"runs made: {first}" + (
             f" + {made['more_restarts']} more (the best of those fit the estimation record at FR R2 "
-            f"{max(made['run_scores'][:first]):.5f}, in (0, {cfg.more_below}))" if made.get("more_restarts") else "")
+            f"{max(made['run_scores'][:first]):.5f}, in (0, {MORE_BELOW}))" if made.get("more_restarts") else "")
           + (f" + fallback runs of {', '.join(str(m) for m in made['fallback_runs'])} neurons" if made.get("fallback_runs") else "")
           + "\n")
     lag = made.get("max_lag_choice")
@@ -247,7 +250,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
           + f" (every candidate was offered with and without one, the kind chosen by {cfg.complexity})\n")
     ll = (cx or {}).get("long_linear")
     if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.longlinear)
-        w(_long_linear_line(ll, cfg.more_below))
+        w(_long_linear_line(ll, MORE_BELOW))
     rf = made.get("refinement")
     if rf:  # the weights fitted to the free run (streamid.engine.refine)
         w("weights refined to the free run: " + (
@@ -281,9 +284,9 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
     # second core (the same result), so that the bar moves every generation, not once per
     # finished restart.
     bar_here = show and args.runs == 1 and args.workers >= 2 and EvalHelper.supported()
-    in_process = (args.runs == 1 and (cfg.restarts == 1 or cfg.workers <= 1 or bar_here)) or args.workers <= 1
-    if bar_here:
-        cfg = cfg.replace(workers=1)
+    # one identification's restarts over --workers processes when it is the only run and has no bar here
+    restart_workers = args.workers if (args.runs == 1 and not bar_here) else 1
+    in_process = (args.runs == 1 and (cfg.restarts == 1 or restart_workers <= 1)) or args.workers <= 1
     helper = EvalHelper(wait=False) if (args.workers >= 2 and in_process and EvalHelper.supported()) else None
     try:
         ds = load(args)
@@ -292,7 +295,7 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
         bar = Bar(sys.stderr, show, "identify", delay_s=1.0 if args.progress == "auto" else 0.0)
         seeds = list(range(args.seed, args.seed + args.runs))
         try:
-            runs = identify_runs(ds, cfg, seeds, args.workers, bar, helper)
+            runs = identify_runs(ds, cfg, seeds, args.workers, bar, helper, restart_workers)
         finally:
             bar.close()
     finally:

@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine import de, harmony
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.fanout import thread_map
-from streamid.engine.settings import CoEAConfig
+from streamid.engine.settings import RIDGE, CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.batch import BatchEvaluator
@@ -172,7 +172,7 @@ class Coevolution:
         self.search_rows = int(t_s.shape[0])
         # The search's fitness is the RBF network's alone: a linear part (linear_terms) enters when candidates
         # are fitted (searched with it, round 11 of docs/engine-results.md: the F-16 accel3 median 0.425 -> 0.298).
-        self.evaluator = BatchEvaluator(r_s, t_s, M, P, cfg.ridge)
+        self.evaluator = BatchEvaluator(r_s, t_s, M, P, RIDGE)
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
@@ -192,7 +192,7 @@ class Coevolution:
         self._uni = np.empty(block * (self._n_de + self._n_hs))
         self._batch: BatchEvaluator | HelperBinding = self.evaluator  # or half of each batch in a helper
         if helper is not None:
-            self._batch = helper.bind(r_s, t_s, M, P, cfg.ridge, self.evaluator,
+            self._batch = helper.bind(r_s, t_s, M, P, RIDGE, self.evaluator,
                                       uniforms=self._uni.shape[0])
         self._k = self._planned = 0  # generation k of a planned block of `_planned`
         self._frozen: NDArray[np.bool_] | None = None
@@ -448,10 +448,10 @@ class Coevolution:
         M, D = self.config.neurons, self.D
         lin = None
         if self.config.linear_terms if linear is None else linear:  # the RBF network with linear terms: one least squares for both
-            w, lin = fit_linear_rbf(phi, r, target, self.config.ridge)
+            w, lin = fit_linear_rbf(phi, r, target, RIDGE)
             fit = phi @ w + r @ lin[:-1] + lin[-1]
         else:
-            w = fit_weights(phi, target, self.config.ridge)
+            w = fit_weights(phi, target, RIDGE)
             fit = phi @ w
         mse = float(np.mean((fit - target) ** 2)) * self.scale
         if not np.all(np.isfinite(w)) or not np.isfinite(mse) or (lin is not None and not np.all(np.isfinite(lin))):

@@ -1,7 +1,7 @@
 """``identify``: one identification, possibly several coevolution runs chosen among.
 
-Strategies (``CoEAConfig.restarts``, ``selection``, ``workers``)
------------------------------------------------------------------
+Strategies (``CoEAConfig.restarts`` and ``selection``; ``identify``'s ``workers``)
+------------------------------------------------------------------------------
 * ``restarts=1, selection="fitness"`` -- the paper's procedure: one :class:`~streamid.engine.coevolution.Coevolution`
   on all the estimation data, the best pair ever evaluated, weights refitted. Runs in this process and reports
   every generation to the callback.
@@ -20,8 +20,8 @@ Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chose
 the odd restarts keep ``1..floor`` (restart 1 of every 4 with ``lag_search_neurons`` neurons when > 0: the
 paper's size by default). A two-stage run's second stage always trains on a lag set with an input term. After the runs,
 if no run has an admissible candidate, one more run is made with each of ``fallback_neurons`` in turn until one
-has (``metrics.fallback_runs``; with ``fallback_below``, also while the best run's score is at most that). Before
-those, with ``more_restarts``, that many more runs when the best run's score lies in ``(0, more_below)``
+has (``metrics.fallback_runs``; also while the best run's score is at most ``settings.FALLBACK_BELOW``, 0.5). Before
+those, with ``more_restarts``, that many more runs when the best run's score lies in ``(0, settings.MORE_BELOW)``
 (:mod:`streamid.engine.restarts`; ``metrics.more_restarts``).
 
 With ``selection="fr_est"`` the run kept is chosen by ``complexity`` (:mod:`streamid.engine.complexity`: by
@@ -60,7 +60,7 @@ from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper
 from streamid.engine.regressors import Normalisation, as_data
 from streamid.engine.selection import free_run_r2, pruned_choice, refit_weights, select_model, select_model_path
-from streamid.engine.settings import DEFAULT, CoEAConfig
+from streamid.engine.settings import DEFAULT, FALLBACK_BELOW, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import ConfigError, DataError
 
 __all__ = ["Result", "RunSummary", "free_run_r2", "identify", "identify_each", "refit_weights", "select_model"]
@@ -212,6 +212,7 @@ def identify(
     window: dict[str, Any] | None = None,
     executor: Executor | None = None,
     helper: EvalHelper | None = None,
+    workers: int = 1,
 ) -> Result:
     """Identify an RBF-NARX model of ``y`` from ``u`` (one output).
 
@@ -235,11 +236,14 @@ def identify(
         Recorded in the model.
     executor : concurrent.futures.Executor, optional
         Run the restarts on this executor (e.g. a long-lived process pool)
-        instead of creating one when ``config.workers > 1``.
+        instead of creating one when ``workers > 1``.
     helper : EvalHelper, optional
         A started :class:`~streamid.engine.parallel.EvalHelper`: runs made in this
         process evaluate half of every population batch in it (the second core).
         The result is the same with or without it.
+    workers : int
+        Processes for the restarts (spawned); 1 = in this process. The result is the same whatever the number
+        (a run's seed is drawn from ``rng`` before any is made); not a setting of the method, so not in ``config``.
 
     Returns
     -------
@@ -253,6 +257,8 @@ def identify(
     cfg = DEFAULT if config is None else config
     if not isinstance(cfg, CoEAConfig):
         raise ConfigError(f"config must be a CoEAConfig; got {type(cfg).__name__}")
+    if not (isinstance(workers, int) and not isinstance(workers, bool) and 1 <= workers <= 1024):
+        raise ConfigError(f"workers must be an integer in [1, 1024] (processes for the restarts); got {workers!r}")
     gen = _as_rng(rng)
     ua, ya = as_data(u, y)
     names = tuple(input_names) if input_names else tuple(f"u{i}" for i in range(ua.shape[1]))
@@ -317,8 +323,8 @@ def identify(
     def restart(i: int, s: int, n_jobs: int) -> dict[str, Any]:  # restart i's job: the pattern repeats every 4
         job = {**base, "seed": s, "warm_start": warm_start.to_json() if (warm_start is not None and i == 0) else None,
                "neurons": (cfg.lag_search_neurons or cfg.neurons) if (hedge and i % 4 == 1) else cfg.neurons,
-               "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and cfg.workers <= 1}
-        if callback is not None and executor is None and min(cfg.workers, n_jobs) <= 1:
+               "max_lag": floor if (hedge and i % 2 == 1) else cfg.max_lag, "in_process": executor is None and workers <= 1}
+        if callback is not None and executor is None and min(workers, n_jobs) <= 1:
             job["tick"] = lambda p: callback(Progress(  # runs made here report every generation, as one run does
                 i * per_run + p.generation, total_gen, min([p.best_fitness] + [o["fitness"] for o in done]),
                 sum(o["evaluations"] for o in done) + p.evaluations))
@@ -338,14 +344,14 @@ def identify(
                 )
             )
 
-    outs = fan_out(_one_run, jobs, cfg.workers, executor=executor, helper=helper, on_result=report)
+    outs = fan_out(_one_run, jobs, workers, executor=executor, helper=helper, on_result=report)
     more_made = 0  # more runs where the record is half explained (restarts.wants_more)
     if wants_more(outs, cfg):
         more_seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.more_restarts)]
         total_gen = per_run * (cfg.restarts + cfg.more_restarts)
         more = [restart(cfg.restarts + j, s, len(more_seeds)) for j, s in enumerate(more_seeds)]
         made = list(outs)
-        outs = made + fan_out(_one_run, more, cfg.workers, executor=executor, helper=helper,
+        outs = made + fan_out(_one_run, more, workers, executor=executor, helper=helper,
                               on_result=partial(report_after, report, made))
         jobs, more_made = jobs + more, len(more)
 
@@ -353,7 +359,7 @@ def identify(
     # networks, one run each in the order of fallback_neurons, until one has an admissible candidate.
     fallback_made: list[int] = []
     for m in cfg.fallback_neurons:
-        if max(o["score"] for o in outs) > max(-1e9, cfg.fallback_below):
+        if max(o["score"] for o in outs) > FALLBACK_BELOW:
             break
         made = list(outs)
         job = {**base, "seed": int(gen.integers(0, 2**63 - 1)), "warm_start": None, "neurons": m, "max_lag": floor,
@@ -384,10 +390,10 @@ def identify(
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     own = scores[chosen] if final is models[chosen] else score
-    if cfg.long_linear and complexity is not None and own < cfg.more_below:  # a dense linear ARX part competes
+    if cfg.long_linear and complexity is not None and own < MORE_BELOW:  # a dense linear ARX part competes
         offered = [(int(c["run"]), models[int(c["run"])]) for c in complexity["candidates"] if c["criterion"] is not None]
         ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.complexity, cfg.long_linear, ua, ya,
-                                                           RANGE_MARGIN, cfg.ridge, offered, chosen)
+                                                           RANGE_MARGIN, RIDGE, offered, chosen)
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)

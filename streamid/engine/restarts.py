@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from streamid.engine.settings import CoEAConfig
+from streamid.engine.settings import MORE_BELOW, CoEAConfig
 
 __all__ = ["report_after", "wants_more"]
 
@@ -36,4 +36,4 @@ def wants_more(outs: list[dict[str, Any]], cfg: CoEAConfig) -> bool:
     if not cfg.more_restarts or not outs or cfg.selection == "fitness":  # (then a score is not an R^2)
         return False
     best = max(float(o["score"]) for o in outs)
-    return 0.0 < best < cfg.more_below
+    return 0.0 < best < MORE_BELOW

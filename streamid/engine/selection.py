@@ -20,6 +20,7 @@ from streamid.engine.model import Model
 from streamid.engine.longlinear import long_linear_fit
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.engine.regressors import as_data
+from streamid.engine.settings import RIDGE
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError
 
@@ -191,7 +192,7 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     model's). Evidence in ``metrics.neuron_choice``."""
     M = model.neurons
     with one_blas_thread():
-        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), cfg.ridge)
+        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), RIDGE)
         if not smaller:
             return model, score, path
         fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run

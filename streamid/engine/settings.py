@@ -16,7 +16,23 @@ from typing import Any
 
 from streamid.errors import ConfigError
 
-__all__ = ["CoEAConfig", "PAPER", "DEFAULT", "REFINE_ABOVE", "SELECTIONS"]
+__all__ = ["CoEAConfig", "PAPER", "DEFAULT", "FALLBACK_BELOW", "MORE_BELOW", "REFINE_ABOVE", "RIDGE", "SELECTIONS"]
+
+#: Relative Tikhonov term of every least squares of the weights (the search's batched normal equations, scaled to
+#: unit diagonal, and the final models' QR fits; :mod:`streamid.engine.rbf`): bounds the condition number at
+#: ``(M + RIDGE) / RIDGE`` (1e11 for ten neurons) and is too small to move a fit (no preset ever set another value).
+RIDGE = 1e-10
+
+#: With ``more_restarts``: more runs are made while the best run's estimation free-run R^2 lies in ``(0, MORE_BELOW)``
+#: (:func:`streamid.engine.restarts.wants_more`); also the band under which the long linear part competes. 0.95 lies
+#: between the heat exchanger's and the F-16's best runs, 0.90-0.92 and 0.12-0.73, which gained, and Bouc-Wen's and
+#: the MR damper's, 0.975-0.987.
+MORE_BELOW = 0.95
+
+#: With ``fallback_neurons``: the fallback runs are made when no run is admissible or the best run's estimation
+#: free-run R^2 is at most this (the record is hardly explained: a smaller network may generalise where the large one
+#: did not). The defaults' only value; the paper's procedure has no fallback runs.
+FALLBACK_BELOW = 0.5
 
 #: The refinement's gate (:mod:`streamid.engine.refine`): a model is refined only when its estimation free-run R^2 is
 #: at least this; 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
@@ -29,7 +45,8 @@ SELECTIONS = ("fr_est", "fitness")
 #: Fields of earlier versions, measured and removed (issue 37): a document naming one is refused with this reason.
 RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
                   "lag_search_rows", "ensemble", "weight_decay", "linear_search", "lag_search_generations",
-                  "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows")
+                  "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows",
+                  "ridge", "more_below", "fallback_below", "workers")
 
 
 def _int(name: str, value: object, low: int, high: int | None = None) -> int:
@@ -68,7 +85,7 @@ def _bounds(name: str, value: object, positive: bool) -> tuple[float, float]:
 _INT_RANGES: dict[str, tuple[int, int | None]] = {
     "neurons": (1, 1000), "max_lag_y": (0, 1000), "max_lag_u": (0, 1000), "generations": (0, None),
     "population": (4, 10000), "lag_search_neurons": (0, 1000),
-    "restarts": (1, 10000), "workers": (1, 1024), "search_rows": (0, None),
+    "restarts": (1, 10000), "search_rows": (0, None),
     "fr_candidates": (0, 10000),
     "prune_runs": (0, 10000), "more_restarts": (0, 100), "min_lag_u": (0, 1), "refine_iterations": (0, 1000),
     "long_linear": (0, 1000), "max_lag_cap": (0, 1000),
@@ -76,9 +93,6 @@ _INT_RANGES: dict[str, tuple[int, int | None]] = {
 #: Number fields: (low, high, whether low itself is refused).
 _FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
     "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop")},
-    "ridge": (0.0, 1.0, False),
-    "fallback_below": (-1e9, 1.0, False),
-    "more_below": (0.0, 1.0, True),
 }
 #: Fields that must be true or false.
 _BOOL_FIELDS = ("feedthrough_test", "linear_terms", "run_ensembles",
@@ -118,11 +132,6 @@ class CoEAConfig:
     harmony_stop : float
         Fraction of the generations after which the lag population stops
         evolving and every trial is paired with the best harmony (0.5 in the paper).
-    ridge : float
-        Relative Tikhonov term of the search's least squares: the normal
-        equations are scaled to unit diagonal and ``ridge`` is added to it
-        (see :mod:`streamid.engine.rbf`). The final model's weights are refitted
-        by an SVD least squares with the same floor on singular values.
     lag_search_neurons : int
         0 (the paper): lags, centres and widths coevolve in one run of
         ``generations``. > 0: a two-stage run (:func:`~streamid.engine.identification.identify`):
@@ -135,9 +144,6 @@ class CoEAConfig:
     restarts : int
         Independent coevolution runs made by :func:`~streamid.engine.identification.identify`;
         the final model is chosen among them (see ``selection``).
-    workers : int
-        Processes used by :func:`~streamid.engine.identification.identify` for the restarts
-        (1 = in the calling process).
     selection : str
         With ``restarts > 1``, how the final run is chosen: ``"fr_est"`` the
         highest free-run R^2 on the estimation data (all runs search on all of
@@ -166,13 +172,10 @@ class CoEAConfig:
     more_restarts : int
         0: ``restarts`` runs. N > 0: N more runs (new seeds, the same pattern of lag spaces and
         sizes) when the best run's selection score (estimation free-run R^2) lies in
-        ``(0, more_below)``: the record is explained in part, where the estimation data tell the
+        ``(0, MORE_BELOW)`` (:data:`MORE_BELOW`, 0.95): the record is explained in part, where the estimation data tell the
         runs apart least reliably and a larger field to choose from (and to average, with
         ``run_ensembles``) measured steadier (:func:`streamid.engine.restarts.wants_more`).
         Evidence: ``metrics.more_restarts`` (the runs added).
-    more_below : float
-        The upper end of that band (0.95: between the heat exchanger's and the F-16's best runs,
-        0.90-0.92 and 0.12-0.73, which gained, and Bouc-Wen's and the MR damper's, 0.975-0.987).
     max_lag_cap : int
         0: candidate lags ``1..max_lag_y`` and ``1..max_lag_u``. > 0 (with restarts or a
         two-stage run, :func:`~streamid.engine.identification.identify`): the maximum lag
@@ -187,10 +190,8 @@ class CoEAConfig:
         With a free-run selection: when no run has an admissible candidate (every
         free run leaves the data's range or ignores the input), one more run with
         each of these numbers of neurons, in order, until one has (a smaller
-        network extrapolates less wildly). Empty: the smallest excursion is taken.
-    fallback_below : float
-        The ``fallback_neurons`` runs are also made while the best run's selection score
-        (estimation free-run R^2) is at most this (-1e9: only when no run is admissible).
+        network extrapolates less wildly); also while the best run's estimation free-run R^2 is at
+        most :data:`FALLBACK_BELOW` (0.5). Empty: the smallest excursion is taken.
     linear_terms : bool
         False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate model
         gets a direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same
@@ -253,10 +254,8 @@ class CoEAConfig:
     centre_bounds: tuple[float, float] = (-4.0, 4.0)
     width_bounds: tuple[float, float] = (0.01, 20.0)
     harmony_stop: float = 0.5
-    ridge: float = 1e-10
     lag_search_neurons: int = 0
     restarts: int = 1
-    workers: int = 1
     selection: str = "fitness"
     search_rows: int = 0
     fr_candidates: int = 0
@@ -266,9 +265,7 @@ class CoEAConfig:
     linear_terms: bool = False
     complexity: str = "score"
     prune_runs: int = 0
-    fallback_below: float = -1e9
     more_restarts: int = 0
-    more_below: float = 0.95
     min_lag_u: int = 1
     feedthrough_test: bool = False
     run_ensembles: bool = False
@@ -394,7 +391,6 @@ class CoEAConfig:
             "generations": 100,
             "lag_search_neurons": 10,
             "restarts": 4,
-            "workers": 1,
             "selection": "fr_est",
             "search_rows": 2000,
             "fr_candidates": 10,
@@ -403,7 +399,6 @@ class CoEAConfig:
             "fallback_neurons": (15, 8),
             "complexity": "aic",
             "prune_runs": 2,
-            "fallback_below": 0.5,
             "more_restarts": 4,
             "feedthrough_test": True,
             "run_ensembles": True,

@@ -36,7 +36,7 @@ ONLINE_SELECTION = "fr_est"
 #: 0: off.
 ONLINE_LONG_LINEAR = 512
 # Fields of CoEAConfig the daemon sets itself (generations: cold/warm; restarts: warm starts need one run).
-ENGINE_RESERVED = ("generations", "restarts", "workers", "neurons", "max_lag_y", "max_lag_u", "population")
+ENGINE_RESERVED = ("generations", "restarts", "neurons", "max_lag_y", "max_lag_u", "population")
 
 
 @dataclass(frozen=True)

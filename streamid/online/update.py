@@ -46,7 +46,7 @@ from streamid.engine.feedthrough import direct_terms
 from streamid.engine.identification import select_model
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
-from streamid.engine.settings import CoEAConfig
+from streamid.engine.settings import MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.recalibrate import recalibrate
 from streamid.online.rows import RowSample, informative_rows, search_row_bound
@@ -416,9 +416,9 @@ def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray,
     simulated MR damper's champions took orders 2-8 in 14 of 36 updates and its drift detection slowed (29 of 32
     changes within 3 s against 32; docs/benchmarks.md). ``score`` is the chosen model's estimation free-run R^2.
     """
-    if not cfg.long_linear or cfg.selection != "fr_est" or not score < cfg.more_below:
+    if not cfg.long_linear or cfg.selection != "fr_est" or not score < MORE_BELOW:
         return model, score
-    ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, cfg.ridge,
+    ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, RIDGE,
                                 min_order=max(cfg.max_lag_y, cfg.max_lag_u) + 1, max_design_bytes=LONG_LINEAR_DESIGN_BYTES)
     if ll is None:
         return model, score
