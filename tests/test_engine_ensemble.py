@@ -220,7 +220,7 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
         assert got["config"].pop("more_restarts") == 4
         assert got["metrics"].pop("more_restarts") == 0
         # round 10: the direct terms u(t) tested; neither record shows them, so the candidates are the same
-        assert got["config"].pop("feedthrough_test") is True and got["config"].pop("min_lag_u") == 1
+        assert got["config"].pop("direct_terms") == "off"  # tested (round 10), not found
         assert got["metrics"].pop("feedthrough")["min_lag_u"] == 1
         # round 12: a long linear part only below an estimation fit of 0.95; these records fit above it
         assert got["config"].pop("long_linear") == 512 and "long_linear" not in got["metrics"]["complexity"]

@@ -1,5 +1,5 @@
-"""An output that responds within the sample: u(t) among the candidates (CoEAConfig.min_lag_u = 0), decided by a
-likelihood-ratio test of the direct terms (streamid.engine.feedthrough) when feedthrough_test is on."""
+"""An output that responds within the sample: u(t) among the candidates (CoEAConfig.direct_terms "on", min_lag_u 0),
+decided by a likelihood-ratio test of the direct terms (streamid.engine.feedthrough) with direct_terms "test"."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid.engine import DEFAULT, PAPER, identify
+from streamid.engine import DEFAULT, PAPER, CoEAConfig, identify
 from streamid.engine.coevolution import Coevolution
 from streamid.engine.feedthrough import THRESHOLD, feedthrough_test
 from streamid.engine.model import Model
@@ -64,15 +64,18 @@ def test_direct_terms_are_candidates_with_min_lag_u_0() -> None:
     regs = candidate_regressors(2, 3, 2, min_lag_u=0)
     assert [(r.signal, r.index, r.lag) for r in regs] == [("y", 0, 1), ("y", 0, 2)] + [
         ("u", i, k) for i in (0, 1) for k in (0, 1, 2, 3)]
-    assert PAPER.replace(min_lag_u=0, max_lag_y=2, max_lag_u=3).n_candidates(2) == len(regs) == 10
+    assert PAPER.replace(direct_terms="on", max_lag_y=2, max_lag_u=3).n_candidates(2) == len(regs) == 10
+    assert PAPER.min_lag_u == 1 and PAPER.replace(direct_terms="on").min_lag_u == 0
     un, yn = np.arange(20.0).reshape(10, 2), np.arange(100.0, 110.0)
     R = lag_matrix(un, yn, 2, 3, min_lag_u=0)
     assert R.shape == (7, 10)
     assert R[0].tolist() == [102.0, 101.0, 6.0, 4.0, 2.0, 0.0, 7.0, 5.0, 3.0, 1.0]  # t = 3: u(t) is row t's own
     assert Regressor("u", 1, 0).label(("force", "volt")) == "volt(t)"
     assert format_lags("a", [1, 2], ["f"], [[0, 1, 2, 5]]) == "a(t-1,t-2) f(t..t-2,t-5)"
-    with pytest.raises(ConfigError, match=r"min_lag_u must be an integer in \[0, 1\]; got 2"):
-        PAPER.replace(min_lag_u=2)
+    with pytest.raises(ConfigError, match=r"direct_terms must be one of \['off', 'on', 'test'\]; got 'yes'"):
+        PAPER.replace(direct_terms="yes")
+    with pytest.raises(ConfigError, match=r"min_lag_u was retired in issue 37: use direct_terms"):
+        CoEAConfig.from_dict({**PAPER.to_dict(), "min_lag_u": 0})
     with pytest.raises(ModelFormatError, match="'y' \\(index 0\\) with lag >= 1"):
         Model(regressors=(Regressor("y", 0, 0),), centres=np.zeros((1, 1)), widths=np.ones(1), weights=np.ones(1),
               normalisation=Normalisation((-1.0,), (1.0,), -1.0, 1.0))
@@ -81,24 +84,24 @@ def test_direct_terms_are_candidates_with_min_lag_u_0() -> None:
 def test_identify_tests_the_record_and_keeps_the_direct_term() -> None:
     u, y = _plant(900, 0.8, 4)
     cfg = DEFAULT.replace(generations=15, neurons=8, restarts=2, more_restarts=0)
-    assert DEFAULT.feedthrough_test is True and PAPER.feedthrough_test is False and PAPER.min_lag_u == 1
+    assert DEFAULT.direct_terms == "test" and PAPER.direct_terms == "off" and PAPER.min_lag_u == 1
     with_test = identify(u, y, cfg, 0)
     m = with_test.model
     ev = m.metrics["feedthrough"]
     assert ev["min_lag_u"] == 0 and ev["lr"][0] > THRESHOLD and ev["order"] == m.config["max_lag_u"]
-    assert m.config["min_lag_u"] == 0 and 0 in m.lags["u"][0]  # the search took u(t)
+    assert m.config["direct_terms"] == "on" and 0 in m.lags["u"][0]  # tested, found: the search took u(t)
     again = Model.from_json(m.to_json())
     np.testing.assert_array_equal(again.simulate(u, y[: m.max_lag]), m.simulate(u, y[: m.max_lag]))
     st = CoEAState.from_json(with_test.state.to_json())  # the state says its candidates include u(t)
     assert st.min_lag_u == 0 and json.loads(with_test.state.to_json())["min_lag_u"] == 0
     warm = identify(u, y, PAPER.replace(neurons=st.neurons, max_lag_y=st.max_lag_y, max_lag_u=st.max_lag_u,
                                         generations=3), 1, warm_start=st)  # an update warm-starts from it
-    assert warm.model.config["min_lag_u"] == 0
+    assert warm.model.config["direct_terms"] == "on"
     with pytest.raises(ConfigError, match="min_lag_u\\) must be"):
         Coevolution(u, y, PAPER.replace(neurons=st.neurons, max_lag_y=st.max_lag_y, max_lag_u=st.max_lag_u,
                                         generations=1), 0, warm_start=st)
-    off = identify(u, y, cfg.replace(feedthrough_test=False), 0).model
-    assert "feedthrough" not in off.metrics and off.config["min_lag_u"] == 1 and 0 not in off.lags["u"][0]
+    off = identify(u, y, cfg.replace(direct_terms="off"), 0).model
+    assert "feedthrough" not in off.metrics and off.config["direct_terms"] == "off" and 0 not in off.lags["u"][0]
     assert with_test.model.metrics["selection_score"] > off.metrics["selection_score"]  # the direct term fits better
 
 
@@ -118,9 +121,9 @@ def test_identify_cli_reports_the_test_and_obeys_direct_terms(tmp_path: Path) ->
     off = subprocess.run(args + ["--direct-terms", "off"], capture_output=True, text=True, timeout=120)
     assert off.returncode == 0 and "direct terms" not in off.stdout
     m = Model.load(mod)
-    assert "feedthrough" not in m.metrics and m.config["min_lag_u"] == 1 and 0 not in m.lags["u"][0]
+    assert "feedthrough" not in m.metrics and m.config["direct_terms"] == "off" and 0 not in m.lags["u"][0]
     on = subprocess.run(args + ["--direct-terms", "on"], capture_output=True, text=True, timeout=120)
-    assert on.returncode == 0 and Model.load(mod).config["min_lag_u"] == 0
+    assert on.returncode == 0 and Model.load(mod).config["direct_terms"] == "on"
     bad = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--input", "volt", "--output", "pos",
                           "--paper", "--direct-terms", "test"], capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "--direct-terms test adds u(t) to the candidate lags; --paper keeps" in bad.stderr

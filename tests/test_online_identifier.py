@@ -221,16 +221,16 @@ def test_direct_terms_online_when_asked_and_kept_by_warm_updates() -> None:
         y[k] = 0.5 * y[k - 1] + np.tanh(2 * u[k]) + 0.3 * u[k - 1]
     y += rng.normal(0, 0.02, n)
     t = np.arange(n, dtype=np.int64) * 5_000_000
-    asked = OnlineIdentifier(StreamConfig(**{**CFG.to_dict(), "engine": (("feedthrough_test", True),)}), stream="d")
+    asked = OnlineIdentifier(StreamConfig(**{**CFG.to_dict(), "engine": (("direct_terms", "test"),)}), stream="d")
     asked.learn_many(t, u, y, **NAMES)
     ups = asked.update_all()
     assert [up.outcome.warm for up in ups] == [False, True, True, True]  # the state carries u(t): warm starts fit
     models = [up.outcome.model for up in ups]
-    assert all(m is not None and m.config["min_lag_u"] == 0 and m.config["feedthrough_test"] for m in models)
+    assert all(m is not None and m.config["direct_terms"] == "on" for m in models)  # tested, then kept by warm runs
     assert any(0 in m.lags["u"][0] for m in models if m is not None)
     plain = OnlineIdentifier(CFG, stream="d")  # the default online: the paper's u(t-1) on
     plain.learn_many(t, u, y, **NAMES)
-    assert all(up.outcome.model is not None and up.outcome.model.config["min_lag_u"] == 1 for up in plain.update_all())
+    assert all(up.outcome.model is not None and up.outcome.model.config["direct_terms"] == "off" for up in plain.update_all())
 
 
 def test_each_output_of_a_stream_is_healthy_or_degraded_on_its_own(

@@ -206,7 +206,7 @@ def test_an_online_champion_with_direct_terms_predicts_from_the_input_at_the_pre
         y[t] = 0.6 * y[t - 1] + np.tanh(2 * u[t]) + 0.2 * u[t - 1]
     t_ns = np.arange(n, dtype=np.int64) * 10_000_000
     ident = OnlineIdentifier(StreamConfig(window_samples=1000, update_every_samples=500,
-                                          engine=(("feedthrough_test", True),)), stream="f")
+                                          engine=(("direct_terms", "test"),)), stream="f")
     for k in range(0, n, 100):
         ident.learn_many(t_ns[k : k + 100], u[k : k + 100, None], y[k : k + 100, None], inputs=["u"], outputs=["y"])
         ident.update_all()

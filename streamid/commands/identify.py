@@ -147,8 +147,7 @@ def _config(args: argparse.Namespace) -> CoEAConfig:
         if args.paper and args.direct_terms != "off":
             raise ConfigError(f"--direct-terms {args.direct_terms} adds u(t) to the candidate lags; --paper keeps the "
                               "paper's u(t-1) on (drop one of the two)")
-        changes["feedthrough_test"] = args.direct_terms == "test"
-        changes["min_lag_u"] = 0 if args.direct_terms == "on" else 1
+        changes["direct_terms"] = args.direct_terms
     if args.ensembles is not None:
         if args.paper and args.ensembles:
             raise ConfigError("--ensembles averages several restarts' networks; --paper makes one run chosen by fitness "

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from streamid.engine.settings import CoEAConfig
+from streamid.engine.settings import RETIRED_FIELDS, CoEAConfig, retired_message
 from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.stream_config import ENGINE_RESERVED, StreamConfig
 from streamid.errors import ConfigError
@@ -292,6 +292,9 @@ def _stream_config(where: str, table: Any, base: StreamConfig) -> StreamConfig:
     if "engine" in kw:
         eng = kw["engine"]
         accepted = [f.name for f in fields(CoEAConfig) if f.name not in ENGINE_RESERVED]
+        retired = sorted(set(eng) & set(RETIRED_FIELDS))
+        if retired:
+            raise ConfigError(f"[{where}.engine]: {retired_message(retired)}; accepted keys: {', '.join(sorted(accepted))}")
         _unknown(f"{where}.engine", eng, accepted)
         merged = dict(base.engine)
         for k, v in eng.items():

@@ -74,15 +74,17 @@ def feedthrough_test(u: NDArray[np.float64], y: NDArray[np.float64], order: int)
 
 def direct_terms(cfg: CoEAConfig, u: NDArray[np.float64], y: NDArray[np.float64], warm: CoEAState | None,
                  *, test: bool = True) -> tuple[CoEAConfig, dict[str, Any] | None]:
-    """``cfg`` with ``min_lag_u`` for a run on ``u``/``y``, and the test's evidence (None: not tested).
+    """``cfg`` with ``direct_terms`` decided (``"on"``/``"off"``) for a run on ``u``/``y``, and the test's
+    evidence (None: not tested).
 
     A warm start keeps its state's candidates (its populations' bits are theirs); otherwise, with
-    ``cfg.feedthrough_test`` and ``test``, the record is tested (:func:`feedthrough_test`, order
-    ``cfg.max_lag``); otherwise ``cfg`` as given. Used by ``identify`` and the online updates alike.
+    ``cfg.direct_terms == "test"`` and ``test``, the record is tested (:func:`feedthrough_test`, order
+    ``cfg.max_lag``); otherwise ``cfg`` as given (``"test"`` untested: the paper's ``u(t-1)`` on). Used by
+    ``identify`` and the online updates alike.
     """
     if warm is not None:
-        return cfg.replace(min_lag_u=warm.min_lag_u), None
-    if cfg.feedthrough_test and test:
+        return cfg.replace(direct_terms="on" if warm.min_lag_u == 0 else "off"), None
+    if cfg.direct_terms == "test" and test:
         ev = feedthrough_test(u, y, cfg.max_lag)
-        return cfg.replace(min_lag_u=ev["min_lag_u"]), ev
+        return cfg.replace(direct_terms="on" if ev["min_lag_u"] == 0 else "off"), ev
     return cfg, None

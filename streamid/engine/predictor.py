@@ -13,7 +13,7 @@ The verbs are river's: :meth:`~Predictor.learn_one` adds the newest measured sam
 same for several candidate plans at once.  They compute exactly what
 :meth:`Model.predict_osa <streamid.engine.model.Model.predict_osa>` and :meth:`Model.simulate
 <streamid.engine.model.Model.simulate>` compute on the same samples (tested).  A model with direct terms
-(``u(t)``, from ``feedthrough_test``) needs the input at the predicted instant: ``predict_one(u_next)``.
+(``u(t)``, from ``direct_terms``) needs the input at the predicted instant: ``predict_one(u_next)``.
 
 Trust: :meth:`~Predictor.beyond_range` names the signals of the samples a prediction uses (and of a
 plan) that leave the model's estimation range by more than

@@ -38,6 +38,9 @@ FALLBACK_BELOW = 0.5
 #: at least this; 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
 REFINE_ABOVE = 0.8
 
+#: Values of ``CoEAConfig.direct_terms``: the inputs' direct terms u(t) never, always or by a test of the data.
+DIRECT_TERMS = ("off", "on", "test")
+
 #: Ways :func:`~streamid.engine.identification.identify` chooses among restarts.
 SELECTIONS = ("fr_est", "fitness")
 
@@ -46,7 +49,28 @@ SELECTIONS = ("fr_est", "fitness")
 RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
                   "lag_search_rows", "ensemble", "weight_decay", "linear_search", "lag_search_generations",
                   "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows",
-                  "ridge", "more_below", "fallback_below", "workers")
+                  "ridge", "more_below", "fallback_below", "workers", "min_lag_u", "feedthrough_test")
+
+#: Retired fields that something else now says, and what: named in the error that refuses them.
+REPLACED_BY = {
+    "ridge": "the constant streamid.engine.settings.RIDGE (1e-10)",
+    "more_below": "the constant streamid.engine.settings.MORE_BELOW (0.95)",
+    "fallback_below": "the constant streamid.engine.settings.FALLBACK_BELOW (0.5)",
+    "workers": "identify(..., workers=N) (how the restarts are run, not a setting of the method)",
+    "min_lag_u": 'direct_terms ("on": u(t) a candidate, min_lag_u 0; "off": min_lag_u 1)',
+    "feedthrough_test": 'direct_terms = "test"',
+}
+
+
+def retired_message(names: list[str]) -> str:
+    """Why these retired ``CoEAConfig`` fields are refused, and what replaced those that something replaced."""
+    gone = [n for n in names if n not in REPLACED_BY]
+    parts = []
+    if gone:
+        parts.append(f"CoEAConfig field(s) {gone} were retired in issue 37 (measured not to earn their place: "
+                     f"docs/engine-results.md, 'Issue 37, round 2'); remove them")
+    parts += [f"CoEAConfig.{n} was retired in issue 37: use {REPLACED_BY[n]}" for n in names if n in REPLACED_BY]
+    return "; ".join(parts)
 
 
 def _int(name: str, value: object, low: int, high: int | None = None) -> int:
@@ -87,7 +111,7 @@ _INT_RANGES: dict[str, tuple[int, int | None]] = {
     "population": (4, 10000), "lag_search_neurons": (0, 1000),
     "restarts": (1, 10000), "search_rows": (0, None),
     "fr_candidates": (0, 10000),
-    "prune_runs": (0, 10000), "more_restarts": (0, 100), "min_lag_u": (0, 1), "refine_iterations": (0, 1000),
+    "prune_runs": (0, 10000), "more_restarts": (0, 100), "refine_iterations": (0, 1000),
     "long_linear": (0, 1000), "max_lag_cap": (0, 1000),
 }
 #: Number fields: (low, high, whether low itself is refused).
@@ -95,7 +119,7 @@ _FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
     "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop")},
 }
 #: Fields that must be true or false.
-_BOOL_FIELDS = ("feedthrough_test", "linear_terms", "run_ensembles",
+_BOOL_FIELDS = ("linear_terms", "run_ensembles",
                 "require_input")
 
 
@@ -159,16 +183,14 @@ class CoEAConfig:
         With a free-run selection: the candidates of a run are its best pair and
         this many members of its final population, those of lowest fitness
         (0 = every member).
-    min_lag_u : int
-        Each input's first candidate lag: 1 (the paper: ``u(t-1) .. u(t-max_lag_u)``) or 0 (the
-        input's direct term ``u(t)`` is a candidate too: an output that responds within the sample,
-        as an accelerometer to a force or a sampled record whose output is read after the input
-        was set). Set by ``feedthrough_test`` when that is on.
-    feedthrough_test : bool
-        With restarts or a two-stage run: False, ``min_lag_u`` as given. True, ``min_lag_u`` is
-        chosen from the estimation data before the runs (:mod:`streamid.engine.feedthrough`: a
-        likelihood-ratio test of the direct terms in a linear ARX model), evidence in
-        ``metrics.feedthrough``.
+    direct_terms : str
+        Whether each input's direct term ``u(t)`` is a candidate lag (an output that responds within the
+        sample, as an accelerometer to a force or a sampled record whose output is read after the input was
+        set): ``"off"`` (the paper: ``u(t-1) .. u(t-max_lag_u)``), ``"on"`` (``u(t) .. u(t-max_lag_u)``) or
+        ``"test"``: decided from the estimation data before the runs (:mod:`streamid.engine.feedthrough`: a
+        likelihood-ratio test of the direct terms in a linear ARX model; evidence in ``metrics.feedthrough``;
+        the model's configuration then says ``"on"`` or ``"off"``). The first candidate lag is
+        :attr:`min_lag_u`. (Issue 37 round 5 merged ``min_lag_u`` and ``feedthrough_test`` into this.)
     more_restarts : int
         0: ``restarts`` runs. N > 0: N more runs (new seeds, the same pattern of lag spaces and
         sizes) when the best run's selection score (estimation free-run R^2) lies in
@@ -266,8 +288,7 @@ class CoEAConfig:
     complexity: str = "score"
     prune_runs: int = 0
     more_restarts: int = 0
-    min_lag_u: int = 1
-    feedthrough_test: bool = False
+    direct_terms: str = "off"
     run_ensembles: bool = False
     refine_iterations: int = 0
     long_linear: int = 0
@@ -286,6 +307,8 @@ class CoEAConfig:
         object.__setattr__(self, "width_bounds", _bounds("width_bounds", self.width_bounds, True))
         if self.selection not in SELECTIONS:
             raise ConfigError(f"CoEAConfig.selection must be one of {list(SELECTIONS)}; got {self.selection!r}")
+        if self.direct_terms not in DIRECT_TERMS:
+            raise ConfigError(f"CoEAConfig.direct_terms must be one of {list(DIRECT_TERMS)}; got {self.direct_terms!r}")
         if self.complexity not in ("aic", "bic", "score"):
             raise ConfigError(f"CoEAConfig.complexity must be one of ['aic', 'bic', 'score']; got {self.complexity!r}")
         if 0 < self.search_rows < 2 * self.neurons:
@@ -302,6 +325,12 @@ class CoEAConfig:
                 f"CoEAConfig.max_lag_cap must be 0 (lags 1..max_lag_y/max_lag_u as given) or >= "
                 f"max(max_lag_y, max_lag_u) = {max(self.max_lag_y, self.max_lag_u)} (the floor); got {self.max_lag_cap}"
             )
+
+    @property
+    def min_lag_u(self) -> int:
+        """Each input's first candidate lag: 0 with ``direct_terms="on"`` (``u(t)`` a candidate), else 1
+        (``"test"`` before the test is made: the paper's)."""
+        return 0 if self.direct_terms == "on" else 1
 
     @property
     def max_lag(self) -> int:
@@ -339,8 +368,7 @@ class CoEAConfig:
         known = {f.name for f in fields(cls)}
         retired = sorted(set(data) & set(RETIRED_FIELDS))
         if retired:
-            raise ConfigError(f"CoEAConfig field(s) {retired} were retired in issue 37 (measured not to earn their place: "
-                              f"docs/engine-results.md, 'Issue 37, round 2'); remove them. Accepted: {sorted(known)}")
+            raise ConfigError(retired_message(retired) + f". Accepted: {sorted(known)}")
         unknown = sorted(set(data) - known)
         if unknown:
             raise ConfigError(f"unknown CoEAConfig field(s) {unknown}; accepted: {sorted(known)}")
@@ -374,7 +402,7 @@ class CoEAConfig:
         no run has one or the best fits at most 0.5, one more run with 15 neurons, then 8. When the best
         run fits the estimation record at free-run R^2 between 0 and 0.95, four more runs (``more_restarts``).
         Each input's direct term ``u(t)`` is a candidate when a likelihood-ratio test on the estimation data
-        finds the output responds within the sample (``feedthrough_test``).
+        finds the output responds within the sample (``direct_terms="test"``).
 
         Every run's candidates are offered with a direct linear part and without it (``linear_terms``, the same
         centres and widths from the RBF-only search), the kind chosen by AIC.
@@ -400,7 +428,7 @@ class CoEAConfig:
             "complexity": "aic",
             "prune_runs": 2,
             "more_restarts": 4,
-            "feedthrough_test": True,
+            "direct_terms": "test",
             "run_ensembles": True,
             "refine_iterations": 10,
             "linear_terms": True,

@@ -74,7 +74,7 @@ class ChampionViews:
 
         None if that output has no champion yet or fewer than ``max_lag`` complete samples are held
         since the last gap or reset.  ``u_next``, the input at the predicted instant, is needed only by
-        a champion with direct terms (an input at lag 0, from ``feedthrough_test``): without it such a
+        a champion with direct terms (an input at lag 0, from ``direct_terms``): without it such a
         champion raises :class:`~streamid.errors.DataError`.  (A controller holding a received model
         uses :class:`~streamid.engine.predictor.Predictor`, which computes the same.)
         """

@@ -118,7 +118,7 @@ class StreamConfig:
         (:mod:`streamid.engine.refine`); measured on the drift sweep (32 seeds, with ``selection = "fitness"`` and
         the CUSUM's ``h`` 6 of then): new champions within 5 s in 32 (31 without), detections within 3 s in 30
         (31 without), slowest 4.6 s (11.6 s without).
-        ``feedthrough_test`` (off online unless set here) offers ``u(t)`` to a cold run whose window shows a
+        ``direct_terms = "test"`` (off online unless set here) offers ``u(t)`` to a cold run whose window shows a
         response within the sample (:mod:`streamid.engine.feedthrough`; warm runs keep their populations'
         candidates); measured on the bundled MR damper log, x4 at max speed, every window: published models'
         held-out free-run R^2 median 0.9805 (0.9790 without) but worst 0.910 (0.967 without), so not the default.

@@ -325,7 +325,7 @@ def identify_window(
     sig = signature_of(window, cfg, out_name)
     warm = warm_state is not None and not force_cold and warm_signature == sig
     engine_cfg, _ = direct_terms(cfg.coea_config(cold=not warm, generations=generations), u_est, y_est,
-                                 warm_state if warm else None)  # u(t) a candidate? (engine.feedthrough_test)
+                                 warm_state if warm else None)  # u(t) a candidate? (engine.direct_terms)
     rng = rng_for(cfg, window.stream, version, col)
     bound = search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, u_est.shape[1], dict(cfg.engine))
     sample = informative_rows(n_est - engine_cfg.max_lag, bound, rng.spawn(1)[0])  # its own stream: the search's is kept
