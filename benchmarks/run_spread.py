@@ -53,7 +53,7 @@ def finished(model: Model, run: int, score: float, t: Target, cfg: CoEAConfig) -
     """``model`` given identify's final stage as if it were the kept one (long linear part, then refinement)."""
     u, y = t.u_est.reshape(len(t.y_est), -1), t.y_est
     if cfg.long_linear and score < MORE_BELOW:
-        ll, _ = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, RIDGE,
+        ll, _ = long_linear_choice(model, score, cfg.long_linear, u, y, RANGE_MARGIN, RIDGE,
                                    [(run, model)], run)
         model = model if ll is None else ll
     if cfg.refine_iterations:

@@ -128,8 +128,8 @@ def test_the_choice_takes_an_ensemble_only_when_its_criterion_is_lower() -> None
 
     def run(paths: list[np.ndarray]) -> tuple[Model | None, list[int], list[dict], dict]:
         scores = [r2(y[1:], p[1:]) for p in paths]
-        _, cx = choose("aic", ms, scores, n, [1, 1, 1])
-        ens, members, ev = choose_ensemble("aic", ms, paths, cx, u, y, 0.25)
+        _, cx = choose(ms, scores, n, [1, 1, 1])
+        ens, members, ev = choose_ensemble(ms, paths, cx, u, y, 0.25)
         return ens, members, ev, cx
 
     e = [0.1 * rng.standard_normal(n) for _ in range(3)]
@@ -137,7 +137,7 @@ def test_the_choice_takes_an_ensemble_only_when_its_criterion_is_lower() -> None
     assert isinstance(ens, EnsembleModel) and len(ens.members) == 2 and members == ev[0]["members"]
     mean = (2 * y + e[0] + e[1]) / 2
     # p: the mean of the members' weights (2 each), the degrees of freedom of a mean of least-squares fits
-    assert ev[0]["criterion"] == pytest.approx(criterion("aic", r2(y[1:], mean[1:]), n - 1, 2), abs=1e-9)
+    assert ev[0]["criterion"] == pytest.approx(criterion(r2(y[1:], mean[1:]), n - 1, 2), abs=1e-9)
     single = cx["candidates"][cx["chosen_run"]]["criterion"]
     assert ev[0]["taken"] and ev[0]["criterion"] < single and ev[1]["criterion"] > ev[0]["criterion"]
     assert ens.metrics["ensemble"]["name"] == "top2" and ens.metrics["ensemble"]["params"] == parameter_count(ens) == 2
@@ -234,7 +234,7 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
                    "linear_search": True, "lag_search_generations": 100, "lag_alternation": True, "hedge_neurons": 10,
                    "range_margin": 0.25, "screen_rows": False,
                    # round 5: constants of the engine now (settings.RIDGE, FALLBACK_BELOW) or identify's argument
-                   "ridge": 1e-10, "fallback_below": 0.5, "workers": 1}
+                   "ridge": 1e-10, "fallback_below": 0.5, "workers": 1, "complexity": "aic"}
         assert want["config"]["generations"] == 100 and want["config"]["lag_search_neurons"] == 10
         assert {k: want["config"].pop(k) for k in retired} == retired
         assert want["metrics"].pop("holdout_samples") == 0 and want["metrics"].pop("restarts_skipped") == []

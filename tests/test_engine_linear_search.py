@@ -26,7 +26,7 @@ def _narx(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def test_both_kinds_are_offered_and_the_run_takes_the_lowest_criterion() -> None:
     u, y = _narx(500, 0)
     cfg = CoEAConfig(neurons=6, max_lag_y=3, max_lag_u=3, generations=15, selection="fr_est", fr_candidates=4,
-                     linear_terms=True, complexity="aic")
+                     linear_terms=True)
     run = Coevolution(u, y, cfg, 0).solve()
     cands = run.candidate_models(4, both=True)
     half = len(cands) // 2
@@ -37,8 +37,8 @@ def test_both_kinds_are_offered_and_the_run_takes_the_lowest_criterion() -> None
         assert not np.array_equal(a.weights, b.weights)
     ua = u[:, None]
     fr = free_run_scores(cands, ua, y)
-    k = _by_criterion("aic", cands, fr, len(y))
-    crit = [criterion("aic", s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
+    k = _by_criterion(cands, fr, len(y))
+    crit = [criterion(s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
             for m, s, e in zip(cands, fr.scores, fr.excursions)]
     assert k == int(np.argmin(crit)) and np.isfinite(crit[k])
     model, score = select_model(run, ua, y, "fr_est")
@@ -46,7 +46,7 @@ def test_both_kinds_are_offered_and_the_run_takes_the_lowest_criterion() -> None
     # the same rule over equal fits: a plain network (k + 1 fewer weights) beats its linear twin
     twin = free_run_scores([cands[half], cands[0]], ua, y)
     even = type(twin)((0.9, 0.9), (0.0, 0.0))
-    assert _by_criterion("aic", [cands[0], cands[half]], even, len(y)) == 1
+    assert _by_criterion([cands[0], cands[half]], even, len(y)) == 1
 
 
 def test_the_search_is_rbf_only_with_or_without_the_linear_part_and_retired_fields_are_refused() -> None:

@@ -140,17 +140,17 @@ def test_the_mean_of_the_best_offers_is_taken_only_when_its_criterion_is_lower()
     def offer(model: Model, path: np.ndarray, run: int) -> _Offer:
         L = model.max_lag
         score = r2(y[L:], path[L:])
-        return _Offer(criterion("aic", score, n - L, parameter_count(model)), model, {"r2_fr_est": score}, run, 9, path)
+        return _Offer(criterion(score, n - L, parameter_count(model)), model, {"r2_fr_est": score}, run, 9, path)
 
     cancel = sorted([offer(m1, y + e, 0), offer(m2, y - 1.2 * e, 1)], key=lambda o: o.value)
     ev: dict = {}
-    chosen, taken = _means(cancel, "aic", u, y, -1.0, 1.0, 0.1, ev)
+    chosen, taken = _means(cancel, u, y, -1.0, 1.0, 0.1, ev)
     assert isinstance(chosen, EnsembleModel) and len(chosen.members) == 2 and taken.run == cancel[0].run
     assert ev["means"][0]["taken"] and ev["means"][0]["params"] == parameter_count(m1)  # the members' mean
     assert taken.value < cancel[0].value and taken.score > max(o.score for o in cancel)
     alike = sorted([offer(m1, y + e, 0), offer(m2, y + e, 1)], key=lambda o: o.value)
     ev = {}
-    chosen, taken = _means(alike, "aic", u, y, -1.0, 1.0, 0.1, ev)
+    chosen, taken = _means(alike, u, y, -1.0, 1.0, 0.1, ev)
     assert chosen is alike[0].model and taken is alike[0] and ev["means"][0]["taken"] is False
 
 
@@ -217,7 +217,7 @@ def test_not_taken_where_the_network_explains_the_record() -> None:
     res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=()), 0)
     assert res.model.metrics["free_run_choice"]["score"] > MORE_BELOW
     assert "long_linear" not in res.model.metrics["complexity"] and res.model.linear_regressors is None
-    got, ev = long_linear_choice(res.model, 1.0 - 1e-12, "aic", 64, u.reshape(-1, 1), y, 0.25, 1e-10)
+    got, ev = long_linear_choice(res.model, 1.0 - 1e-12, 64, u.reshape(-1, 1), y, 0.25, 1e-10)
     assert got is None and not ev["taken"] and ev["orders"]
 
 
@@ -254,7 +254,7 @@ def test_a_part_that_leaves_the_range_on_a_second_pass_is_refused() -> None:
     y = np.cumsum(np.concatenate([[0.0], u[:-1]])) + 0.01 * rng.normal(size=1200)
     res = identify(u, y, DEFAULT.replace(restarts=1, more_restarts=0, fallback_neurons=(),
                                          refine_iterations=0), 0)
-    got, ev = long_linear_choice(res.model, -0.5, "aic", 64, u.reshape(-1, 1), y, 0.25, 1e-10)
+    got, ev = long_linear_choice(res.model, -0.5, 64, u.reshape(-1, 1), y, 0.25, 1e-10)
     assert got is None and not ev["taken"]
     tried = [o for o in ev["orders"] if o["criterion"] is not None]
     assert tried and all(o["r2_fr_est"] > 0.999 and o["criterion"] < ev["criterion_without"] for o in tried), tried

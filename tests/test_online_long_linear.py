@@ -77,9 +77,9 @@ def test_only_orders_above_the_lag_search_are_offered(f16: tuple) -> None:
     ue, ye = u[:2800], y[:2800, 2]
     score = float(without.metrics["selection_score"])
     cfg = StreamConfig().coea_config(cold=True)
-    _, ev = long_linear_choice(without, score, cfg.complexity, 512, ue, ye, RANGE_MARGIN, RIDGE, min_order=11)
+    _, ev = long_linear_choice(without, score, 512, ue, ye, RANGE_MARGIN, RIDGE, min_order=11)
     assert ev["orders"] and min(r["order"] for r in ev["orders"]) == 12, ev["orders"]
-    _, ev2 = long_linear_choice(without, score, cfg.complexity, 512, ue, ye, RANGE_MARGIN, RIDGE)
+    _, ev2 = long_linear_choice(without, score, 512, ue, ye, RANGE_MARGIN, RIDGE)
     assert min(r["order"] for r in ev2["orders"]) == 2
     got, s = long_linear_part(without, score, cfg, ue, ye)
     assert got.metrics["long_linear"]["order"] >= 12 and s == got.metrics["long_linear"]["r2_fr_est"]

@@ -247,7 +247,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         with_lin = sum(m.linear is not None for m in nets)
         w("direct linear part a'r + b: " + (
             ("kept" if with_lin else "not kept") if len(nets) == 1 else f"in {with_lin} of the {len(nets)} networks")
-          + f" (every candidate was offered with and without one, the kind chosen by {cfg.complexity})\n")
+          + f" (every candidate was offered with and without one, the kind chosen by aic)\n")
     ll = (cx or {}).get("long_linear")
     if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.longlinear)
         w(_long_linear_line(ll, MORE_BELOW))

@@ -1,21 +1,22 @@
 """Complexity chosen by the data: an information criterion on the estimation free run.
 
-The rule (``CoEAConfig.complexity``; applied by :func:`~streamid.engine.identification.identify`
+The rule (every choice among candidates of ``selection="fr_est"``; applied by :func:`~streamid.engine.identification.identify`
 to the runs' chosen candidates, each a network of its own size and lag space)
 --------------------------------------------------------------------------------------------
 Every run offers one candidate (its best by the selection rule, range guard included).
 Its network size -- the number of neurons ``M`` (30 on the lags ``1..L`` chosen from
 the data, 10 or 30 on ``1..10`` for the hedged restarts, 15 then 8 for the fallback
 runs), the lag space and whether it has a linear part -- is then chosen among the
-admissible candidates by ``"aic"`` (the default)::
+admissible candidates by AIC::
 
     AIC = n log(1 - R2_fr) + 2 p,       p = M (+ k + 1 with a linear part)
 
 with ``R2_fr`` the candidate's free-run R^2 over the ``n`` scored samples of the
 estimation record (the same simulation the range guard judged) and ``p`` the
 parameters fitted by least squares on that record: one output weight per neuron,
-plus the linear part's ``k`` coefficients and constant. ``"bic"`` uses ``log n``
-for 2; ``"score"`` takes the highest ``R2_fr`` (no penalty: the choice of round 2).
+plus the linear part's ``k`` coefficients and constant. (``CoEAConfig.complexity`` also offered ``"bic"``, never
+a default, and ``"score"``, the highest ``R2_fr``: the online updates' until issue 37 round 5, where AIC chose the
+same long linear parts on the two-experiment suite but for one seed of one system, docs/engine-results.md.)
 A candidate that is not admissible is never chosen while one is.
 
 Why this rule (``streamid bench --suite``, 12 outputs x 5 seeds, the same runs
@@ -58,10 +59,10 @@ from streamid.engine.model import Model
 from streamid.engine.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.errors import ModelFormatError
 
-__all__ = ["COMPLEXITY_RULES", "choose", "criterion", "ols_order", "parameter_count", "pruned", "padded"]
+__all__ = ["RULE", "choose", "criterion", "ols_order", "parameter_count", "pruned", "padded"]
 
-#: Accepted values of ``CoEAConfig.complexity``.
-COMPLEXITY_RULES = ("aic", "bic", "score")
+#: The criterion's name in the evidence (``metrics.complexity.rule``) and the report.
+RULE = "aic"
 
 _ADMISSIBLE = -1e9  # a run's score at or below this has no admissible candidate (streamid.engine.selection)
 
@@ -76,21 +77,14 @@ def parameter_count(model: Model) -> float:
     return counts[0] if len(counts) == 1 else sum(counts) / len(counts)
 
 
-def criterion(rule: str, r2_fr: float, n_scored: int, params: float) -> float:
-    """The rule's value (lower is better) for a candidate of free-run R^2 ``r2_fr`` over ``n_scored`` samples."""
+def criterion(r2_fr: float, n_scored: int, params: float) -> float:
+    """AIC (lower is better) of a candidate of free-run R^2 ``r2_fr`` over ``n_scored`` samples and ``params``
+    weights fitted: ``n log(1 - R2_fr) + 2 p``."""
     err = max(1.0 - r2_fr, 1e-12)  # relative free-run error (an R^2 of 1 to rounding: bounded)
-    if rule == "score":
-        return -r2_fr
-    if rule == "aic":
-        return n_scored * math.log(err) + 2.0 * params
-    if rule == "bic":
-        return n_scored * math.log(err) + math.log(max(n_scored, 2)) * params
-    raise ValueError(f"complexity rule must be one of {list(COMPLEXITY_RULES)}; got {rule!r}")
+    return n_scored * math.log(err) + 2.0 * params
 
 
-def choose(
-    rule: str, models: list[Model], scores: list[float], n: int, lag_spaces: list[int]
-) -> tuple[int, dict[str, Any]]:
+def choose(models: list[Model], scores: list[float], n: int, lag_spaces: list[int]) -> tuple[int, dict[str, Any]]:
     """Index of the chosen candidate among the runs' and the evidence (JSON-able).
 
     ``scores``: each run's selection score (free-run R^2 on the estimation record;
@@ -102,7 +96,7 @@ def choose(
     for i, (m, s) in enumerate(zip(models, scores)):
         p = parameter_count(m)
         ns = n - m.max_lag
-        value = criterion(rule, s, ns, p) if i in ok else None
+        value = criterion(s, ns, p) if i in ok else None
         rows.append({"run": i, "neurons": m.neurons, "lag_space": int(lag_spaces[i]), "terms": len(m.regressors),
                      "linear": m.linear is not None, "params": p,
                      "r2_fr_est": float(s) if i in ok else None, "criterion": value})
@@ -110,7 +104,7 @@ def choose(
         k = min(ok, key=lambda i: (rows[i]["criterion"], i))
     else:  # nothing admissible: the run whose candidate leaves the range least (the highest score)
         k = max(range(len(scores)), key=lambda i: (scores[i], -i))
-    ev = {"rule": rule, "chosen_run": k, "neurons": models[k].neurons, "params": rows[k]["params"],
+    ev = {"rule": RULE, "chosen_run": k, "neurons": models[k].neurons, "params": rows[k]["params"],
           "candidates": rows}
     return k, ev
 

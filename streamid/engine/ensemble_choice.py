@@ -45,7 +45,6 @@ ENSEMBLE_SIZES = (2, 3, 0)
 
 
 def choose_ensemble(
-    rule: str,
     models: Sequence[Model],
     paths: Sequence[NDArray[np.float64] | None],
     complexity: dict[str, Any],
@@ -96,7 +95,7 @@ def choose_ensemble(
         if excursion > 0.0:
             row["excursion_spans"] = excursion
             continue
-        value = criterion(rule, score, len(y) - L, float(row["params"]))
+        value = criterion(score, len(y) - L, float(row["params"]))
         row.update(r2_fr_est=float(score), criterion=float(value))
         if value < best[0]:
             best = (value, None, members)

@@ -24,8 +24,7 @@ has (``metrics.fallback_runs``; also while the best run's score is at most ``set
 those, with ``more_restarts``, that many more runs when the best run's score lies in ``(0, settings.MORE_BELOW)``
 (:mod:`streamid.engine.restarts`; ``metrics.more_restarts``).
 
-With ``selection="fr_est"`` the run kept is chosen by ``complexity`` (:mod:`streamid.engine.complexity`: by
-default the lowest ``n log(1 - R2_fr) + 2 p`` over the runs' admissible candidates, ``p`` the weights fitted;
+With ``selection="fr_est"`` the run kept is chosen by AIC (:mod:`streamid.engine.complexity`: the lowest ``n log(1 - R2_fr) + 2 p`` over the runs' admissible candidates, ``p`` the weights fitted;
 ``metrics.complexity``), after the ``prune_runs`` best runs have offered their networks pruned to ``M // 3`` and
 ``2 M // 3`` neurons (``metrics.neuron_choice``); with ``run_ensembles`` the means of the best runs' networks
 compete by the same criterion (:mod:`streamid.engine.ensemble_choice`); with ``refine_iterations`` the kept
@@ -63,7 +62,7 @@ from streamid.engine.selection import free_run_r2, pruned_choice, refit_weights,
 from streamid.engine.settings import DEFAULT, FALLBACK_BELOW, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import ConfigError, DataError
 
-__all__ = ["Result", "RunSummary", "free_run_r2", "identify", "identify_each", "refit_weights", "select_model"]
+__all__ = ["Result", "RunSummary", "free_run_r2", "identify", "refit_weights", "select_model"]
 
 
 @dataclass(frozen=True)
@@ -374,25 +373,25 @@ def identify(
     complexity: dict[str, Any] | None = None
     spaces = [int(o.get("max_lag", cfg.max_lag)) for o in outs]
     if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.complexity)
-        chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
+        chosen, complexity = choose_complexity(models, scores, n, spaces)
         if cfg.prune_runs:  # the best runs' pruned networks compete too (CoEAConfig.prune_runs)
             ranked = sorted((c for c in complexity["candidates"] if c["criterion"] is not None),
                             key=lambda c: (c["criterion"], c["run"]))[: cfg.prune_runs]
             for c in ranked:
                 i = int(c["run"])
                 models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, RANGE_MARGIN, paths[i])
-            chosen, complexity = choose_complexity(cfg.complexity, models, scores, n, spaces)
+            chosen, complexity = choose_complexity(models, scores, n, spaces)
     else:
         chosen = int(np.argmax(scores))
     final, score = models[chosen], float(outs[chosen]["score"])
     if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.ensemble_choice)
-        ens, members, complexity["ensembles"] = choose_ensemble(cfg.complexity, models, paths, complexity, ua, ya, RANGE_MARGIN)
+        ens, members, complexity["ensembles"] = choose_ensemble(models, paths, complexity, ua, ya, RANGE_MARGIN)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     own = scores[chosen] if final is models[chosen] else score
     if cfg.long_linear and complexity is not None and own < MORE_BELOW:  # a dense linear ARX part competes
         offered = [(int(c["run"]), models[int(c["run"])]) for c in complexity["candidates"] if c["criterion"] is not None]
-        ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.complexity, cfg.long_linear, ua, ya,
+        ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.long_linear, ua, ya,
                                                            RANGE_MARGIN, RIDGE, offered, chosen)
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
@@ -430,36 +429,3 @@ def identify(
         chosen=chosen,
         extra={"run_models": tuple(models)},
     )
-
-
-def identify_each(
-    u: ArrayLike,
-    ys: ArrayLike,
-    config: CoEAConfig | None = None,
-    rng: np.random.Generator | int | None = None,
-    *,
-    output_names: tuple[str, ...] | None = None,
-    **kwargs: Any,
-) -> list[Result]:
-    """Several outputs: one model per output (each column of ``ys`` identified from ``u``).
-
-    Parameters
-    ----------
-    u : array_like, shape (N,) or (N, n_inputs)
-    ys : array_like, shape (N, n_outputs)
-    config, rng :
-        As :func:`identify`; the outputs use successive draws of one generator.
-    output_names : tuple of str, optional
-    **kwargs :
-        Passed to :func:`identify` (not ``output_name``).
-    """
-    ya = np.asarray(ys, dtype=np.float64)
-    if ya.ndim == 1:
-        ya = ya[:, None]
-    if ya.ndim != 2:
-        raise DataError(f"ys must have shape (N, n_outputs); got {ya.shape}")
-    names = output_names or tuple(f"y{i}" for i in range(ya.shape[1]))
-    if len(names) != ya.shape[1]:
-        raise ConfigError(f"{len(names)} output names given for {ya.shape[1]} outputs")
-    gen = _as_rng(rng)
-    return [identify(u, ya[:, i], config, gen, output_name=names[i], **kwargs) for i in range(ya.shape[1])]

@@ -122,7 +122,7 @@ def dense_regressors(order: int, n_inputs: int, direct: bool) -> tuple[Regressor
 
 
 def long_linear_choice(
-    final: Model, final_score: float, rule: str, max_order: int,
+    final: Model, final_score: float, max_order: int,
     u: NDArray[np.float64], y: NDArray[np.float64], range_margin: float, ridge: float,
     runs: Sequence[tuple[int, Model]] = (), base_run: int | None = None, min_order: int = 2,
     max_design_bytes: int = MAX_DESIGN_BYTES,
@@ -143,7 +143,7 @@ def long_linear_choice(
     M_most = max(m.neurons for _, m in nets)
     n_max = min(int(max_order), (N // ROWS_PER_PARAMETER - M_most - 1) // (1 + n_in),
                 (int(max_design_bytes) // (8 * N) - M_most - 1) // (1 + n_in))
-    own = criterion(rule, final_score, N - final.max_lag, parameter_count(final)) if np.isfinite(final_score) else np.inf
+    own = criterion(final_score, N - final.max_lag, parameter_count(final)) if np.isfinite(final_score) else np.inf
     ev: dict[str, Any] = {"max_order": int(max_order), "orders": [], "criterion_without": _finite(own),
                           "taken": False}
     offered = [n for n in orders(n_max) if n >= min_order]
@@ -185,7 +185,7 @@ def long_linear_choice(
             if excursion > 0.0:
                 row["excursion_spans"] = float(excursion)
                 return
-            value = criterion(rule, score, N - Lm, parameter_count(model))
+            value = criterion(score, N - Lm, parameter_count(model))
             row.update(r2_fr_est=float(score), criterion=float(value))
             if score > MIN_R2_FR_EST:
                 offers.append(_Offer(value, model, row, run, n, path))
@@ -216,7 +216,7 @@ def long_linear_choice(
                 ev["networks"].append({"run": run, "neurons": net.neurons, "r2_fr_est": None, "criterion": None})
                 offer(run, net, first.order, ev["networks"][-1])
             best = list(islice((o for o in ranked(first.order) if o.value < own and second_pass(o)), MAX_MEAN_OF))
-            chosen, taken = _means(best, rule, u, y, lo, hi, range_margin, ev)
+            chosen, taken = _means(best, u, y, lo, hi, range_margin, ev)
     if first is None:
         return None, ev
     ev.update(taken=True, order=taken.order, run=taken.run, r2_fr_est=taken.score, criterion=taken.value,
@@ -259,7 +259,7 @@ class _Offer:
         return float(self.row["r2_fr_est"])
 
 
-def _means(best: list[_Offer], rule: str, u: NDArray[np.float64], y: NDArray[np.float64], lo: float, hi: float,
+def _means(best: list[_Offer], u: NDArray[np.float64], y: NDArray[np.float64], lo: float, hi: float,
            range_margin: float, ev: dict[str, Any]) -> tuple[Model, _Offer]:
     """Step 6: the best offer, or the mean of the two or three best, whichever has the lowest criterion.
 
@@ -278,7 +278,7 @@ def _means(best: list[_Offer], rule: str, u: NDArray[np.float64], y: NDArray[np.
         path = np.mean([o.path for o in members], axis=0)
         score, excursion = path_score(path, y, Lk, Lk, lo, hi, range_margin)
         params = float(np.mean([parameter_count(o.model) for o in members]))
-        value = criterion(rule, score, N - Lk, params) if excursion == 0.0 else np.inf
+        value = criterion(score, N - Lk, params) if excursion == 0.0 else np.inf
         means.append({"members": [o.run for o in members], "r2_fr_est": _finite(score), "params": params,
                       "criterion": _finite(value), "taken": False})
         if value < taken.value:

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.choice import RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run
-from streamid.engine.complexity import criterion, padded, parameter_count, pruned
+from streamid.engine.complexity import RULE, criterion, padded, parameter_count, pruned
 from streamid.engine.ensemble import EnsembleModel
 from streamid.engine.model import Model
 from streamid.engine.longlinear import long_linear_fit
@@ -144,7 +144,7 @@ def select_model_path(
 
     With ``config.linear_terms`` and ``"fr_est"``, every candidate is offered with its linear part and
     without it (the same centres and widths, weights refitted); the run's model is the admissible one of
-    the lowest ``config.complexity`` criterion (:func:`_by_criterion`).
+    the lowest AIC (:func:`_by_criterion`).
 
     ``screen_rows`` (a run searched on a sample of its rows, the online updates): the candidates are fitted on
     the search's rows only for the free-run choice, and the chosen one is refitted on all rows and scored again
@@ -168,17 +168,17 @@ def select_model_path(
     cands = run.candidate_models(run.config.fr_candidates or None, both=both, threads=threads)  # the best pair first
     with one_blas_thread():
         fr = free_run_scores(cands, u, y, range_margin=margin, threads=threads)
-    k = _by_criterion(run.config.complexity, cands, fr, n) if both and fr.admissible else fr.best()
+    k = _by_criterion(cands, fr, n) if both and fr.admissible else fr.best()
     score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
     chosen = cands[k].with_metrics(free_run_choice=fr.evidence(k))
     return chosen, float(score), fr.paths[k] if fr.admissible else None
 
 
-def _by_criterion(rule: str, cands: list[Model], fr: FreeRunScores, n: int) -> int:
-    """The admissible candidate of the lowest ``complexity`` criterion (ties: the first). With both kinds of
+def _by_criterion(cands: list[Model], fr: FreeRunScores, n: int) -> int:
+    """The admissible candidate of the lowest AIC (:func:`~streamid.engine.complexity.criterion`) (ties: the first). With both kinds of
     candidate (with and without a linear part, the same centres and widths) this is the best of each kind by
     free-run R^2, then the kind by the criterion: ``p`` counts the linear part's ``k + 1`` weights."""
-    crit = [criterion(rule, s, n - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
+    crit = [criterion(s, n - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
             for m, s, e in zip(cands, fr.scores, fr.excursions)]
     return int(np.argmin(crit))
 
@@ -197,10 +197,10 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
             return model, score, path
         fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run
     rows = [(model, score, 0.0), *zip(smaller, fr.scores, fr.excursions)]
-    crit = [criterion(cfg.complexity, s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
+    crit = [criterion(s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
             for m, s, e in rows]
     k = int(np.argmin(crit))  # ties: the unpruned network (first)
-    ev = {"rule": cfg.complexity, "neurons": rows[k][0].neurons,
+    ev = {"rule": RULE, "neurons": rows[k][0].neurons,
           "candidates": [{"neurons": m.neurons, "r2_fr_est": s if e == 0.0 else None,
                           "criterion": c if np.isfinite(c) else None} for (m, s, e), c in zip(rows, crit)]}
     return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1]), path if k == 0 else fr.paths[k - 1]

@@ -49,7 +49,7 @@ SELECTIONS = ("fr_est", "fitness")
 RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
                   "lag_search_rows", "ensemble", "weight_decay", "linear_search", "lag_search_generations",
                   "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows",
-                  "ridge", "more_below", "fallback_below", "workers", "min_lag_u", "feedthrough_test")
+                  "ridge", "more_below", "fallback_below", "workers", "min_lag_u", "feedthrough_test", "complexity")
 
 #: Retired fields that something else now says, and what: named in the error that refuses them.
 REPLACED_BY = {
@@ -68,7 +68,7 @@ def retired_message(names: list[str]) -> str:
     parts = []
     if gone:
         parts.append(f"CoEAConfig field(s) {gone} were retired in issue 37 (measured not to earn their place: "
-                     f"docs/engine-results.md, 'Issue 37, round 2'); remove them")
+                     f"docs/engine-results.md, 'Issue 37', rounds 2-5); remove them")
     parts += [f"CoEAConfig.{n} was retired in issue 37: use {REPLACED_BY[n]}" for n in names if n in REPLACED_BY]
     return "; ".join(parts)
 
@@ -220,25 +220,19 @@ class CoEAConfig:
         regressors (Chen & Billings' RBF network with linear terms), fitted with ``w`` in
         one least squares when the candidate's weights are fitted. With ``selection="fr_est"``
         each candidate is also offered without the linear part (the same centres and widths)
-        and a run keeps the admissible candidate of the lowest ``complexity`` criterion
+        and a run keeps the admissible candidate of the lowest AIC (:mod:`streamid.engine.complexity`)
         (``p`` counts the linear part's ``k + 1`` weights).
-    complexity : str
-        With ``selection="fr_est"`` and several runs: how the final model's size is
-        chosen among the runs' candidates (:mod:`streamid.engine.complexity`):
-        ``"aic"`` the lowest ``n log(1 - R2_fr) + 2 p`` (``p`` = weights fitted, ``M``
-        + the linear part's ``k + 1``), ``"bic"`` the same with ``log n``, ``"score"``
-        the highest estimation free-run R^2. The evidence is in ``metrics.complexity``.
     prune_runs : int
         With ``selection="fr_est"``: 0, each run offers its chosen candidate as is. K > 0,
-        the K best runs by ``complexity`` also offer their networks of ``M // 3`` and
+        the K best runs by AIC also offer their networks of ``M // 3`` and
         ``2 M // 3`` neurons (the first in forward-selection order by orthogonal least
         squares on the estimation data, weights refitted); each competes with its parent
-        by ``complexity`` on the estimation free run (range guard included), then the runs
+        by AIC on the estimation free run (range guard included), then the runs
         as before. Evidence in ``metrics.neuron_choice`` and ``metrics.complexity``.
     run_ensembles : bool
         With ``selection="fr_est"`` and several runs: False, the final model is one run's network.
         True, after that choice the means of the top 2, the top 3 and all admissible runs' networks
-        (ranked by ``complexity``) compete too (:mod:`streamid.engine.ensemble_choice`): each scored
+        (ranked by AIC) compete too (:mod:`streamid.engine.ensemble_choice`): each scored
         on the estimation free run of the mean (every member on its own past outputs), range guard
         included, ``p`` the mean of the members' weights; one is taken when its criterion is below the
         single network's (a ``streamid.model/3`` model; evidence in ``metrics.complexity.ensembles``).
@@ -250,7 +244,7 @@ class CoEAConfig:
         and within the range guard (evidence in ``metrics.refinement``).
     long_linear : int
         0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
-        up to N (chosen by the ``complexity`` criterion) competes with it, and so do the means of the two and
+        up to N (chosen by AIC) competes with it, and so do the means of the two and
         three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.longlinear`;
         :func:`~streamid.engine.identification.identify`'s final choice; an online update's model gets a single
         network's part, of an order above its lag search's only: :func:`streamid.online.update.long_linear_part`).
@@ -285,7 +279,6 @@ class CoEAConfig:
     max_lag_cap: int = 0
     fallback_neurons: tuple[int, ...] = ()
     linear_terms: bool = False
-    complexity: str = "score"
     prune_runs: int = 0
     more_restarts: int = 0
     direct_terms: str = "off"
@@ -309,8 +302,6 @@ class CoEAConfig:
             raise ConfigError(f"CoEAConfig.selection must be one of {list(SELECTIONS)}; got {self.selection!r}")
         if self.direct_terms not in DIRECT_TERMS:
             raise ConfigError(f"CoEAConfig.direct_terms must be one of {list(DIRECT_TERMS)}; got {self.direct_terms!r}")
-        if self.complexity not in ("aic", "bic", "score"):
-            raise ConfigError(f"CoEAConfig.complexity must be one of ['aic', 'bic', 'score']; got {self.complexity!r}")
         if 0 < self.search_rows < 2 * self.neurons:
             raise ConfigError(
                 f"CoEAConfig.search_rows must be 0 (all rows) or >= 2 * neurons = {2 * self.neurons}; got {self.search_rows}"
@@ -406,7 +397,7 @@ class CoEAConfig:
 
         Every run's candidates are offered with a direct linear part and without it (``linear_terms``, the same
         centres and widths from the RBF-only search), the kind chosen by AIC.
-        Then (``complexity="aic"``, ``prune_runs=2``, ``run_ensembles``, ``refine_iterations=10``) the size by
+        Then (``prune_runs=2``, ``run_ensembles``, ``refine_iterations=10``) the size by
         AIC on the estimation free run with the two best runs' pruned networks competing, the means of the best
         runs' networks competing by the same AIC, and the kept model's weights (and linear part) fitted to its
         free run.
@@ -425,7 +416,6 @@ class CoEAConfig:
             "require_input": True,
             "max_lag_cap": 30,
             "fallback_neurons": (15, 8),
-            "complexity": "aic",
             "prune_runs": 2,
             "more_restarts": 4,
             "direct_terms": "test",

@@ -418,7 +418,7 @@ def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray,
     """
     if not cfg.long_linear or cfg.selection != "fr_est" or not score < MORE_BELOW:
         return model, score
-    ll, ev = long_linear_choice(model, score, cfg.complexity, cfg.long_linear, u, y, RANGE_MARGIN, RIDGE,
+    ll, ev = long_linear_choice(model, score, cfg.long_linear, u, y, RANGE_MARGIN, RIDGE,
                                 min_order=max(cfg.max_lag_y, cfg.max_lag_u) + 1, max_design_bytes=LONG_LINEAR_DESIGN_BYTES)
     if ll is None:
         return model, score
