@@ -30,7 +30,7 @@ from streamid.engine import identify
 from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
-from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
+from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.settings import DEFAULT, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.engine.validation import r2
 
@@ -57,7 +57,7 @@ def finished(model: Model, run: int, score: float, t: Target, cfg: CoEAConfig) -
                                    [(run, model)], run)
         model = model if ll is None else ll
     if cfg.refine_iterations:
-        model, _ = refine_weights(model, u, y, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN)
+        model, _ = refine_judged(model, u, y, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN)
     return model
 
 

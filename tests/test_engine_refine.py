@@ -16,7 +16,7 @@ from streamid.engine import DEFAULT, Model, identify
 from streamid.engine.ensemble import EnsembleModel, ensemble_of, members_of
 from streamid.engine._kernels import free_run_sensitivities
 from streamid.engine.freerun import free_run
-from streamid.engine.refine import parts, refine_weights, sensitivities
+from streamid.engine.refine import parts, refine_judged, refine_weights, sensitivities
 from streamid.engine.settings import REFINE_ABOVE
 from streamid.engine.regressors import Normalisation, Regressor
 from streamid.engine.validation import r2
@@ -131,6 +131,34 @@ def test_refinement_raises_the_free_run_and_keeps_the_structure() -> None:
     assert ev2 == ev
 
 
+def test_the_refinement_is_judged_on_the_half_it_was_not_fitted_on() -> None:
+    """issue 37 round 5: refined on the first half, made only if that free-runs better over the second half."""
+    u, y = _plant()  # one plant throughout: the refinement holds on the held-out half and is made on the whole
+    net = _osa_net(u, y, (Y1, Y2, U1, U2), 8, 1)
+    out, ev = refine_judged(net, u[:, None], y, 10, 0.5, 0.25)
+    held = ev["held_out"]
+    assert ev["taken"] is True and held["samples"] == 300 and held["r2_fr_after"] > held["r2_fr_before"]
+    whole, ev_whole = refine_weights(net, u[:, None], y, 10, 0.5, 0.25)
+    np.testing.assert_array_equal(out.weights, whole.weights)  # the refinement made is the whole record's
+    assert {k: v for k, v in ev.items() if k != "held_out"} == ev_whole
+    # the input's gain changes sign half way: a refinement fitted to the first half's free run is worse on the
+    # second, although refining on the whole record would raise the whole record's free-run fit
+    rng = np.random.default_rng(4)
+    u2, y2 = rng.uniform(-1, 1, 600), np.zeros(600)
+    for t in range(2, 600):
+        g = 1.5 if t < 300 else -1.0
+        y2[t] = 0.7 * y2[t - 1] - 0.2 * y2[t - 2] + np.tanh(g * u2[t - 1]) + 0.3 * u2[t - 2] ** 2
+    y2 += rng.normal(0, 0.02, 600)
+    net2 = _osa_net(u2, y2, (Y1, Y2, U1, U2), 8, 1)
+    assert refine_weights(net2, u2[:, None], y2, 10, -1e9, 0.25)[1]["taken"] is True
+    same, ev2 = refine_judged(net2, u2[:, None], y2, 10, -1e9, 0.25)
+    assert same is net2 and ev2["taken"] is False and ev2["iterations"] == 0
+    assert ev2["held_out"]["r2_fr_after"] < ev2["held_out"]["r2_fr_before"]
+    assert ev2["reason"].startswith("no gain on the held-out second half")
+    off, ev3 = refine_judged(net, u[:, None], y, 0, 0.5, 0.25)
+    assert off is net and ev3["reason"] == "off"
+
+
 def test_the_gate_and_zero_iterations_leave_the_model_as_it_is() -> None:
     u, y = _plant()
     net = _osa_net(u, y, (Y1, U1), 5, 2)
@@ -163,13 +191,15 @@ def test_identify_reports_the_refinement_and_off_adds_nothing() -> None:
     assert DEFAULT.refine_iterations == 10 and REFINE_ABOVE == 0.8  # the default since round 8
     quick = DEFAULT.replace(generations=15, restarts=2, max_lag_cap=0, max_lag_y=3,
                             max_lag_u=3, neurons=8, lag_search_neurons=5, fallback_neurons=())
-    off = identify(u, y, quick.replace(refine_iterations=0), rng=5).model
-    on = identify(u, y, quick.replace(refine_iterations=10), rng=5).model
+    off = identify(u, y, quick.replace(refine_iterations=0), rng=7).model
+    on = identify(u, y, quick.replace(refine_iterations=10), rng=7).model
     assert "refinement" not in off.metrics
     ev = on.metrics["refinement"]
     assert ev["gate"] == REFINE_ABOVE and _fr(off, u, y) >= REFINE_ABOVE  # the gate open on this record
     assert ev["iterations"] >= 1 and ev["r2_fr_est_before"] == pytest.approx(_fr(off, u, y), abs=1e-9)
-    assert ev["taken"] is True  # this record's chosen model fits its free run better after refinement
+    assert ev["taken"] is True  # this record's chosen model fits its free run better after refinement...
+    held = ev["held_out"]  # ...and refined on the first half it free-ran better over the second (seed 5: it did not)
+    assert held["samples"] == 250 and held["r2_fr_after"] > held["r2_fr_before"]
     assert _fr(on, u, y) == pytest.approx(ev["r2_fr_est_after"], abs=1e-9) and _fr(on, u, y) > _fr(off, u, y)
     assert [m.regressors for m in members_of(on)] == [m.regressors for m in members_of(off)]
     L = on.max_lag  # the fitness is the refined model's one-step MSE on the estimation record (Result.fitness)
@@ -212,7 +242,7 @@ def test_online_updates_refine_only_when_asked() -> None:
     from streamid import OnlineIdentifier, StreamConfig
 
     u, y = _plant(1200, seed=9)
-    t_ns = np.arange(1200, dtype=np.int64) * 10_000_000  # 100 Hz
+    t_ns = np.arange(1200, dtype=np.int64) * 10_000_000  # 100 Hz: 420 estimation samples a window
     models = {}
     for engine in ((), (("refine_iterations", 10),)):
         ident = OnlineIdentifier(StreamConfig(window_s=6.0, update_every_s=6.0, cold_generations=20, engine=engine),
@@ -224,9 +254,12 @@ def test_online_updates_refine_only_when_asked() -> None:
     off, on = models[()], models[(("refine_iterations", 10),)]
     assert "refinement" not in off.metrics  # the default online: one run, unrefined (the decision latency)
     ev = on.metrics["refinement"]
-    assert ev["gate"] == 0.8 and ev["taken"] is True and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
-    # the same run (the same seed), its weights fitted to the free run
-    assert on.regressors == off.regressors and not np.array_equal(on.weights, off.weights)
+    # judged out of sample as offline: refined on the window's first 210 estimation samples, the free run over
+    # the next 210 was worse (0.9843 -> 0.9838), so the refinement is not made and the run's model stands
+    assert ev["gate"] == 0.8 and ev["taken"] is False and ev["held_out"]["samples"] == 210
+    assert ev["reason"].startswith("no gain on the held-out second half")
+    assert ev["held_out"]["r2_fr_after"] < ev["held_out"]["r2_fr_before"]
+    assert on.regressors == off.regressors and np.array_equal(on.weights, off.weights)  # the same run, unchanged
 
 
 def test_warm_up_compiles_the_versions_the_engine_then_uses() -> None:

@@ -23,36 +23,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine.helper_protocol import (
-    _BIND_ACK,
-    _BIND_SEQ,
-    _CAP,
-    _CONTROL_BYTES,
-    _D,
-    _DONE,
-    _DRAW_CHUNK,
-    _DRAW_N,
-    _DRAW_READY,
-    _DRAW_SEQ,
-    _DRAW_STATE,
-    _ERRORS,
-    _FLOATS_AT,
-    _JOB_BIND,
-    _JOB_N,
-    _JOB_SEQ,
-    _JOB_SHARED,
-    _M,
-    _N,
-    _PATH_AT,
-    _PATH_MAX,
-    _PID,
-    _QUIT,
-    _SLEEPING,
-    _STARTED,
-    _UNIFORMS,
-    _layout,
-    _remove_folder,
-    _views,
+from streamid.engine.helper_protocol import (  # the shared-memory protocol's layout and states
+    _BIND_ACK, _BIND_SEQ, _CAP, _CONTROL_BYTES, _D, _DONE, _DRAW_CHUNK, _DRAW_N, _DRAW_READY, _DRAW_SEQ,
+    _DRAW_STATE, _ERRORS, _FLOATS_AT, _JOB_BIND, _JOB_N, _JOB_SEQ, _JOB_SHARED, _M, _N, _PATH_AT, _PATH_MAX, _PID,
+    _QUIT, _SLEEPING, _STARTED, _UNIFORMS, _layout, _remove_folder, _views,
 )
 from streamid.engine.batch import BatchEvaluator
 

@@ -19,27 +19,15 @@ a default, and ``"score"``, the highest ``R2_fr``: the online updates' until iss
 same long linear parts on the two-experiment suite but for one seed of one system, docs/engine-results.md.)
 A candidate that is not admissible is never chosen while one is.
 
-Why this rule (``streamid bench --suite``, 12 outputs x 5 seeds, the same runs
-judged by each rule, docs/engine-results.md): counting the centres and widths too
-(``p = M (k + 2)``) took the MR damper's worst seed from 0.980 to 0.970, the heat
-exchanger's median from 0.564 to 0.492 and, with BIC, the robot arm from 0.997 to
-0.29: the searched centres are not free parameters of the free run's fit the way
-the weights are, and penalising them picks networks that are too small. Blocked
-cross-validation and a held-out tail were measured worse in round 2 (MR damper
-0.975). With ``p = M`` the criterion changes the choice only where two sizes free-run
-alike, and then it takes the smaller.
+Why ``p = M`` (and not the centres and widths too), and what the pruning measured: docs/method.md ("Complexity by an
+information criterion", "Pruned networks compete") and docs/engine-results.md.
 
 Pruned networks (``CoEAConfig.prune_runs = K``, 2 by default): the ``K`` best runs by the
 criterion also offer their networks of ``M // 3`` and ``2 M // 3`` neurons, the neurons
 taken in forward-selection order (:func:`ols_order`: orthogonal least squares on the
 estimation data, the classical way of choosing an RBF network's centres) and the
 weights refitted. Each competes with its parent by the same criterion on the estimation
-free run, range guard included (``metrics.neuron_choice``), then the runs as above. A
-coevolution run trains all ``M`` neurons at once; the data often support fewer (a
-pruned 10- or 20-neuron heat-exchanger network free-runs better on the estimation
-record than its 30-neuron parent). Measured (5 seeds): heat exchanger 0.568 / 0.527 ->
-0.610 / 0.541 (median / worst), F-16 accel2 median 0.216 -> 0.246, accel3 worst seed
--0.210 -> 0.049, the MR damper, CSTR, piezo, Bouc-Wen and reactor unchanged.
+free run, range guard included (``metrics.neuron_choice``), then the runs as above.
 
 Every candidate's size, lag space, ``p``, ``R2_fr`` and criterion value are in the
 model's ``metrics.complexity`` and the ``streamid identify`` report.

@@ -2,7 +2,7 @@
 
 The rule (applied by :func:`~streamid.engine.identification.identify` after the complexity choice)
 --------------------------------------------------------------------------------------------
-The runs' candidates after pruning are ranked by the ``complexity`` criterion (AIC on the
+The runs' candidates after pruning are ranked by AIC (on the
 estimation free run, :mod:`streamid.engine.complexity`; ties by run order), the admissible
 ones only. The means of the top 2, the top 3 and all of them (each formed once: with 3
 admissible runs "top 3" and "all" are the same) are candidates too, each scored like a

@@ -49,7 +49,7 @@ from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rn
 from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.complexity import choose as choose_complexity
 from streamid.engine.ensemble_choice import choose_ensemble
-from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
+from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.restarts import report_after, wants_more
 from streamid.engine.fanout import fan_out
 from streamid.engine.feedthrough import direct_terms
@@ -396,8 +396,8 @@ def identify(
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
-        final, refined = refine_weights(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
-                                        threads=_threads(helper))
+        final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
+                                       threads=_threads(helper))
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = final.with_metrics(
         restarts=len(outs),

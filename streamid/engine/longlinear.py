@@ -13,7 +13,7 @@ The rule (:func:`long_linear_choice`, applied by :func:`~streamid.engine.identif
 final choice when ``CoEAConfig.long_linear`` > 0)
 -------------------------------------------------------------------------------------------------
 0. It is tried only on a record the final choice explains in part: its estimation free-run R^2
-   below ``CoEAConfig.more_below`` (0.95), the band where more restarts are made too. Above it
+   below ``settings.MORE_BELOW`` (0.95), the band where more restarts are made too. Above it
    the networks fit the record and a long linear part measured no better on validation: on the
    heat exchanger (estimation R^2 0.99) it was taken in 4 of 5 seeds by the criterion and its
    validation median fell 0.9599 -> 0.9509 (round 12 of docs/engine-results.md).
@@ -21,9 +21,7 @@ final choice when ``CoEAConfig.long_linear`` > 0)
    widths and lags are kept.
 2. The orders offered are ``2, 3, 4, 6, 8, 12, ...`` (doubling, with the midpoints) up to
    ``n_max = min(long_linear, (N / 10 - M - 1) / (1 + n_inputs))`` (``M`` the largest network
-   offered): at least ten rows per parameter (and a design of at most :data:`MAX_DESIGN_BYTES`). On
-   the F-16 (8,192 samples) the rows bind (order 384 of at most 394); with ``long_linear = 256`` the
-   medians were lower on all three outputs (0.904 / 0.871 / 0.804 against 0.924 / 0.906 / 0.869).
+   offered): at least ten rows per parameter (and a design of at most :data:`MAX_DESIGN_BYTES`).
    The linear part of order ``n`` is ``y(t-1..t-n)`` and every input's ``u(t-d..t-n)``, ``d`` 0
    when the base network has an input term at lag 0 (the direct-term test found one), else 1.
 3. Every fit shares the rows ``t >= L`` (``L`` the largest lag of the linear part and of the
@@ -35,35 +33,26 @@ final choice when ``CoEAConfig.long_linear`` > 0)
    unstable one, the autoregression is taken from the linear part fitted alone (the best linear
    approximation of that order, on the same rows and ridge: :meth:`_LinearBlock.with_autoregression`) and
    the network's weights, the input terms and the constant are fitted with it fixed; if that one is
-   unstable too, the order is not offered for that network (evidence: ``autoregression`` in its row). On the
-   F-16 every joint fit had roots of modulus 1.008-1.28 and the linear part alone 0.999: held by the
-   network where the data were, unstable beyond (issue 37, round 2 of docs/engine-results.md: medians
-   0.940 / 0.909 / 0.897 with the joint fits, 0.936 / 0.903 / 0.893 bounded).
+   unstable too, the order is not offered for that network (evidence: ``autoregression`` in its row).
 4. Each order's model free-runs over the estimation record; the range guard of
-   :mod:`streamid.engine.choice` applies, and the order of the lowest ``complexity`` criterion
+   :mod:`streamid.engine.choice` applies, and the order of the lowest AIC
    (``p = M + q + 1``) whose free run explains the record better than its mean
    (:data:`MIN_R2_FR_EST`) and also stays in range when it goes on over the record a second time
    (twice the horizon, and a jump of the input at the seam: a perturbed state) is this rule's
    candidate (:func:`ar_radius` in the evidence).
 5. Every other run whose network was admissible in the final choice is offered a linear part of
    that order too (a network fitted to a short memory is a different nonlinearity; with the
-   memory carried by the linear part, the runs' networks rank differently: on the F-16 the final
-   choice's network was the best of the 8-10 offered under a long linear part in 2 of 15
-   identifications).
-   The lowest criterion among them (the same guards) is the candidate: round 13 of
-   docs/engine-results.md, where the worst seed of the F-16's third output rose 0.822 -> 0.876.
+   memory carried by the linear part, the runs' networks rank differently). The lowest criterion among
+   them (the same guards) is the candidate (round 13 of docs/engine-results.md).
 6. The means of the two and of the three best candidates of steps 4-5 (by the criterion, each
    admissible by the same guards; :data:`MAX_MEAN_OF`) compete with the best: each member runs free on
    its own past outputs and their outputs are averaged (an
    :class:`~streamid.engine.ensemble.EnsembleModel`, ``streamid.model/5``), scored by the same
    criterion with ``p`` the mean of the members' (each member's weights are a least squares on the
    same rows, and a mean of least-squares fits has the mean of their degrees of freedom: the trace of
-   the mean of their hat matrices). Why: on the F-16 the candidates' estimation free runs differ by
-   1e-4 to 1e-3 in R^2 while their validations differ by up to 0.03, so the one taken was a draw
-   among near-ties (the third output's worst seed 0.876 against a median of 0.898). With the means
-   (taken in 5 of the 15 identifications) its worst seed is 0.885 against a median of 0.897, and every
-   output's worst seed is within 0.02 of its median (evidence: ``means``; docs/engine-results.md,
-   round 14).
+   the mean of their hat matrices). Why: candidates whose estimation free runs differ by 1e-4 in R^2 can
+   validate 0.03 apart; the mean of near-ties is steadier than a draw among them (evidence: ``means``;
+   docs/engine-results.md, round 14).
 7. It replaces the final choice only when its criterion is lower than the final choice's (the
    same rule, the final choice's own ``p``), so where the networks explain the record the
    long linear part, with its many parameters, is not taken.

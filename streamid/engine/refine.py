@@ -35,6 +35,13 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   temperature, reactor) or moved by less than 1e-5 (CSTR concentration, piezo) (docs/engine-results.md,
   round 8). 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
 * **Weights stay at their scale:** the error minimised is the free run's plus ``rho |w - w0|^2`` (``RIDGE``).
+* **Judged out of sample** (:func:`refine_judged`, what ``identify`` and the online updates apply; issue 37
+  round 5): the weights are first refined on the first half of the estimation record alone, and the refinement
+  is made (on the whole record) only if that half's refinement free-runs better than the model as it was over the
+  second half, which it was not fitted on. A fit to the free run can follow one excitation's trajectory with
+  weights that extrapolate worse; measured on the two-experiment suite (docs/engine-results.md, "Issue 37, round
+  5") this refused the refinements that took the simulated Bouc-Wen oscillator's sweep from 0.984 to -7.0 and
+  kept those that held (the RLC circuit, the Bouc-Wen benchmark, the MR damper).
 * **Kept only if better:** the refined model's free run over the whole estimation record must
   pass the range guard of :mod:`streamid.engine.choice` and have a higher R^2 than before, and its
   linear part's autoregression must stay stable (:mod:`streamid.engine.stability`: a fit to the free
@@ -50,6 +57,7 @@ randomness.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
@@ -63,8 +71,9 @@ from streamid.engine.stability import is_bounded
 from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
+from streamid.engine.validation import r2
 
-__all__ = ["ABOVE", "DAMPING", "RIDGE", "parts", "refine_weights", "sensitivities"]
+__all__ = ["ABOVE", "DAMPING", "RIDGE", "parts", "refine_judged", "refine_weights", "sensitivities"]
 
 #: Levenberg-Marquardt damping (times the diagonal of J'J): the first, the least, and the most before giving up.
 DAMPING = (1e-2, 1e-4, 1e2)
@@ -277,6 +286,38 @@ def refine_weights(
     osa = refined.predict_osa(u, y)
     ev.update(taken=True, osa_mse_est=float(np.mean((osa[L:] - y[L:]) ** 2)))
     return refined, ev
+
+
+def refine_judged(
+    model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float, range_margin: float,
+    threads: int = 1,
+) -> tuple[Model, dict[str, Any]]:
+    """:func:`refine_weights` judged out of sample (the rule above): refined on the first half of ``(u, y)``, the
+    refinement is made on the whole record only if that half's refined model free-runs better than ``model`` over
+    the second half (both simulated from the record's start, R^2 over the second half). The evidence is
+    :func:`refine_weights`'s with ``held_out`` (samples, and the two R^2 when the half was refined)."""
+    if iterations < 1:
+        return refine_weights(model, u, y, iterations, above, range_margin, threads)
+    h = len(y) // 2
+    half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads)
+    held: dict[str, Any] = {"samples": int(len(y) - h)}
+    if ev_half.get("taken"):
+        before, after = _r2_after(model, u, y, h), _r2_after(half, u, y, h)
+        held.update(r2_fr_before=before, r2_fr_after=after)
+        if after > before:
+            refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads)
+            return refined, {**ev, "held_out": held}
+        reason = f"no gain on the held-out second half (free-run R2 {before:.5f} -> {after:.5f} refined on the first)"
+    else:
+        reason = f"not taken on the first half ({ev_half.get('reason')})"
+    return model, {"gate": float(above), "iterations": 0, "taken": False, "reason": reason, "held_out": held}
+
+
+def _r2_after(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], h: int) -> float:
+    """R^2 of ``model``'s free run over ``(u, y)`` (from its first measured outputs) on the samples from ``h``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        sim = model.simulate(u, y[: model.max_lag])[h:]
+    return r2(y[h:], sim) if np.all(np.isfinite(sim)) else -math.inf
 
 
 def _with(model: Model, theta: NDArray[np.float64]) -> Model:

@@ -25,8 +25,8 @@ def report_after(report: Callable[[list[dict[str, Any]]], None], made: list[dict
 def wants_more(outs: list[dict[str, Any]], cfg: CoEAConfig) -> bool:
     """Whether ``cfg.more_restarts`` more runs are made after ``outs`` (:class:`CoEAConfig`, ``more_restarts``).
 
-    Yes when the best run's score (a free-run R^2: never with ``selection="fitness"``) is in ``(0, more_below)``: the runs explain part of the estimation
-    record but leave more than ``1 - more_below`` of its variance, which is where the estimation data
+    Yes when the best run's score (a free-run R^2: never with ``selection="fitness"``) is in ``(0, MORE_BELOW)``: the runs explain part of the estimation
+    record but leave more than ``1 - MORE_BELOW`` of its variance, which is where the estimation data
     tell the runs apart least reliably, so the choice (and the ensembles of the best runs) gains most
     from a larger field.  Not when no run explains anything (best ``<= 0``: more runs of the same
     networks measured no better there; the ``fallback_neurons`` runs are the remedy), nor when one

@@ -172,8 +172,6 @@ class CoEAConfig:
         With ``restarts > 1``, how the final run is chosen: ``"fr_est"`` the
         highest free-run R^2 on the estimation data (all runs search on all of
         it), ``"fitness"`` the lowest OSA MSE. Validation data are never used.
-        (A held-out tail, ``"holdout_fr"``, and blocked cross-validation, ``"cv_fr"``,
-        were measured and retired in issue 37: docs/engine-results.md, "Issue 37, round 2".)
     search_rows : int
         0: the search's fitness (OSA MSE) uses every row of the estimation data.
         > 0: each run draws this many rows at random (its own generator) and
@@ -190,7 +188,7 @@ class CoEAConfig:
         ``"test"``: decided from the estimation data before the runs (:mod:`streamid.engine.feedthrough`: a
         likelihood-ratio test of the direct terms in a linear ARX model; evidence in ``metrics.feedthrough``;
         the model's configuration then says ``"on"`` or ``"off"``). The first candidate lag is
-        :attr:`min_lag_u`. (Issue 37 round 5 merged ``min_lag_u`` and ``feedthrough_test`` into this.)
+        :attr:`min_lag_u`.
     more_restarts : int
         0: ``restarts`` runs. N > 0: N more runs (new seeds, the same pattern of lag spaces and
         sizes) when the best run's selection score (estimation free-run R^2) lies in
@@ -206,8 +204,7 @@ class CoEAConfig:
         twice the floor ``max(max_lag_y, max_lag_u)`` the odd restarts use ``1..floor`` instead, restart 1 of
         every 4 with ``lag_search_neurons`` neurons (when > 0), and the final choice decides between the two lag
         spaces (a hedge: a long lag space fits some records' estimation data better and their validation data
-        worse). (Issue 37 folded ``lag_alternation`` and ``hedge_neurons`` into this: both were on, at 10 = the
-        lag search's neurons, wherever the lags were chosen from the data.)
+        worse).
     fallback_neurons : tuple of int
         With a free-run selection: when no run has an admissible candidate (every
         free run leaves the data's range or ignores the input), one more run with

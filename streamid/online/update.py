@@ -45,7 +45,7 @@ from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.feedthrough import direct_terms
 from streamid.engine.identification import select_model
 from streamid.engine.longlinear import long_linear_choice
-from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_weights
+from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.settings import MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.recalibrate import recalibrate
@@ -354,8 +354,8 @@ def identify_window(
         if sample is not None:
             model = model.with_metrics(search_rows=sample.evidence())
         if engine_cfg.refine_iterations:  # opt-in online (engine.refine_iterations): the weights fitted to the free run
-            model, refined = refine_weights(model, u_est, y_est, engine_cfg.refine_iterations, REFINE_ABOVE,
-                                            RANGE_MARGIN)
+            model, refined = refine_judged(model, u_est, y_est, engine_cfg.refine_iterations, REFINE_ABOVE,
+                                           RANGE_MARGIN)
             model = model.with_metrics(refinement=refined)
         state = co.state()
         fitness = np.asarray(co.history, dtype=np.float64)
