@@ -10,7 +10,8 @@ the mean of the admissible runs' free runs (each run on its own past outputs, co
     python -m benchmarks.run_spread f16 --seeds 0,1,2 --finished
 
 ``--finished``: each admissible run's model is first given the final stage as if it were the kept one (the long
-linear part when its score is under ``more_below``, then the refinement), and the median and mean are those runs'.
+linear part when its score is under ``MORE_BELOW``, then the refinement judged out of sample), and the median and
+mean are those runs'.
 
 The figures of docs/engine-results.md, "Issue 37, round 3", come from this.
 """

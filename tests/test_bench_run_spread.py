@@ -35,6 +35,8 @@ def test_main_prints_each_seed_and_the_summary(capsys: pytest.CaptureFixture[str
 
 def test_finished_runs_are_given_the_final_stage() -> None:
     t = targets(("reactor_sim",))[0]
-    raw, fin = spread(t, FAST, 3), spread(t, FAST, 3, finish=True)
+    # seed 2: a run whose refinement holds on the estimation record's held-out half (seed 3: none did, since the
+    # refinement is judged out of sample as identify's)
+    raw, fin = spread(t, FAST, 2), spread(t, FAST, 2, finish=True)
     assert raw.kept == fin.kept and raw.runs_est == fin.runs_est  # the same identification
     assert fin.runs_val != raw.runs_val  # the refinement moved the runs' weights
