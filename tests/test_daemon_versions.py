@@ -242,7 +242,8 @@ def test_restart_after_damaged_or_lost_state_never_silences_subscribers(tmp_path
     # lost state: numbering starts over, and the subscribers still take the new life's models
     assert min(u.version for u in third) == 1
     assert seen[-1].origin == third[-1].origin
-    shown = [json.loads(line) for line in wout.splitlines() if line.startswith("{")]
+    shown = [d for d in (json.loads(line) for line in wout.splitlines() if line.startswith("{"))
+             if d.get("format") == "streamid.model-update/1"]  # --json prints status events too
     by_epoch = {d["origin"]["epoch_ns"] for d in shown if d.get("origin")}
     assert {first[0].origin.epoch_ns, second[0].origin.epoch_ns, third[0].origin.epoch_ns} <= by_epoch, werr[-2000:]
     assert any(d["version"] == 1 and d["origin"]["epoch_ns"] == third[0].origin.epoch_ns for d in shown)

@@ -48,9 +48,11 @@ def _models(watch: Proc) -> list[dict[str, Any]]:
     for line in watch.text().splitlines():
         if line.startswith("{"):
             try:
-                docs.append(json.loads(line))
+                doc = json.loads(line)
             except json.JSONDecodeError:  # a line still being written
-                pass
+                continue
+            if doc.get("format") == "streamid.model-update/1":  # --json prints status events too
+                docs.append(doc)
     return docs
 
 
