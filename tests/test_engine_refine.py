@@ -231,6 +231,9 @@ def test_identify_cli_refines_and_reports_it(tmp_path: Path) -> None:
     if ev["taken"]:
         line = f"weights refined to the free run: {ev['iterations']} iterations, FR R2 est {ev['r2_fr_est_before']:.5f} -> "
         assert line in p.stdout and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
+        held = ev["held_out"]  # and the out-of-sample judgement that let it be made
+        assert (f"(held out: refined on the first half, the second half's FR R2 {held['r2_fr_before']:.5f} -> "
+                f"{held['r2_fr_after']:.5f})") in p.stdout and held["r2_fr_after"] > held["r2_fr_before"]
     else:
         assert f"weights refined to the free run: no ({ev['reason']})" in p.stdout
     bad = subprocess.run([sys.executable, "-m", "streamid", "identify", str(data), "--paper", "--refine", "5"],

@@ -152,7 +152,8 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     assert re.fullmatch(r"kept: run 0 \(marked \*; chosen by fr_est on the estimation data\): force_N\(t\) = F\[.+\]", kept)
     assert "caveat" in explained and "caveat:" not in p.stdout  # explained, and the damper's model raises none
     refined = next(ln for ln in p.stdout.splitlines() if ln.startswith("weights refined to the free run: "))
-    assert re.fullmatch(r"weights refined to the free run: \d+ iterations, FR R2 est 0\.\d{5} -> 0\.\d{5}", refined)
+    assert re.fullmatch(r"weights refined to the free run: \d+ iterations, FR R2 est 0\.\d{5} -> 0\.\d{5} \(held out: "
+                        r"refined on the first half, the second half's FR R2 0\.\d{5} -> 0\.\d{5}\)", refined)
     assert "weights refined to the free run" in explained  # the README says what that line means
     direct = next(ln for ln in p.stdout.splitlines() if ln.startswith("direct terms u(t) are "))
     assert re.fullmatch(r"direct terms u\(t\) are (not )?candidates: .+ \(likelihood ratio of u\(t\) in a linear ARX model "

@@ -253,8 +253,11 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w(_long_linear_line(ll, MORE_BELOW))
     rf = made.get("refinement")
     if rf:  # the weights fitted to the free run (streamid.engine.refine)
+        held = rf.get("held_out") or {}
         w("weights refined to the free run: " + (
-            f"{rf['iterations']} iterations, FR R2 est {rf['r2_fr_est_before']:.5f} -> {rf['r2_fr_est_after']:.5f}\n"
+            f"{rf['iterations']} iterations, FR R2 est {rf['r2_fr_est_before']:.5f} -> {rf['r2_fr_est_after']:.5f}"
+            + (f" (held out: refined on the first half, the second half's FR R2 {held['r2_fr_before']:.5f} -> "
+               f"{held['r2_fr_after']:.5f})" if "r2_fr_after" in held else "") + "\n"
             if rf["taken"] else f"no ({rf['reason']})\n"))
     nc = made.get("neuron_choice")
     if nc:  # the chosen run's network against its pruned versions (CoEAConfig.prune)
