@@ -247,7 +247,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         with_lin = sum(m.linear is not None for m in nets)
         w("direct linear part a'r + b: " + (
             ("kept" if with_lin else "not kept") if len(nets) == 1 else f"in {with_lin} of the {len(nets)} networks")
-          + f" (every candidate was offered with and without one, the kind chosen by aic)\n")
+          + " (every candidate was offered with and without one, the kind chosen by aic)\n")
     ll = (cx or {}).get("long_linear")
     if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.longlinear)
         w(_long_linear_line(ll, MORE_BELOW))
@@ -257,7 +257,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
         w("weights refined to the free run: " + (
             f"{rf['iterations']} iterations, FR R2 est {rf['r2_fr_est_before']:.5f} -> {rf['r2_fr_est_after']:.5f}"
             + (f" (held out: refined on the first half, the second half's FR R2 {held['r2_fr_before']:.5f} -> "
-               f"{held['r2_fr_after']:.5f})" if "r2_fr_after" in held else "") + "\n"
+               f"{held['r2_fr_after']:.5f})" if None not in (held.get("r2_fr_before"), held.get("r2_fr_after")) else "") + "\n"
             if rf["taken"] else f"no ({rf['reason']})\n"))
     nc = made.get("neuron_choice")
     if nc:  # the chosen run's network against its pruned versions (CoEAConfig.prune)

@@ -303,7 +303,8 @@ def refine_judged(
     held: dict[str, Any] = {"samples": int(len(y) - h)}
     if ev_half.get("taken"):
         before, after = _r2_after(model, u, y, h), _r2_after(half, u, y, h)
-        held.update(r2_fr_before=before, r2_fr_after=after)
+        held.update({k: v if math.isfinite(v) else None  # JSON: a free run that left the numbers is None
+                     for k, v in (("r2_fr_before", before), ("r2_fr_after", after))})
         if after > before:
             refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads)
             return refined, {**ev, "held_out": held}
