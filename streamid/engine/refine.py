@@ -27,21 +27,15 @@ error, or when one lowers it by less than 1e-4 of itself.
 The rule (applied by :func:`~streamid.engine.identification.identify` after the final choice)
 -----------------------------------------------------------------------------------------
 * **Gate:** refined only when the chosen model's free-run R^2 on the estimation record is at
-  least :data:`ABOVE` (0.8; a ``CoEAConfig`` field, ``refine_above``, until issue 37: never set otherwise). Below it the network's structure does not explain the record, and
-  fitting its weights to the free run fits that structure's error: on the F-16 (estimation free-run
-  R^2 0.20-0.73, validated at another excitation level) refined models validated lower on 11 of 15
-  seeds (accel1 seed 3 0.69 -> -0.19, accel3 seed 1 0.28 -> -0.26), while the suite systems whose
-  chosen models fit above 0.9 gained in median (MR damper, Bouc-Wen, heat exchanger, robot arm, CSTR
-  temperature, reactor) or moved by less than 1e-5 (CSTR concentration, piezo) (docs/engine-results.md,
-  round 8). 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
+  least :data:`ABOVE` (0.8). Below it the network's structure does not explain the record, and fitting its
+  weights to the free run fits that structure's error (the F-16's refined models validated lower on 11 of 15
+  seeds; docs/method.md and docs/engine-results.md, round 8, give the figures).
 * **Weights stay at their scale:** the error minimised is the free run's plus ``rho |w - w0|^2`` (``RIDGE``).
 * **Judged out of sample** (:func:`refine_judged`, what ``identify`` and the online updates apply; issue 37
   round 5): the weights are first refined on the first half of the estimation record alone, and the refinement
   is made (on the whole record) only if that half's refinement free-runs better than the model as it was over the
-  second half, which it was not fitted on. A fit to the free run can follow one excitation's trajectory with
-  weights that extrapolate worse; measured on the two-experiment suite (docs/engine-results.md, "Issue 37, round
-  5") this refused the refinements that took the simulated Bouc-Wen oscillator's sweep from 0.984 to -7.0 and
-  kept those that held (the RLC circuit, the Bouc-Wen benchmark, the MR damper).
+  second half, which it was not fitted on: a fit to one excitation's free run can extrapolate worse
+  (docs/engine-results.md, "Issue 37, round 5").
 * **Kept only if better:** the refined model's free run over the whole estimation record must
   pass the range guard of :mod:`streamid.engine.choice` and have a higher R^2 than before, and its
   linear part's autoregression must stay stable (:mod:`streamid.engine.stability`: a fit to the free
@@ -50,9 +44,8 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   ``metrics.refinement``; a refined model's ``metrics.fitness`` is its one-step MSE on the estimation
   record (``Result.fitness``: the final model's, as for an ensemble).
 
-Not applied by the paper's one-run procedure (``--paper``) nor by the online updates (one warm-started
-run each under a decision-latency budget, :mod:`streamid.online.update`). Numerics only: no I/O, no
-randomness.
+Not applied by the paper's procedure (``--paper``); by the online updates only when asked
+(``engine.refine_iterations``: one run each under a decision-latency budget). Numerics only: no I/O, no randomness.
 """
 
 from __future__ import annotations
@@ -79,12 +72,8 @@ __all__ = ["ABOVE", "DAMPING", "RIDGE", "parts", "refine_judged", "refine_weight
 DAMPING = (1e-2, 1e-4, 1e2)
 
 #: The weights' penalty ``rho * |w - w0|^2`` added to the free-run error, ``rho`` this times the mean diagonal of
-#: J'J at the start. Without it, directions the record hardly constrains (a neuron that barely fires on it,
-#: near-collinear neurons) ran off to weights of 1e4-1e64 whose contributions cancel on the record (7 of 15
-#: MR damper, robot arm and heat exchanger models: a model no one should evaluate off its record). Measured
-#: (docs/engine-results.md, round 8): 1e-6 kept the weights at scale but let Bouc-Wen's seed 2 fall from 0.988
-#: to 0.917 on its sine sweep (refined to the multisine); 1e-4 kept less of the gain (MR damper median 0.9818);
-#: 1e-5 is the one without either loss (Bouc-Wen worst seed 0.987 -> 0.992, MR damper median 0.9823).
+#: J'J at the start. Without it, directions the record hardly constrains ran off to weights of 1e4-1e64 whose
+#: contributions cancel on the record; 1e-5 measured best of 1e-4..1e-6 (docs/engine-results.md, round 8).
 RIDGE = 1e-5
 
 _TRIALS = 4  # free runs per iteration on average, at most (a bound on the work whatever the record)

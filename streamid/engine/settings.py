@@ -157,14 +157,11 @@ class CoEAConfig:
         Fraction of the generations after which the lag population stops
         evolving and every trial is paired with the best harmony (0.5 in the paper).
     lag_search_neurons : int
-        0 (the paper): lags, centres and widths coevolve in one run of
-        ``generations``. > 0: a two-stage run (:func:`~streamid.engine.identification.identify`):
-        first the paper's coevolution with this many neurons for
-        ``generations`` generations, the lag population evolving
-        throughout, chooses the lags; then ``generations`` of DE search the
-        centres and widths of ``neurons`` neurons for those lags. The cheap small
-        network finds the lags; the large one, whose least squares cost grows
-        with ``neurons^2``, is only trained on them.
+        0 (the paper): lags, centres and widths coevolve in one run of ``generations``. > 0: a two-stage run
+        (:func:`~streamid.engine.identification.identify`): the paper's coevolution with this many neurons
+        (its lag population evolving throughout) chooses the lags, then ``generations`` of DE search the centres
+        and widths of ``neurons`` neurons for them (the large network, whose least squares cost grows with
+        ``neurons^2``, is only trained on the lags the cheap one found).
     restarts : int
         Independent coevolution runs made by :func:`~streamid.engine.identification.identify`;
         the final model is chosen among them (see ``selection``).
@@ -190,12 +187,9 @@ class CoEAConfig:
         the model's configuration then says ``"on"`` or ``"off"``). The first candidate lag is
         :attr:`min_lag_u`.
     more_restarts : int
-        0: ``restarts`` runs. N > 0: N more runs (new seeds, the same pattern of lag spaces and
-        sizes) when the best run's selection score (estimation free-run R^2) lies in
-        ``(0, MORE_BELOW)`` (:data:`MORE_BELOW`, 0.95): the record is explained in part, where the estimation data tell the
-        runs apart least reliably and a larger field to choose from (and to average, with
-        ``run_ensembles``) measured steadier (:func:`streamid.engine.restarts.wants_more`).
-        Evidence: ``metrics.more_restarts`` (the runs added).
+        0: ``restarts`` runs. N > 0: N more runs (new seeds, the same pattern of lag spaces and sizes) when the
+        best run's estimation free-run R^2 lies in ``(0, MORE_BELOW)`` (0.95), where the estimation data tell the
+        runs apart least reliably (:func:`streamid.engine.restarts.wants_more`; ``metrics.more_restarts``).
     max_lag_cap : int
         0: candidate lags ``1..max_lag_y`` and ``1..max_lag_u``. > 0 (with restarts or a
         two-stage run, :func:`~streamid.engine.identification.identify`): the maximum lag
@@ -212,13 +206,10 @@ class CoEAConfig:
         network extrapolates less wildly); also while the best run's estimation free-run R^2 is at
         most :data:`FALLBACK_BELOW` (0.5). Empty: the smallest excursion is taken.
     linear_terms : bool
-        False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate model
-        gets a direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same
-        regressors (Chen & Billings' RBF network with linear terms), fitted with ``w`` in
-        one least squares when the candidate's weights are fitted. With ``selection="fr_est"``
-        each candidate is also offered without the linear part (the same centres and widths)
-        and a run keeps the admissible candidate of the lowest AIC (:mod:`streamid.engine.complexity`)
-        (``p`` counts the linear part's ``k + 1`` weights).
+        False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate is offered also with a
+        direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same regressors (Chen & Billings),
+        fitted with ``w`` in one least squares; a run keeps the admissible candidate of the lowest AIC
+        (:mod:`streamid.engine.complexity`; ``p`` counts the linear part's ``k + 1`` weights).
     prune_runs : int
         With ``selection="fr_est"``: 0, each run offers its chosen candidate as is. K > 0,
         the K best runs by AIC also offer their networks of ``M // 3`` and
@@ -227,12 +218,9 @@ class CoEAConfig:
         by AIC on the estimation free run (range guard included), then the runs
         as before. Evidence in ``metrics.neuron_choice`` and ``metrics.complexity``.
     run_ensembles : bool
-        With ``selection="fr_est"`` and several runs: False, the final model is one run's network.
-        True, after that choice the means of the top 2, the top 3 and all admissible runs' networks
-        (ranked by AIC) compete too (:mod:`streamid.engine.ensemble_choice`): each scored
-        on the estimation free run of the mean (every member on its own past outputs), range guard
-        included, ``p`` the mean of the members' weights; one is taken when its criterion is below the
-        single network's (a ``streamid.model/3`` model; evidence in ``metrics.complexity.ensembles``).
+        With ``selection="fr_est"`` and several runs: True, after that choice the means of the top 2, the top 3
+        and all admissible runs' networks (ranked by AIC) compete by AIC on the estimation free run of the mean
+        (:mod:`streamid.engine.ensemble_choice`; a ``streamid.model/3`` model; ``metrics.complexity.ensembles``).
     refine_iterations : int
         0 (the paper): the final model's weights are the search's one-step least squares. N > 0:
         at most N Levenberg-Marquardt iterations fit them to the model's free run on the estimation
