@@ -64,7 +64,7 @@ from streamid.engine.stability import is_bounded
 from streamid.engine.ensemble import EnsembleModel, members_of
 from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
-from streamid.engine.validation import r2
+from streamid.engine.validation import r2_or_none
 
 __all__ = ["ABOVE", "DAMPING", "RIDGE", "parts", "refine_judged", "refine_weights", "sensitivities"]
 
@@ -291,9 +291,8 @@ def refine_judged(
     half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads)
     held: dict[str, Any] = {"samples": int(len(y) - h)}
     if ev_half.get("taken"):
-        before, after = _r2_after(model, u, y, h), _r2_after(half, u, y, h)
-        held.update({k: v if math.isfinite(v) else None  # JSON: a free run that left the numbers is None
-                     for k, v in (("r2_fr_before", before), ("r2_fr_after", after))})
+        held.update(r2_fr_before=_r2_after(model, u, y, h), r2_fr_after=_r2_after(half, u, y, h))  # None: diverged
+        before, after = (-math.inf if held[k] is None else held[k] for k in ("r2_fr_before", "r2_fr_after"))
         if after > before:
             refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads)
             return refined, {**ev, "held_out": held}
@@ -303,11 +302,11 @@ def refine_judged(
     return model, {"gate": float(above), "iterations": 0, "taken": False, "reason": reason, "held_out": held}
 
 
-def _r2_after(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], h: int) -> float:
-    """R^2 of ``model``'s free run over ``(u, y)`` (from its first measured outputs) on the samples from ``h``."""
+def _r2_after(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], h: int) -> float | None:
+    """R^2 of ``model``'s free run over ``(u, y)`` (from its first measured outputs) on the samples from ``h``;
+    None when it diverged (:func:`~streamid.engine.validation.r2_or_none`)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        sim = model.simulate(u, y[: model.max_lag])[h:]
-    return r2(y[h:], sim) if np.all(np.isfinite(sim)) else -math.inf
+        return r2_or_none(y[h:], model.simulate(u, y[: model.max_lag])[h:])
 
 
 def _with(model: Model, theta: NDArray[np.float64]) -> Model:
