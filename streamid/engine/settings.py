@@ -45,13 +45,7 @@ DIRECT_TERMS = ("off", "on", "test")
 SELECTIONS = ("fr_est", "fitness")
 
 
-#: Fields of earlier versions, measured and removed (issue 37): a document naming one is refused with this reason.
-RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
-                  "lag_search_rows", "ensemble", "weight_decay", "linear_search", "lag_search_generations",
-                  "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows",
-                  "ridge", "more_below", "fallback_below", "workers", "min_lag_u", "feedthrough_test", "complexity")
-
-#: Retired fields that something else now says, and what: named in the error that refuses them.
+#: Fields of earlier versions retired in issue 37 that something else now says, and what (named in the refusal).
 REPLACED_BY = {
     "ridge": "the constant streamid.engine.settings.RIDGE (1e-10)",
     "more_below": "the constant streamid.engine.settings.MORE_BELOW (0.95)",
@@ -60,6 +54,12 @@ REPLACED_BY = {
     "min_lag_u": 'direct_terms ("on": u(t) a candidate, min_lag_u 0; "off": min_lag_u 1)',
     "feedthrough_test": 'direct_terms = "test"',
 }
+
+#: Every retired field: those measured not to earn their place, then those something else replaced (above).
+RETIRED_FIELDS = ("holdout_fraction", "cv_folds", "neuron_alternatives", "agree_tol", "linear_alternation",
+                  "lag_search_rows", "ensemble", "weight_decay", "linear_search", "lag_search_generations",
+                  "lag_alternation", "hedge_neurons", "range_margin", "refine_above", "screen_rows", "complexity",
+                  *REPLACED_BY)
 
 
 def retired_message(names: list[str]) -> str:
