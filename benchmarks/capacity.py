@@ -245,9 +245,14 @@ COMMON_VAL_SAMPLES = 20_000
 COMMON_VAL_SEED = 7919
 
 
-def engine_main(n: int, seed: int, mode: str = "offline", record: int = 0) -> None:
+def engine_main(n: int, seed: int, mode: str = "offline", record: int = 0, stream: str = "{}", offset: int = 0,
+                common_samples: int = COMMON_VAL_SAMPLES) -> None:
     """Child process body: one cold identification of ``n`` samples (``mode``: ``online`` update of an ``n``-sample
     window, or ``offline`` ``identify``); prints its JSON figures.
+
+    Online only: ``stream`` is a JSON object of :class:`~streamid.online.StreamConfig` fields changed from the
+    defaults (e.g. ``{"neurons": 20}``, ``{"engine": {"search_rows": 0}}``: every row searched), ``offset`` where the
+    window starts in the record and ``common_samples`` the common validation record's length.
 
     The samples are the start of one record of ``record`` samples (at least what the run needs): the caller passes
     the longest length it compares, so every length's data is the same excitation. The simulator's excitation is
@@ -263,11 +268,14 @@ def engine_main(n: int, seed: int, mode: str = "offline", record: int = 0) -> No
     warm_up_kernels()  # as the daemon does when it starts: the time below is the update's, not the kernels' loading
 
     if mode == "online":
-        _, _, period, recs = _device_records(2000.0, 1, max(record, n) / 2000.0 + 1.0, seed)
-        u, y = recs[0][0][:n].copy(), recs[0][1][:n].copy()
+        _, _, period, recs = _device_records(2000.0, 1, max(record, offset + n) / 2000.0 + 1.0, seed)
+        u, y = recs[0][0][offset:offset + n].copy(), recs[0][1][offset:offset + n].copy()
         del recs
-        cfg = StreamConfig(window_samples=n, update_every_samples=n, max_pending_windows=2, seed=seed,
-                           max_pending_bytes=2**31)
+        changes = json.loads(stream)
+        if "engine" in changes:
+            changes["engine"] = tuple(changes["engine"].items())
+        cfg = StreamConfig(**{"window_samples": n, "update_every_samples": n, "max_pending_windows": 2, "seed": seed,
+                              "max_pending_bytes": 2**31, **changes})
         ident = OnlineIdentifier(cfg, stream="engine")
         ident.learn_many(np.arange(n, dtype=np.int64) * period, u, y, inputs=["v"], outputs=["f"])
         _reset_peak_rss()
@@ -280,7 +288,7 @@ def engine_main(n: int, seed: int, mode: str = "offline", record: int = 0) -> No
         common = float("nan")  # the same record for every length: another excitation of the same damper
         model = up.outcome.model if up is not None else None
         if model is not None:
-            _, _, _, val = _device_records(2000.0, 1, COMMON_VAL_SAMPLES / 2000.0, seed + COMMON_VAL_SEED)
+            _, _, _, val = _device_records(2000.0, 1, common_samples / 2000.0, seed + COMMON_VAL_SEED)
             vu, vy = val[0]
             L = model.max_lag
             with np.errstate(all="ignore"):
@@ -329,9 +337,10 @@ def _reset_peak_rss() -> None:
         pass
 
 
-def engine_length(n: int, seed: int, timeout_s: float, mode: str = "offline", record: int = 0) -> dict[str, Any]:
+def engine_length(n: int, seed: int, timeout_s: float, mode: str = "offline", record: int = 0, stream: str = "{}",
+                  offset: int = 0, common_samples: int = COMMON_VAL_SAMPLES) -> dict[str, Any]:
     """One :func:`engine_main` in a fresh process (skipped when its estimated memory does not fit); ``record``: the
-    length of the record its samples start (the longest length compared)."""
+    length of the record its samples start (the longest length compared); the rest as :func:`engine_main`'s."""
     from streamid.daemon.admission import identification_bytes
     from streamid.online import StreamConfig
 
@@ -339,7 +348,8 @@ def engine_length(n: int, seed: int, timeout_s: float, mode: str = "offline", re
     avail = _mem_available_bytes()
     if need > 0.6 * avail:
         return {"n": n, "skipped": f"needs ~{need >> 20} MiB by the daemon's estimate; {avail >> 20} MiB available"}
-    code = f"from benchmarks.capacity import engine_main; engine_main({n}, {seed}, {mode!r}, {record})"
+    code = (f"from benchmarks.capacity import engine_main; "
+            f"engine_main({n}, {seed}, {mode!r}, {record}, {stream!r}, {offset}, {common_samples})")
     try:
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout_s, check=True)
     except subprocess.TimeoutExpired:
@@ -455,6 +465,14 @@ def _main(argv: list[str]) -> int:
     e.add_argument("--mode", choices=("online", "offline"), default="online")
     e.add_argument("--seeds", type=int, nargs="+", default=[0],
                    help="one run per seed (the seed draws both the device's excitation and the engine's)")
+    e.add_argument("--stream", default="{}", metavar="JSON",
+                   help='online: StreamConfig fields changed, e.g. \'{"neurons": 20}\' or \'{"engine": {"search_rows": 0}}\'')
+    e.add_argument("--offset", type=int, default=0, help="online: where each window starts in its seed's record")
+    e.add_argument("--record", type=int, default=0,
+                   help="the samples of each seed's record the windows are cut from (default: the longest n; the "
+                        "excitation is periodic over its record, so records of other lengths are other excitations)")
+    e.add_argument("--common-samples", type=int, default=COMMON_VAL_SAMPLES,
+                   help=f"online: the common validation record's samples (default {COMMON_VAL_SAMPLES})")
     a = p.parse_args(argv)
     if a.what == "trial":
         r = trial(a.rate_hz, a.streams, a.seconds,
@@ -464,7 +482,8 @@ def _main(argv: list[str]) -> int:
     else:
         for n in a.n:
             for seed in a.seeds:
-                print(json.dumps({"seed": seed, **engine_length(n, seed, a.timeout, a.mode, max(a.n))}), flush=True)
+                r = engine_length(n, seed, a.timeout, a.mode, a.record or max(a.n), a.stream, a.offset, a.common_samples)
+                print(json.dumps({"seed": seed, **r}), flush=True)
     return 0
 
 

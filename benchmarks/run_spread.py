@@ -9,6 +9,12 @@ the mean of the admissible runs' free runs (each run on its own past outputs, co
     python -m benchmarks.run_spread mr_damper_sim --changes '{"centre_bounds": [-1, 1]}'
     python -m benchmarks.run_spread f16 --seeds 0,1,2 --finished
 
+``--cv``: each run's and the kept model's two-fold weights cross-validation beside them (the structure kept, the
+weights refitted on one half of the estimation record, the free run scored on the other; the lower of the two
+folds), the measurement of docs/engine-results.md, "Issue 37, round 6"::
+
+    python -m benchmarks.run_spread piezo_sim,mr_damper_sim,bouc_wen_sim --cv
+
 ``--finished``: each admissible run's model is first given the final stage as if it were the kept one (the long
 linear part when its score is under ``MORE_BELOW``, then the refinement judged out of sample), and the median and
 mean are those runs'.
@@ -32,6 +38,7 @@ from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
 from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
+from streamid.engine.selection import refit_weights
 from streamid.engine.settings import DEFAULT, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.engine.validation import r2
 
@@ -48,6 +55,28 @@ class Spread:
     mean: float
     runs_val: tuple[float, ...]
     runs_est: tuple[float, ...]
+    kept_cv: float = float("nan")
+    runs_cv: tuple[float, ...] = ()
+
+
+def _free_run_r2(model: Model, u: np.ndarray, y: np.ndarray) -> float:
+    """``model``'s free-run R^2 on ``(u, y)`` from its first ``max_lag`` outputs (-inf: it left the numbers)."""
+    L = model.max_lag
+    with np.errstate(all="ignore"):
+        sim = model.simulate(u, y[:L])
+    return r2(y[L:], sim[L:]) if np.all(np.isfinite(sim)) else float("-inf")
+
+
+def two_fold(model: Model, t: Target) -> float:
+    """The lower of ``model``'s two folds: weights refitted on one half of the estimation record (structure kept),
+    free run over the other half."""
+    u, y = t.u_est.reshape(len(t.y_est), -1), t.y_est
+    h = len(y) // 2
+    folds = []
+    for fit, score in ((slice(0, h), slice(h, None)), (slice(h, None), slice(0, h))):
+        half = refit_weights(model, u[fit], y[fit], RIDGE)
+        folds.append(_free_run_r2(half, u[score], y[score]))
+    return min(folds)
 
 
 def finished(model: Model, run: int, score: float, t: Target, cfg: CoEAConfig) -> Model:
@@ -62,9 +91,9 @@ def finished(model: Model, run: int, score: float, t: Target, cfg: CoEAConfig) -
     return model
 
 
-def spread(t: Target, changes: dict[str, object], seed: int, finish: bool = False) -> Spread:
+def spread(t: Target, changes: dict[str, object], seed: int, finish: bool = False, cv: bool = False) -> Spread:
     """One identification of ``t``: per run validation and estimation R², kept model's, median and mean of runs
-    (``finish``: of the runs' :func:`finished` models)."""
+    (``finish``: of the runs' :func:`finished` models; ``cv``: with each model's :func:`two_fold`)."""
     cfg = DEFAULT.replace(**changes)
     res = identify(t.u_est, t.y_est, cfg, seed)
     runs: tuple[Model, ...] = res.extra["run_models"]
@@ -79,7 +108,8 @@ def spread(t: Target, changes: dict[str, object], seed: int, finish: bool = Fals
     if len(paths):
         median = r2(t.y_val[first:], np.median(paths, axis=0)[first:])
         mean = r2(t.y_val[first:], paths.mean(axis=0)[first:])
-    return Spread(free_run_val(res.model, t), median, mean, tuple(free_run_val(m, t) for m in runs), tuple(est))
+    return Spread(free_run_val(res.model, t), median, mean, tuple(free_run_val(m, t) for m in runs), tuple(est),
+                  two_fold(res.model, t) if cv else float("nan"), tuple(two_fold(m, t) for m in runs) if cv else ())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -88,17 +118,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated seeds (default 0-4)")
     ap.add_argument("--changes", default="{}", help="JSON object of CoEAConfig fields changed from the defaults")
     ap.add_argument("--finished", action="store_true", help="combine the runs given the final stage (see above)")
+    ap.add_argument("--cv", action="store_true", help="each model's two-fold weights cross-validation (see above)")
     a = ap.parse_args(argv)
     changes = json.loads(a.changes)
     seeds = [int(s) for s in a.seeds.split(",")]
     for t in targets(tuple(a.systems.split(","))):
         rows = []
         for s in seeds:
-            o = spread(t, changes, s, a.finished)
+            o = spread(t, changes, s, a.finished, a.cv)
             rows.append(o)
+            cv = (f"; two-fold kept {o.kept_cv:.4g}, runs {' '.join(f'{v:.4g}' for v in o.runs_cv)}"
+                  if a.cv else "")
             print(f"{t.name} seed {s}: kept {o.kept:.4g}, median of runs {o.median:.4g}, mean {o.mean:.4g}; "
                   f"runs val {' '.join(f'{v:.4g}' for v in o.runs_val)} "
-                  f"(est {' '.join(f'{v:.4g}' for v in o.runs_est)})", flush=True)
+                  f"(est {' '.join(f'{v:.4g}' for v in o.runs_est)}){cv}", flush=True)
         for key in ("kept", "median", "mean"):
             v = [float(getattr(o, key)) for o in rows]
             print(f"{t.name}: {key} median {statistics.median(v):.4g} worst {min(v):.4g}", flush=True)

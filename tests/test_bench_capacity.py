@@ -6,7 +6,10 @@ engine on a 2,000-sample record. The figures themselves are the bench's (docs/be
 
 from __future__ import annotations
 
+import json
 import math
+
+import pytest
 
 from benchmarks.capacity import CapacityPlan, capacity_measurements
 from benchmarks.command import BUILTIN_PROVIDERS, ON_REQUEST, section_names
@@ -51,3 +54,18 @@ def test_a_tiny_capacity_run_gives_every_row() -> None:
     assert ("offline identify, 2000 samples (2 kHz MR damper, online settings)", "R2 FR common record") not in by
     refresh = [m for m in rows if m.metric == "time per new sample"]
     assert len(refresh) == 1 and 0 < refresh[0].median < 1000  # microseconds (a sanity bound, not a timing claim)
+
+
+def test_engine_lengths_take_stream_changes_an_offset_and_the_common_records_length(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from benchmarks.capacity import _main
+
+    args = ["engine", "2000", "--seeds", "1", "--record", "6000", "--common-samples", "4000"]
+    assert _main(args) == 0
+    base = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert _main([*args, "--stream", '{"neurons": 3, "cold_generations": 5}', "--offset", "3000"]) == 0
+    small = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert base["kind"] and small["kind"] and base["seed"] == small["seed"] == 1
+    assert small["r2_fr_common"] != base["r2_fr_common"]  # another window, another network: another model
+    assert _main([*args, "--stream", '{"neurons": 0}']) == 0  # a bad change: the child's error, reported
+    assert "skipped" in json.loads(capsys.readouterr().out.strip().splitlines()[-1])

@@ -40,3 +40,22 @@ def test_finished_runs_are_given_the_final_stage() -> None:
     raw, fin = spread(t, FAST, 2), spread(t, FAST, 2, finish=True)
     assert raw.kept == fin.kept and raw.runs_est == fin.runs_est  # the same identification
     assert fin.runs_val != raw.runs_val  # the refinement moved the runs' weights
+
+
+def test_two_fold_refits_the_weights_on_one_half_and_scores_the_other() -> None:
+    from benchmarks.run_spread import two_fold
+    from streamid.engine.selection import refit_weights
+    from streamid.engine.settings import RIDGE
+    from streamid.engine.validation import r2
+
+    t = targets(("reactor_sim",))[0]
+    o = spread(t, FAST, 3, cv=True)
+    res = identify(t.u_est, t.y_est, DEFAULT.replace(**FAST), 3)
+    assert o.kept_cv == two_fold(res.model, t) and len(o.runs_cv) == len(o.runs_val)
+    u, y, h = t.u_est.reshape(len(t.y_est), -1), t.y_est, len(t.y_est) // 2
+    m = res.model
+    first = refit_weights(m, u[:h], y[:h], RIDGE)  # fold 1 by hand: fitted on the first half, run over the second
+    L = m.max_lag
+    fold1 = r2(y[h:][L:], first.simulate(u[h:], y[h:][:L])[L:])
+    assert o.kept_cv <= fold1 and o.kept_cv <= 1.0
+    assert spread(t, FAST, 3).runs_cv == ()  # only when asked

@@ -234,7 +234,9 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
                    "linear_search": True, "lag_search_generations": 100, "lag_alternation": True, "hedge_neurons": 10,
                    "range_margin": 0.25, "screen_rows": False,
                    # round 5: constants of the engine now (settings.RIDGE, FALLBACK_BELOW) or identify's argument
-                   "ridge": 1e-10, "fallback_below": 0.5, "workers": 1, "complexity": "aic"}
+                   "ridge": 1e-10, "fallback_below": 0.5, "workers": 1, "complexity": "aic",
+                   # round 6: the paper's constant settings.HARMONY_STOP
+                   "harmony_stop": 0.5}
         assert want["config"]["generations"] == 100 and want["config"]["lag_search_neurons"] == 10
         assert {k: want["config"].pop(k) for k in retired} == retired
         assert want["metrics"].pop("holdout_samples") == 0 and want["metrics"].pop("restarts_skipped") == []

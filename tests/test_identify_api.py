@@ -143,3 +143,21 @@ def test_retired_fields_are_refused_with_the_reason() -> None:
         CoEAConfig.from_dict({**DEFAULT.to_dict(), "agree_tol": 0.01})
     with pytest.raises(ConfigError, match=r"selection must be one of \['fr_est', 'fitness'\]; got 'holdout_fr'"):
         CoEAConfig(selection="holdout_fr")
+
+
+def test_harmony_stop_is_a_constant_of_the_method_and_an_argument_of_one_run() -> None:
+    from streamid.engine import DEFAULT, CoEAConfig, Coevolution
+    from streamid.engine.settings import HARMONY_STOP
+    from streamid.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"CoEAConfig\.harmony_stop was retired in issue 37: use the constant "
+                                          r"streamid\.engine\.settings\.HARMONY_STOP \(0\.5, the paper's"):
+        CoEAConfig.from_dict({**DEFAULT.to_dict(), "harmony_stop": 0.5})
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(200)
+    y = np.convolve(u, [0.0, 0.5, 0.3])[:200]
+    cfg = CoEAConfig(neurons=3, max_lag_y=2, max_lag_u=2, generations=10)
+    assert HARMONY_STOP == 0.5 and Coevolution(u, y, cfg, 0).stop == 5  # the paper's: lags evolve half the run
+    assert Coevolution(u, y, cfg, 0, harmony_stop=1.0).stop == 10  # a lag stage: throughout
+    with pytest.raises(ConfigError, match=r"harmony_stop must be a fraction of the generations in \[0, 1\]; got 1\.5"):
+        Coevolution(u, y, cfg, 0, harmony_stop=1.5)

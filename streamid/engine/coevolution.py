@@ -18,7 +18,7 @@ The run, as streamid implements it
   warm start the previous populations are re-evaluated on the new data instead:
   ``X`` with the previous best harmony, ``H`` with the previous best parameters.
 * Generation ``g`` (0-based, ``G`` in all): HMCR/PAR from the schedule; a DE
-  trial for every member of ``X``; while ``g < round(harmony_stop * G)`` trial
+  trial for every member of ``X``; while ``g < round(harmony_stop * G)`` (the paper's 0.5, ``HARMONY_STOP``) trial
   ``i`` is paired with newly improvised harmony ``i``, afterwards with the best
   harmony (``H`` stops evolving); the P pairs are evaluated at once; DE
   selection for ``X``, memory update for ``H``.
@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine import de, harmony
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.fanout import thread_map
-from streamid.engine.settings import RIDGE, CoEAConfig
+from streamid.engine.settings import HARMONY_STOP, RIDGE, CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.batch import BatchEvaluator
@@ -106,6 +106,9 @@ class Coevolution:
         The search's fitness uses only these rows of the regressor matrix (row
         ``k`` is time ``max_lag + k``): a large record searched on a sample of
         its rows. Models (:meth:`model_for`) are still fitted on every row.
+    harmony_stop : float
+        Fraction of the generations after which the lags stop evolving and every trial is paired with the best
+        harmony (the paper's 0.5, :data:`~streamid.engine.settings.HARMONY_STOP`; a two-stage run's lag stage: 1.0).
 
     Raises
     ------
@@ -130,8 +133,11 @@ class Coevolution:
         normalisation: Normalisation | None = None,
         helper: EvalHelper | None = None,
         rows: NDArray[np.intp] | None = None,
+        harmony_stop: float = HARMONY_STOP,
     ) -> None:
         cfg = CoEAConfig() if config is None else config
+        if isinstance(harmony_stop, bool) or not isinstance(harmony_stop, (int, float)) or not 0 <= harmony_stop <= 1:
+            raise ConfigError(f"harmony_stop must be a fraction of the generations in [0, 1]; got {harmony_stop!r}")
         if not isinstance(cfg, CoEAConfig):
             raise ConfigError(f"config must be a CoEAConfig; got {type(cfg).__name__}")
         self.config = cfg
@@ -176,7 +182,7 @@ class Coevolution:
         self.lo = np.concatenate([np.full(M * self.D, cfg.centre_bounds[0]), np.full(M, cfg.width_bounds[0])])
         self.hi = np.concatenate([np.full(M * self.D, cfg.centre_bounds[1]), np.full(M, cfg.width_bounds[1])])
         self.generations = cfg.generations
-        self.stop = int(round(cfg.harmony_stop * cfg.generations))
+        self.stop = int(round(float(harmony_stop) * cfg.generations))
         self.g = 0
         self.evaluations = 0
         self.history: list[float] = []

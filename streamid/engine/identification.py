@@ -164,12 +164,11 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     n_rows = len(y) - cfg.max_lag
     if cfg.search_rows and n_rows > cfg.search_rows:  # a large record: the search sees a random sample of rows
         common["rows"] = np.sort(rng.choice(n_rows, cfg.search_rows, replace=False))
-    evaluations = 0
-    lag_rule = "search"
+    evaluations, lag_rule = 0, "search"
     if cfg.lag_search_neurons and warm is None:
         # Two-stage run: a small network's coevolution chooses the lags...
-        lag_cfg = cfg.replace(neurons=cfg.lag_search_neurons, harmony_stop=1.0)  # RBF-only, as every search
-        lag_run = Coevolution(u, y, lag_cfg, rng, **common).solve(_stage(tick, 0, 0))
+        lag_cfg = cfg.replace(neurons=cfg.lag_search_neurons)  # RBF-only, as every search; its lags evolve throughout
+        lag_run = Coevolution(u, y, lag_cfg, rng, harmony_stop=1.0, **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.lagspace)...
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,

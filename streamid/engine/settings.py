@@ -38,6 +38,10 @@ FALLBACK_BELOW = 0.5
 #: at least this; 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
 REFINE_ABOVE = 0.8
 
+#: The fraction of a run's generations after which its lags stop evolving (the paper's 0.5; no preset, stream or
+#: measurement set another value; the lag stage of a two-stage run evolves them throughout: ``harmony_stop=1.0``).
+HARMONY_STOP = 0.5
+
 #: Values of ``CoEAConfig.direct_terms``: the inputs' direct terms u(t) never, always or by a test of the data.
 DIRECT_TERMS = ("off", "on", "test")
 
@@ -53,6 +57,8 @@ REPLACED_BY = {
     "workers": "identify(..., workers=N) (how the restarts are run, not a setting of the method)",
     "min_lag_u": 'direct_terms ("on": u(t) a candidate, min_lag_u 0; "off": min_lag_u 1)',
     "feedthrough_test": 'direct_terms = "test"',
+    "harmony_stop": "the constant streamid.engine.settings.HARMONY_STOP (0.5, the paper's; "
+                    "Coevolution(..., harmony_stop=F) for one run)",
 }
 
 #: Every retired field: those measured not to earn their place, then those something else replaced (above).
@@ -116,11 +122,10 @@ _INT_RANGES: dict[str, tuple[int, int | None]] = {
 }
 #: Number fields: (low, high, whether low itself is refused).
 _FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
-    "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf", "harmony_stop")},
+    "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf")},
 }
 #: Fields that must be true or false.
-_BOOL_FIELDS = ("linear_terms", "run_ensembles",
-                "require_input")
+_BOOL_FIELDS = ("linear_terms", "run_ensembles", "require_input")
 
 
 @dataclass(frozen=True)
@@ -153,9 +158,6 @@ class CoEAConfig:
         linearly from the initial to the final value over the generations.
     centre_bounds, width_bounds : tuple of float
         Search ranges of the centres and widths (normalised units).
-    harmony_stop : float
-        Fraction of the generations after which the lag population stops
-        evolving and every trial is paired with the best harmony (0.5 in the paper).
     lag_search_neurons : int
         0 (the paper): lags, centres and widths coevolve in one run of ``generations``. > 0: a two-stage run
         (:func:`~streamid.engine.identification.identify`): the paper's coevolution with this many neurons
@@ -254,7 +256,6 @@ class CoEAConfig:
     parf: float = 0.9
     centre_bounds: tuple[float, float] = (-4.0, 4.0)
     width_bounds: tuple[float, float] = (0.01, 20.0)
-    harmony_stop: float = 0.5
     lag_search_neurons: int = 0
     restarts: int = 1
     selection: str = "fitness"
@@ -288,19 +289,16 @@ class CoEAConfig:
         if self.direct_terms not in DIRECT_TERMS:
             raise ConfigError(f"CoEAConfig.direct_terms must be one of {list(DIRECT_TERMS)}; got {self.direct_terms!r}")
         if 0 < self.search_rows < 2 * self.neurons:
-            raise ConfigError(
-                f"CoEAConfig.search_rows must be 0 (all rows) or >= 2 * neurons = {2 * self.neurons}; got {self.search_rows}"
-            )
+            raise ConfigError(f"CoEAConfig.search_rows must be 0 (all rows) or >= 2 * neurons = {2 * self.neurons}; "
+                              f"got {self.search_rows}")
         fb = self.fallback_neurons
         if not (isinstance(fb, (tuple, list)) and len(fb) <= 10
                 and all(isinstance(m, int) and not isinstance(m, bool) and 1 <= m <= 1000 for m in fb)):
             raise ConfigError(f"CoEAConfig.fallback_neurons must be a tuple of at most 10 integers in [1, 1000]; got {fb!r}")
         object.__setattr__(self, "fallback_neurons", tuple(fb))
         if self.max_lag_cap and self.max_lag_cap < max(self.max_lag_y, self.max_lag_u):
-            raise ConfigError(
-                f"CoEAConfig.max_lag_cap must be 0 (lags 1..max_lag_y/max_lag_u as given) or >= "
-                f"max(max_lag_y, max_lag_u) = {max(self.max_lag_y, self.max_lag_u)} (the floor); got {self.max_lag_cap}"
-            )
+            raise ConfigError(f"CoEAConfig.max_lag_cap must be 0 (lags 1..max_lag_y/max_lag_u as given) or >= max(max_lag_y, "
+                              f"max_lag_u) = {self.max_lag} (the floor); got {self.max_lag_cap}")
 
     @property
     def min_lag_u(self) -> int:
