@@ -291,6 +291,6 @@ def test_the_penalty_keeps_the_weights_at_the_searchs_scale(monkeypatch: pytest.
     out, ev = refine_weights(model, t.u_est, t.y_est, 10, 0.8, 0.25)
     assert ev["taken"] is True and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
     assert max(float(np.abs(m.weights).max()) for m in members_of(out)) <= 2.0 * scale
-    monkeypatch.setattr(refine, "RIDGE", 0.0)  # the same refinement without it: what the penalty prevents
+    monkeypatch.setattr(refine, "WEIGHT_PENALTY", 0.0)  # the same refinement without it: what the penalty prevents
     loose, _ = refine.refine_weights(model, t.u_est, t.y_est, 10, 0.8, 0.25)
     assert max(float(np.abs(m.weights).max()) for m in members_of(loose)) > 1e6 * scale

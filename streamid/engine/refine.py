@@ -30,7 +30,7 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   least :data:`ABOVE` (0.8). Below it the network's structure does not explain the record, and fitting its
   weights to the free run fits that structure's error (the F-16's refined models validated lower on 11 of 15
   seeds; docs/method.md and docs/engine-results.md, round 8, give the figures).
-* **Weights stay at their scale:** the error minimised is the free run's plus ``rho |w - w0|^2`` (``RIDGE``).
+* **Weights stay at their scale:** the error minimised is the free run's plus ``rho |w - w0|^2`` (``WEIGHT_PENALTY``).
 * **Judged out of sample** (:func:`refine_judged`, what ``identify`` and the online updates apply; issue 37
   round 5): the weights are first refined on the first half of the estimation record alone, and the refinement
   is made (on the whole record) only if that half's refinement free-runs better than the model as it was over the
@@ -66,7 +66,7 @@ from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
 from streamid.engine.validation import r2_or_none
 
-__all__ = ["ABOVE", "DAMPING", "RIDGE", "parts", "refine_judged", "refine_weights", "sensitivities"]
+__all__ = ["ABOVE", "DAMPING", "WEIGHT_PENALTY", "parts", "refine_judged", "refine_weights", "sensitivities"]
 
 #: Levenberg-Marquardt damping (times the diagonal of J'J): the first, the least, and the most before giving up.
 DAMPING = (1e-2, 1e-4, 1e2)
@@ -74,7 +74,7 @@ DAMPING = (1e-2, 1e-4, 1e2)
 #: The weights' penalty ``rho * |w - w0|^2`` added to the free-run error, ``rho`` this times the mean diagonal of
 #: J'J at the start. Without it, directions the record hardly constrains ran off to weights of 1e4-1e64 whose
 #: contributions cancel on the record; 1e-5 measured best of 1e-4..1e-6 (docs/engine-results.md, round 8).
-RIDGE = 1e-5
+WEIGHT_PENALTY = 1e-5
 
 _TRIALS = 4  # free runs per iteration on average, at most (a bound on the work whatever the record)
 
@@ -223,7 +223,7 @@ def refine_weights(
         return model, {**ev, "reason": f"estimation free-run R2 {score:.4f} below the gate {above}"}
     w0 = np.concatenate(W)
     A = J.T @ J
-    rho = RIDGE * max(float(np.mean(np.diag(A))), 1e-300)  # the weights' penalty (RIDGE: why)
+    rho = WEIGHT_PENALTY * max(float(np.mean(np.diag(A))), 1e-300)  # the weights' penalty (WEIGHT_PENALTY: why)
     eye = np.eye(w0.size)
 
     def objective(mean_run: NDArray[np.float64], w: NDArray[np.float64]) -> float:
