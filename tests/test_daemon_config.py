@@ -132,6 +132,7 @@ def test_print_config_is_every_effective_setting_as_toml_read_back_the_same(tmp_
     import sys
 
     from streamid.daemon.config import to_toml
+    from streamid.online.rows import search_row_bound
 
     src = tmp_path / "c.toml"
     src.write_text('[daemon]\nstreams = ["a", "b"]\nworkers = 2\n[streams.a]\nwindow_s = 0.5\n'
@@ -148,10 +149,26 @@ def test_print_config_is_every_effective_setting_as_toml_read_back_the_same(tmp_
     assert reread.workers == 2 and reread.streams == ("a", "b")
     assert reread.for_stream("a").coea_config(cold=True) == config.for_stream("a").coea_config(cold=True)
     assert reread.for_stream("a").window_params() == config.for_stream("a").window_params()
+    for name in ("a", "b"):  # the search's row bound too (an engine key online): unset, the default bound
+        before, after = (dict(c.for_stream(name).engine) for c in (config, reread))
+        assert "search_rows" not in after and search_row_bound(10, 10, 10, 1, after) == 4096
+        assert search_row_bound(10, 10, 10, 2, after) == search_row_bound(10, 10, 10, 2, before) == 128 * 41
+    assert "# search_rows: the default bound, max(4096, 128 (neurons + D + 1)) rows" in text
     assert to_toml(reread) == text  # a fixed point
     out = subprocess.run([sys.executable, "-m", "streamid", "daemon", "--config", str(src), "--print-config"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout == text, out.stderr
+
+
+def test_a_row_bound_set_for_a_stream_is_printed_and_read_back() -> None:
+    import tomllib
+
+    from streamid.daemon.config import config_from_mapping, to_toml
+
+    cfg = config_from_mapping({"streams": {"fast": {"engine": {"search_rows": 0}}, "slow": {}}})
+    back = config_from_mapping(tomllib.loads(to_toml(cfg)))
+    assert dict(back.for_stream("fast").engine)["search_rows"] == 0  # every row, as set
+    assert "search_rows" not in dict(back.for_stream("slow").engine)  # the default bound, as before
 
 
 def test_the_refresh_policy_is_a_table_per_stream_and_round_trips() -> None:

@@ -403,6 +403,8 @@ def _stream_table(cfg: StreamConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     order = [f.name for f in fields(StreamConfig)]
     plain = {k: plain[k] for k in sorted(plain, key=order.index)}
     engine = cfg.coea_config(cold=True).to_dict()
+    if "search_rows" not in dict(cfg.engine):  # online it is the search's row bound (streamid.online.rows), whose
+        del engine["search_rows"]  # default depends on the inputs the data bring: printed, 0 would mean every row
     return plain, {k: v for k, v in engine.items() if k not in ENGINE_RESERVED and v is not None}
 
 
@@ -417,5 +419,8 @@ def to_toml(config: DaemonConfig) -> str:
         plain, engine = _stream_table(cfg)
         lines += ["", f"[{name}]", *(f"{k} = {_toml_value(v)}" for k, v in plain.items())]
         lines += ["", f"[{name}.engine]", *(f"{k} = {_toml_value(v)}" for k, v in engine.items())]
+        if "search_rows" not in engine:
+            lines.append("# search_rows: the default bound, max(4096, 128 (neurons + D + 1)) rows, "
+                         "D = max_lag_y + inputs x max_lag_u (0: every row)")
         lines += ["", f"[{name}.refresh]", *(f"{k} = {_toml_value(v)}" for k, v in cfg.refresh.to_dict().items())]
     return "\n".join(lines) + "\n"
