@@ -29,8 +29,10 @@ Memory of one stream
         (their paths and one working copy), ``2 C + i + 4``; the chosen one's regressors and
         activations for its refit beside the paths, ``C + D + M + 4``; and, when that refit
         leaves the data's range, the selection's fallback (:func:`~streamid.engine.selection.select_model`
-        fits every candidate on every row), the activations of all of them, ``C M + 2 D + 2``;
-        times ``m``;
+        fits every candidate on every row), the activations of all of them, ``C M + 2 D + 2``; and, when the
+        updates refine (:func:`~streamid.engine.refine.refine_judged`, the default), the refinement's input terms,
+        free run and Jacobians over the output weights (``M``, and ``D + 1`` more with ``linear_terms``),
+        ``5 M + 8`` (``5 M + 4 D + 12``); times ``m``;
       - the blocks of those passes (:mod:`streamid.engine.rbf`: a streamed QR of
         ``FIT_BLOCK_ROWS`` rows, activations of ``BLOCK_ROWS``), the larger of
         ``4 min(m, 16384) (M + D + 1)`` and ``2 min(m, 8192) M D``;
@@ -65,7 +67,7 @@ from collections.abc import Callable, Mapping, Sized
 from streamid.engine.longlinear import ROWS_PER_PARAMETER
 from streamid.engine.rbf import BLOCK_ROWS, FIT_BLOCK_ROWS
 from streamid.online.rows import search_row_bound
-from streamid.online.stream_config import ONLINE_LONG_LINEAR, ONLINE_SELECTION, StreamConfig
+from streamid.online.stream_config import ONLINE_LONG_LINEAR, ONLINE_REFINE, ONLINE_SELECTION, StreamConfig
 from streamid.online.update import LONG_LINEAR_DESIGN_BYTES
 from streamid.wire.codec import SampleBatch
 
@@ -97,7 +99,9 @@ def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: Str
     cands = (min(p, int(fr)) if fr else p) + 1
     search = k * (p * (d + m_neurons + 4) + 4 * d + 2) + 2 * p * m_neurons * (d + 1)
     data = n * c + n + 2 * n_est * (i + 1) + rows * d
-    passes = rows * max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2)
+    lin = d + 1 if engine.get("linear_terms", False) else 0  # a linear part's weights (refined with the network's)
+    refine = 5 * m_neurons + 4 * lin + 8 if engine.get("refine_iterations", ONLINE_REFINE) else 0
+    passes = rows * max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2, refine)
     blocks = max(4 * min(rows, FIT_BLOCK_ROWS) * (m_neurons + d + 1), 2 * min(rows, BLOCK_ROWS) * m_neurons * d)
     return 8 * (data + search + passes + blocks + _long_linear(n_est, i, cfg, engine))
 

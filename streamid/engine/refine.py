@@ -44,8 +44,8 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   ``metrics.refinement``; a refined model's ``metrics.fitness`` is its one-step MSE on the estimation
   record (``Result.fitness``: the final model's, as for an ensemble).
 
-Not applied by the paper's procedure (``--paper``); by the online updates only when asked
-(``engine.refine_iterations``: one run each under a decision-latency budget). Numerics only: no I/O, no randomness.
+Not applied by ``--paper``; applied to each online coevolution run's model (``streamid.online.stream_config.
+ONLINE_REFINE``; ``engine.refine_iterations = 0``: off). Numerics only: no I/O, no randomness.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ from streamid.errors import ConfigError
 from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.window_types import DEFAULT_MAX_PENDING_S, MAX_PENDING_WINDOWS, WindowParams
 
-__all__ = ["StreamConfig", "ONLINE_LONG_LINEAR", "ONLINE_SELECTION", "ONLINE_SELECTIONS", "ENGINE_RESERVED"]
+__all__ = ["StreamConfig", "ONLINE_LONG_LINEAR", "ONLINE_REFINE", "ONLINE_SELECTION", "ONLINE_SELECTIONS",
+           "ENGINE_RESERVED"]
 
 #: How an update may choose the model of its run (``engine.selection``).
 ONLINE_SELECTIONS = ("fitness", "fr_est")
@@ -35,6 +36,13 @@ ONLINE_SELECTION = "fr_est"
 #: 0.571 / 0.042 / 0.154 -> 0.882 / 0.893 / 0.900; the simulated damper's drift sweep unchanged (32 of 32 within 3 s).
 #: 0: off.
 ONLINE_LONG_LINEAR = 512
+#: The online default of ``engine.refine_iterations``: each coevolution run's model has its weights fitted to its free
+#: run, judged out of sample (:func:`streamid.engine.refine.refine_judged`: refined on the first half of the window's
+#: estimation part, made only if that free-runs better over the second half); as offline. Measured
+#: (docs/benchmarks.md, "Online refinement"): 2 kHz damper windows scored on a common record of another excitation,
+#: 30 seeds, every seed better (10,000 samples: median 0.9297 -> 0.9397; 100,000: 0.9253 -> 0.9362) for 0.06-0.3 s
+#: more per update; the drift sweep unchanged (30 of 32 detected within 3 s, 32 new champions within 5 s). 0: off.
+ONLINE_REFINE = 10
 # Fields of CoEAConfig the daemon sets itself (generations: cold/warm; restarts: warm starts need one run).
 ENGINE_RESERVED = ("generations", "restarts", "neurons", "max_lag_y", "max_lag_u", "population")
 
@@ -114,10 +122,8 @@ class StreamConfig:
         free run explains less than 95 % of a window, a dense linear ARX part longer than its lags competes.
         ``run_ensembles`` has no
         effect online: an update is one run (warm starts need one), never a mean of runs (K x its time: piezo 0.5 s).
-        ``refine_iterations`` (0 online unless set here) fits each update's weights to its free run
-        (:mod:`streamid.engine.refine`); measured on the drift sweep (32 seeds, with ``selection = "fitness"`` and
-        the CUSUM's ``h`` 6 of then): new champions within 5 s in 32 (31 without), detections within 3 s in 30
-        (31 without), slowest 4.6 s (11.6 s without).
+        ``refine_iterations`` is 10 online unless set here (:data:`ONLINE_REFINE`; 0: off): each coevolution
+        run's weights are fitted to its free run, judged out of sample (:mod:`streamid.engine.refine`).
         ``direct_terms = "test"`` (off online unless set here) offers ``u(t)`` to a cold run whose window shows a
         response within the sample (:mod:`streamid.engine.feedthrough`; warm runs keep their populations'
         candidates); measured on the bundled MR damper log, x4 at max speed, every window: published models'
@@ -214,7 +220,8 @@ class StreamConfig:
             max_lag_u=self.max_lag_u,
             population=self.population,
             generations=generations or (self.cold_generations if cold else self.warm_generations),
-            **{"selection": ONLINE_SELECTION, "long_linear": ONLINE_LONG_LINEAR, **dict(self.engine)},
+            **{"selection": ONLINE_SELECTION, "long_linear": ONLINE_LONG_LINEAR, "refine_iterations": ONLINE_REFINE,
+               **dict(self.engine)},
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -353,7 +353,7 @@ def identify_window(
             model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
         if sample is not None:
             model = model.with_metrics(search_rows=sample.evidence())
-        if engine_cfg.refine_iterations:  # opt-in online (engine.refine_iterations): the weights fitted to the free run
+        if engine_cfg.refine_iterations:  # the weights fitted to the free run, judged out of sample (ONLINE_REFINE)
             model, refined = refine_judged(model, u_est, y_est, engine_cfg.refine_iterations, REFINE_ABOVE,
                                            RANGE_MARGIN)
             model = model.with_metrics(refinement=refined)
