@@ -54,7 +54,13 @@ Time of one identification
     ``identification_timeouts`` and reported as a failed update
     (``code = "timeout"``).  One generation is bounded by the memory bound:
     its work is a few passes over the feature table and activations, the
-    bytes above.
+    bytes above.  The stages after the search are not polled; each is a
+    bounded number of passes over the estimation rows: the candidates' free
+    runs (one batched pass), the chosen one's refit, the long linear part's
+    trial (a few orders), and the refinement (at most 2 x 10 iterations x 4
+    trial free runs with their sensitivities, first on half the rows): a
+    cold update of the 20 kHz piezo's 200,000-sample window, refinement
+    included, took at most 1.74 s (docs/benchmarks.md, "Online refinement").
 """
 
 from __future__ import annotations
