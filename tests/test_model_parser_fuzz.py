@@ -327,3 +327,12 @@ def test_watch_lines_say_why_and_escape_what_came_from_the_network() -> None:
     ll = replace(net, linear=np.zeros(len(lregs) + 1), linear_regressors=lregs)
     line = format_update(parse_model_update(encode_json(_doc(14, model=ll.to_dict()))))
     assert f"force_N(t) = F[{net.lags_text()}] + linear ARX part of order 24 R2 val" in line, line
+    # a refined model says so, with the held-out half's figures that let it (and nothing odd from the network breaks it)
+    held = {"samples": 2100, "r2_fr_before": 0.9352, "r2_fr_after": 0.9438}
+    refined = replace(net, metrics={**net.metrics, "refinement": {"taken": True, "held_out": held}})
+    line = format_update(parse_model_update(encode_json(_doc(15, model=refined.to_dict()))))
+    assert line.startswith("bench1 v15 warm G=30 refined (held out FR 0.9352 -> 0.9438) force_N(t) = F["), line
+    for odd in ({"taken": "yes"}, {"taken": True, "held_out": [1]}, "refined", {"taken": False}):
+        m = replace(net, metrics={**net.metrics, "refinement": odd})
+        line = format_update(parse_model_update(encode_json(_doc(16, model=m.to_dict()))))
+        assert ("refined (held out FR n/a -> n/a)" in line) == (odd == {"taken": True, "held_out": [1]}), (odd, line)

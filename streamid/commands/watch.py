@@ -90,13 +90,20 @@ def decision_text(up: Any) -> str:
 
 
 def _how(up: Any) -> str:
-    """How the model was made: ``warm G=30`` / ``cold G=400`` (a coevolution run), ``refreshed from v3`` (the champion's
-    weights re-solved on new data, its structure kept: streamid.online.refresh)."""
+    """How the model was made: ``warm G=30`` / ``cold G=400`` (a coevolution run; ``refined (held out FR a -> b)``
+    when its weights were then fitted to its free run: the held-out half's R^2 that let it), ``refreshed from v3``
+    (the champion's weights re-solved on new data, its structure kept: streamid.online.refresh)."""
     doc = getattr(up, "document", None) or {}
     if doc.get("update") == "refreshed":
         src = doc.get("refreshed_from")
         return f"refreshed from v{src}" if isinstance(src, int) and not isinstance(src, bool) else "refreshed"
-    return f"{'warm' if up.warm else 'cold'} G={up.generations}"
+    run = f"{'warm' if up.warm else 'cold'} G={up.generations}"
+    rf = up.model.metrics.get("refinement") if isinstance(up.model.metrics, dict) else None
+    if isinstance(rf, dict) and rf.get("taken") is True:  # its weights fitted to its free run (streamid.engine.refine)
+        held = rf.get("held_out")
+        held = held if isinstance(held, dict) else {}
+        run += f" refined (held out FR {_r2(held.get('r2_fr_before'))} -> {_r2(held.get('r2_fr_after'))})"
+    return run
 
 
 def format_update(up: Any, now_ns: int | None = None) -> str:
