@@ -49,5 +49,6 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         networks=len(nets) or 1,
         linear_parts=sum(m.linear is not None for m in nets),
         long_linear_order=max((m.linear_order for m in nets), default=0),
+        refinement=out.model.metrics.get("refinement") if out.model is not None else None,
     )
 

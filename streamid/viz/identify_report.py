@@ -115,6 +115,7 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
         linear_parts=sum(m.linear is not None for m in members_of(model)),
         long_linear_order=model.linear_order,
         judged_only=judged_only,
+        refinement=None if judged_only else model.metrics.get("refinement"),
     )
 
 

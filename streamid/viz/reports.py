@@ -190,6 +190,7 @@ class UpdateReport:
     linear_parts: int = 0  # how many of its networks have a direct linear part a'r + b (CoEAConfig.linear_terms)
     long_linear_order: int = 0  # > 0: its linear part is a dense ARX part of this order (CoEAConfig.long_linear)
     judged_only: bool = False  # a model judged on a record (streamid validate): no identification ran
+    refinement: Mapping[str, Any] | None = None  # the model's metrics.refinement (streamid.engine.refine), if any
 
 
 def fmt_metric(v: float | None) -> str:
@@ -224,9 +225,30 @@ def model_markdown(r: UpdateReport) -> str:
         + f"F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]"
         + (" (the union of their lags)" if r.networks > 1 else "") + _linear_text(r),
     ]
+    refined = refinement_text(r.refinement)
+    if refined:
+        lines += ["", refined]
     if verdicts:
         lines += ["", "correlation tests (validation residual):", *verdicts]
     return "\n".join(lines)
+
+
+def refinement_text(ev: Mapping[str, Any] | None) -> str:
+    """What the refinement did (the model's ``metrics.refinement``; "" without one): made, with the held-out half's
+    free-run R^2 that let it, or why not."""
+    if not isinstance(ev, Mapping):
+        return ""
+    got = ev.get("held_out")
+    held: Mapping[str, Any] = got if isinstance(got, Mapping) else {}
+
+    def num(v: Any) -> float | None:
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+    if ev.get("taken") is True:
+        return (f"weights fitted to the free run (held out: FR {fmt_metric(num(held.get('r2_fr_before')))} -> "
+                f"{fmt_metric(num(held.get('r2_fr_after')))} refined on the first half)")
+    reason = ev.get("reason")
+    return f"weights not refined: {reason}" if isinstance(reason, str) and reason else ""
 
 
 def _linear_text(r: UpdateReport) -> str:
