@@ -40,7 +40,7 @@ ONLINE_LONG_LINEAR = 512
 #: run, judged out of sample (:func:`streamid.engine.refine.refine_judged`: refined on the first half of the window's
 #: estimation part, made only if that free-runs better over the second half); as offline. Measured
 #: (docs/benchmarks.md, "Online refinement"): 2 kHz damper windows scored on a common record of another excitation,
-#: 30 seeds, every seed better (10,000 samples: median 0.9297 -> 0.9397; 100,000: 0.9253 -> 0.9362) for 0.06-0.3 s
+#: 30 seeds, no seed lower (10,000 samples: median 0.9297 -> 0.9397; 100,000: 0.9253 -> 0.9369) for 0.06-0.3 s
 #: more per update; the drift sweep unchanged (30 of 32 detected within 3 s, 32 new champions within 5 s). 0: off.
 ONLINE_REFINE = 10
 # Fields of CoEAConfig the daemon sets itself (generations: cold/warm; restarts: warm starts need one run).
