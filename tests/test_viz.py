@@ -343,10 +343,10 @@ def test_the_model_text_says_whether_the_weights_were_refined_and_why() -> None:
     refused = {"taken": False, "reason": "no gain on the held-out second half (free-run R2 0.95317 -> 0.94321 "
                                          "refined on the first)", "held_out": {"samples": 700}}
     text = model_markdown(replace(report(2), refinement=made))
-    assert "weights fitted to the free run (held out: FR 0.9352 -> 0.9438 refined on the first half)" in text
+    assert "weights refined to the free run (held-out half FR 0.9352 -> 0.9438)" in text
     assert "weights not refined: no gain on the held-out second half" in model_markdown(replace(report(2),
                                                                                                refinement=refused))
     assert "refined" not in model_markdown(report(2))  # no refinement evidence (e.g. --paper): nothing said
     assert refinement_text({"taken": True, "held_out": "x"}) == (
-        "weights fitted to the free run (held out: FR n/a -> n/a refined on the first half)")
+        "weights refined to the free run (held-out half FR n/a -> n/a)")
     assert refinement_text({"taken": False}) == "" and refinement_text("odd") == ""  # type: ignore[arg-type]

@@ -245,8 +245,8 @@ def refinement_text(ev: Mapping[str, Any] | None) -> str:
         return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
     if ev.get("taken") is True:
-        return (f"weights fitted to the free run (held out: FR {fmt_metric(num(held.get('r2_fr_before')))} -> "
-                f"{fmt_metric(num(held.get('r2_fr_after')))} refined on the first half)")
+        return (f"weights refined to the free run (held-out half FR {fmt_metric(num(held.get('r2_fr_before')))} -> "
+                f"{fmt_metric(num(held.get('r2_fr_after')))})")
     reason = ev.get("reason")
     return f"weights not refined: {reason}" if isinstance(reason, str) and reason else ""
 
