@@ -97,13 +97,11 @@ def _how(up: Any) -> str:
     if doc.get("update") == "refreshed":
         src = doc.get("refreshed_from")
         return f"refreshed from v{src}" if isinstance(src, int) and not isinstance(src, bool) else "refreshed"
+    from streamid.viz.reports import held_out_gain
+
+    gain = held_out_gain(up.model.metrics.get("refinement"))  # its weights fitted to its free run (engine.refine)
     run = f"{'warm' if up.warm else 'cold'} G={up.generations}"
-    rf = up.model.metrics.get("refinement") if isinstance(up.model.metrics, dict) else None
-    if isinstance(rf, dict) and rf.get("taken") is True:  # its weights fitted to its free run (streamid.engine.refine)
-        held = rf.get("held_out")
-        held = held if isinstance(held, dict) else {}
-        run += f" refined (held out FR {_r2(held.get('r2_fr_before'))} -> {_r2(held.get('r2_fr_after'))})"
-    return run
+    return run if gain is None else f"{run} refined (held out FR {gain})"
 
 
 def format_update(up: Any, now_ns: int | None = None) -> str:

@@ -233,21 +233,25 @@ def model_markdown(r: UpdateReport) -> str:
     return "\n".join(lines)
 
 
+def held_out_gain(ev: Any) -> str | None:
+    """``"a -> b"``, the held-out half's free-run R^2 before and after, when the refinement evidence ``ev`` (a
+    model's ``metrics.refinement``, perhaps from the network) says it was made; None when it was not."""
+    if not isinstance(ev, Mapping) or ev.get("taken") is not True:
+        return None
+    got = ev.get("held_out")
+    held: Mapping[str, Any] = got if isinstance(got, Mapping) else {}
+    a, b = (held.get(k) for k in ("r2_fr_before", "r2_fr_after"))
+    return " -> ".join(fmt_metric(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else "n/a"
+                       for v in (a, b))
+
+
 def refinement_text(ev: Mapping[str, Any] | None) -> str:
     """What the refinement did (the model's ``metrics.refinement``; "" without one): made, with the held-out half's
     free-run R^2 that let it, or why not."""
-    if not isinstance(ev, Mapping):
-        return ""
-    got = ev.get("held_out")
-    held: Mapping[str, Any] = got if isinstance(got, Mapping) else {}
-
-    def num(v: Any) -> float | None:
-        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
-
-    if ev.get("taken") is True:
-        return (f"weights refined to the free run (held-out half FR {fmt_metric(num(held.get('r2_fr_before')))} -> "
-                f"{fmt_metric(num(held.get('r2_fr_after')))})")
-    reason = ev.get("reason")
+    gain = held_out_gain(ev)
+    if gain is not None:
+        return f"weights refined to the free run (held-out half FR {gain})"
+    reason = ev.get("reason") if isinstance(ev, Mapping) else None
     return f"weights not refined: {reason}" if isinstance(reason, str) and reason else ""
 
 
