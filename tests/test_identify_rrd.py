@@ -64,6 +64,7 @@ def test_rrd_verifies_and_holds_the_kept_model(drawn: tuple[Path, dict, str]) ->
     text = doc[0]
     assert f"FR **{r2['fr_val']:.4f}**" in text and f"OSA **{r2['osa_val']:.4f}**" in text, text
     assert "model: pos(t) = F[pos(t-1" in text and "correlation tests (validation residual):" in text
+    assert "refined" not in text  # --paper never refines: the text says nothing of it
     events = [t[0] for t in column(rrd, "/streams/damper/events", "TextLog:text")]  # type: ignore[index]
     assert any("read: 600 rows; comma-separated, decimal point, clock 'time_s' (period 10 ms)" in e for e in events)
     assert any(e.startswith("run 0 (seed 0) kept:") and f"FR {r2['fr_val']:.4f}" in e for e in events), events
@@ -72,6 +73,22 @@ def test_rrd_verifies_and_holds_the_kept_model(drawn: tuple[Path, dict, str]) ->
     assert len(measured) == rep["data"]["n_val"] == 300  # the validation part, on the file's clock
     first = min(int(np.timedelta64(t, "ns").astype(np.int64)) for t in times)  # type: ignore[call-overload]
     assert first == 300 * 10_000_000  # the first validation sample: 3 s after the first sample
+
+
+def test_rrd_model_text_says_what_the_refinement_did(tmp_path: Path) -> None:
+    from streamid.viz.reports import refinement_text
+
+    data, rrd, model = tmp_path / "damper.csv", tmp_path / "out.rrd", tmp_path / "m.json"
+    narx_csv(data)
+    small = ["--neurons", "6", "--generations", "20", "--max-lag", "3", "--runs", "1", "--workers", "1",
+             "--progress", "never"]  # not --paper: the kept model's refinement is judged
+    p = identify(str(data), "--input", "force", "--output", "pos", *small, "--rrd", str(rrd), "--model", str(model))
+    assert p.returncode == 0, p.stderr
+    ev = json.loads(model.read_text())["metrics"]["refinement"]
+    said = refinement_text(ev)
+    assert said.startswith("weights refined to the free run" if ev.get("taken") else "weights not refined: "), said
+    (doc,) = column(rrd, "/streams/damper/model", "TextDocument:text")
+    assert said in doc[0], doc[0]  # read back from the real .rrd
 
 
 def test_rrd_target_is_checked_before_identifying(tmp_path: Path) -> None:
