@@ -235,8 +235,8 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
                    "range_margin": 0.25, "screen_rows": False,
                    # round 5: constants of the engine now (settings.RIDGE, FALLBACK_BELOW) or identify's argument
                    "ridge": 1e-10, "fallback_below": 0.5, "workers": 1, "complexity": "aic",
-                   # round 6: the paper's constant settings.HARMONY_STOP
-                   "harmony_stop": 0.5}
+                   # round 6: the paper's constants settings.HARMONY_STOP, HMCR and PAR
+                   "harmony_stop": 0.5, "hmcr0": 0.8, "hmcrf": 1.0, "par0": 0.1, "parf": 0.9}
         assert want["config"]["generations"] == 100 and want["config"]["lag_search_neurons"] == 10
         assert {k: want["config"].pop(k) for k in retired} == retired
         assert want["metrics"].pop("holdout_samples") == 0 and want["metrics"].pop("restarts_skipped") == []

@@ -107,13 +107,15 @@ def test_greedy_selection_strict() -> None:
 
 
 def test_schedule_linear_from_initial_to_final() -> None:
-    assert harmony.schedule(0, 400, 0.8, 1.0, 0.1, 0.9) == (0.8, 0.1)
-    h, p = harmony.schedule(200, 400, 0.8, 1.0, 0.1, 0.9)
+    assert harmony.schedule(0, 400, (0.8, 1.0), (0.1, 0.9)) == (0.8, 0.1)
+    h, p = harmony.schedule(200, 400, (0.8, 1.0), (0.1, 0.9))
     assert h == pytest.approx(0.9) and p == pytest.approx(0.5)
-    h, p = harmony.schedule(100, 400, 0.8, 1.0, 0.1, 0.9)
+    h, p = harmony.schedule(100, 400, (0.8, 1.0), (0.1, 0.9))
     assert h == pytest.approx(0.85) and p == pytest.approx(0.3)
-    h, p = harmony.schedule(399, 400, 0.8, 1.0, 0.1, 0.9)
+    h, p = harmony.schedule(399, 400, (0.8, 1.0), (0.1, 0.9))
     assert h == pytest.approx(0.8 + 0.2 * 399 / 400) and p == pytest.approx(0.1 + 0.8 * 399 / 400)
+    h, p = harmony.schedule(np.arange(0, 400, 100), 400, (0.8, 1.0), (0.1, 0.9))  # a block of generations at once
+    assert h == pytest.approx([0.8, 0.85, 0.9, 0.95]) and p == pytest.approx([0.1, 0.3, 0.5, 0.7])
 
 
 def test_improvise_by_hand() -> None:

@@ -161,3 +161,28 @@ def test_harmony_stop_is_a_constant_of_the_method_and_an_argument_of_one_run() -
     assert Coevolution(u, y, cfg, 0, harmony_stop=1.0).stop == 10  # a lag stage: throughout
     with pytest.raises(ConfigError, match=r"harmony_stop must be a fraction of the generations in \[0, 1\]; got 1\.5"):
         Coevolution(u, y, cfg, 0, harmony_stop=1.5)
+
+
+def test_the_harmony_rates_are_the_papers_constants_and_arguments_of_one_run() -> None:
+    from streamid.engine import DEFAULT, CoEAConfig, Coevolution
+    from streamid.engine.settings import HMCR, PAR
+    from streamid.errors import ConfigError
+
+    assert HMCR == (0.8, 1.0) and PAR == (0.1, 0.9)  # the paper's Table 3
+    for name, const in (("hmcr0", "HMCR"), ("hmcrf", "HMCR"), ("par0", "PAR"), ("parf", "PAR")):
+        with pytest.raises(ConfigError, match=rf"CoEAConfig\.{name} was retired in issue 37: use the constant "
+                                              rf"streamid\.engine\.settings\.{const} \("):
+            CoEAConfig.from_dict({**DEFAULT.to_dict(), name: 0.5})
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(300)
+    y = np.tanh(np.convolve(u, [0.0, 0.5, 0.3])[:300])
+    cfg = CoEAConfig(neurons=3, max_lag_y=3, max_lag_u=3, generations=20)
+    paper = Coevolution(u, y, cfg, 4).solve()
+    same = Coevolution(u, y, cfg, 4, hmcr=(0.8, 1.0), par=(0.1, 0.9)).solve()
+    other = Coevolution(u, y, cfg, 4, hmcr=(0.0, 0.0), par=(0.0, 0.0)).solve()  # every bit a coin flip
+    assert paper.best_f == same.best_f and np.array_equal(paper.H, same.H) and np.array_equal(paper.X, same.X)
+    assert not np.array_equal(other.H, paper.H)  # the rates do reach the search
+    with pytest.raises(ConfigError, match=r"hmcr must be a pair \(first, last\) of rates in \[0, 1\]; got \(0\.8, 1\.2\)"):
+        Coevolution(u, y, cfg, 0, hmcr=(0.8, 1.2))
+    with pytest.raises(ConfigError, match=r"par must be a pair \(first, last\) of rates in \[0, 1\]; got 0\.5"):
+        Coevolution(u, y, cfg, 0, par=0.5)  # type: ignore[arg-type]

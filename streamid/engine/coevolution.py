@@ -47,7 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine import de, harmony
 from streamid.engine._blas import one_blas_thread
 from streamid.engine.fanout import thread_map
-from streamid.engine.settings import HARMONY_STOP, RIDGE, CoEAConfig
+from streamid.engine.settings import HARMONY_STOP, HMCR, PAR, RIDGE, CoEAConfig
 from streamid.engine.model import Model
 from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.batch import BatchEvaluator
@@ -109,6 +109,8 @@ class Coevolution:
     harmony_stop : float
         Fraction of the generations after which the lags stop evolving and every trial is paired with the best
         harmony (the paper's 0.5, :data:`~streamid.engine.settings.HARMONY_STOP`; a two-stage run's lag stage: 1.0).
+    hmcr, par : (float, float)
+        HMCR and PAR moved linearly from the first value to the second, in [0, 1] (the paper's: ``settings.HMCR``, ``PAR``).
 
     Raises
     ------
@@ -134,10 +136,16 @@ class Coevolution:
         helper: EvalHelper | None = None,
         rows: NDArray[np.intp] | None = None,
         harmony_stop: float = HARMONY_STOP,
+        hmcr: tuple[float, float] = HMCR,
+        par: tuple[float, float] = PAR,
     ) -> None:
         cfg = CoEAConfig() if config is None else config
-        if isinstance(harmony_stop, bool) or not isinstance(harmony_stop, (int, float)) or not 0 <= harmony_stop <= 1:
+        if not _fraction(harmony_stop):
             raise ConfigError(f"harmony_stop must be a fraction of the generations in [0, 1]; got {harmony_stop!r}")
+        for name, rates in (("hmcr", hmcr), ("par", par)):
+            if not (isinstance(rates, (tuple, list)) and len(rates) == 2 and all(_fraction(r) for r in rates)):
+                raise ConfigError(f"{name} must be a pair (first, last) of rates in [0, 1]; got {rates!r}")
+        self._hmcr, self._par = (float(hmcr[0]), float(hmcr[1])), (float(par[0]), float(par[1]))
         if not isinstance(cfg, CoEAConfig):
             raise ConfigError(f"config must be a CoEAConfig; got {type(cfg).__name__}")
         self.config = cfg
@@ -324,7 +332,7 @@ class Coevolution:
         works, and the caller's generator is advanced past it (the same numbers;
         if anything else drew from the generator meanwhile, the caller draws).
         """
-        cfg, g0 = self.config, self.g
+        g0 = self.g
         b, per = self._block(g0)
         evolving = g0 < self.stop
         helper = self._batch if isinstance(self._batch, HelperBinding) else None
@@ -334,9 +342,7 @@ class Coevolution:
         uni = uni.reshape(b, per)
         self._trials.plan(uni)
         if evolving:
-            frac = np.arange(g0, g0 + b) / self.generations  # harmony.schedule, vectorised
-            hmcr = cfg.hmcr0 + (cfg.hmcrf - cfg.hmcr0) * frac
-            par = cfg.par0 + (cfg.parf - cfg.par0) * frac
+            hmcr, par = harmony.schedule(np.arange(g0, g0 + b), self.generations, self._hmcr, self._par)
             self._improviser.plan(uni[:, self._n_de :], hmcr, par)
         if helper is not None and g0 + b < self.generations:  # the helper draws the next block meanwhile
             nb, nper = self._block(g0 + b)
@@ -522,6 +528,11 @@ class Coevolution:
         if not np.isfinite(self.best_f):
             raise DataError("no pair has been evaluated")
         return self.model_for(self.best_h, self.best_x)
+
+
+def _fraction(value: object) -> bool:
+    """Whether ``value`` is a number (not a bool) in [0, 1]."""
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and 0 <= value <= 1
 
 
 def _as_rng(rng: np.random.Generator | int | None) -> np.random.Generator:

@@ -14,10 +14,7 @@ admissible candidates by AIC::
 with ``R2_fr`` the candidate's free-run R^2 over the ``n`` scored samples of the
 estimation record (the same simulation the range guard judged) and ``p`` the
 parameters fitted by least squares on that record: one output weight per neuron,
-plus the linear part's ``k`` coefficients and constant. (``CoEAConfig.complexity`` also offered ``"bic"``, never
-a default, and ``"score"``, the highest ``R2_fr``: the online updates' until issue 37 round 5, where AIC chose the
-same long linear parts on the two-experiment suite but for one seed of one system, docs/engine-results.md.)
-A candidate that is not admissible is never chosen while one is.
+plus the linear part's ``k`` coefficients and constant. A candidate that is not admissible is never chosen while one is.
 
 Why ``p = M`` (and not the centres and widths too), and what the pruning measured: docs/method.md ("Complexity by an
 information criterion", "Pruned networks compete") and docs/engine-results.md.
@@ -59,8 +56,7 @@ def parameter_count(model: Model) -> float:
     """Parameters fitted by least squares on the estimation record: ``M`` weights (+ the linear part's
     coefficients); of an ensemble, the mean of its members' counts: each member's weights are a least squares on
     the same record, and the mean of least-squares fits has the mean of their degrees of freedom (the trace of
-    the mean of their hat matrices). (Summed until round 14 of docs/engine-results.md: the same choices on every
-    suite system but the heat exchanger's seed 4.)"""
+    the mean of their hat matrices; docs/engine-results.md, round 14)."""
     counts = [m.neurons + (0 if m.linear is None else int(m.linear.shape[0])) for m in members_of(model)]
     return counts[0] if len(counts) == 1 else sum(counts) / len(counts)
 

@@ -23,18 +23,20 @@ Choices left open by the paper, as streamid makes them
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["Improviser", "improvise", "improvise_from_uniforms", "schedule", "update_memory"]
 
 
-def schedule(
-    g: int, generations: int, hmcr0: float, hmcrf: float, par0: float, parf: float
-) -> tuple[float, float]:
-    """HMCR and PAR at generation ``g`` of ``generations`` (eqs. 10a-b)."""
-    frac = g / generations if generations > 0 else 0.0
-    return hmcr0 + (hmcrf - hmcr0) * frac, par0 + (parf - par0) * frac
+def schedule(g: Any, generations: int, hmcr: tuple[float, float], par: tuple[float, float]) -> tuple[Any, Any]:
+    """HMCR and PAR at generation ``g`` of ``generations`` (eqs. 10a-b), each moved linearly from its pair's
+    first value to its second (:data:`~streamid.engine.settings.HMCR`, :data:`~streamid.engine.settings.PAR`);
+    ``g`` an int (floats returned) or an array of generations (arrays returned)."""
+    frac = g / generations if generations > 0 else 0.0 * g
+    return hmcr[0] + (hmcr[1] - hmcr[0]) * frac, par[0] + (par[1] - par[0]) * frac
 
 
 def improvise(

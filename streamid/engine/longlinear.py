@@ -13,10 +13,8 @@ The rule (:func:`long_linear_choice`, applied by :func:`~streamid.engine.identif
 final choice when ``CoEAConfig.long_linear`` > 0)
 -------------------------------------------------------------------------------------------------
 0. It is tried only on a record the final choice explains in part: its estimation free-run R^2
-   below ``settings.MORE_BELOW`` (0.95), the band where more restarts are made too. Above it
-   the networks fit the record and a long linear part measured no better on validation: on the
-   heat exchanger (estimation R^2 0.99) it was taken in 4 of 5 seeds by the criterion and its
-   validation median fell 0.9599 -> 0.9509 (round 12 of docs/engine-results.md).
+   below ``settings.MORE_BELOW`` (0.95), the band where more restarts are made too. Above it a long
+   linear part measured no better on validation (the heat exchanger: 0.9599 -> 0.9509, round 12).
 1. The base is the final choice's best single network (an ensemble's first member); its centres,
    widths and lags are kept.
 2. The orders offered are ``2, 3, 4, 6, 8, 12, ...`` (doubling, with the midpoints) up to
@@ -47,12 +45,10 @@ final choice when ``CoEAConfig.long_linear`` > 0)
 6. The means of the two and of the three best candidates of steps 4-5 (by the criterion, each
    admissible by the same guards; :data:`MAX_MEAN_OF`) compete with the best: each member runs free on
    its own past outputs and their outputs are averaged (an
-   :class:`~streamid.engine.ensemble.EnsembleModel`, ``streamid.model/5``), scored by the same
-   criterion with ``p`` the mean of the members' (each member's weights are a least squares on the
-   same rows, and a mean of least-squares fits has the mean of their degrees of freedom: the trace of
-   the mean of their hat matrices). Why: candidates whose estimation free runs differ by 1e-4 in R^2 can
-   validate 0.03 apart; the mean of near-ties is steadier than a draw among them (evidence: ``means``;
-   docs/engine-results.md, round 14).
+   :class:`~streamid.engine.ensemble.EnsembleModel`, ``streamid.model/5``), scored by the same criterion with
+   ``p`` the mean of the members' (:func:`~streamid.engine.complexity.parameter_count`). Why: near-ties on the
+   estimation free run (1e-4 in R^2) can validate 0.03 apart, and their mean is steadier than a draw among them
+   (evidence: ``means``; docs/engine-results.md, round 14).
 7. It replaces the final choice only when its criterion is lower than the final choice's (the
    same rule, the final choice's own ``p``), so where the networks explain the record the
    long linear part, with its many parameters, is not taken.

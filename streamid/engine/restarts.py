@@ -2,8 +2,7 @@
 
 A pure rule over the runs already made (their ``score``: the estimation free-run R^2 of each run's
 chosen candidate, ``-1e9`` when none is admissible). :func:`~streamid.engine.identification.identify`
-owns the runs themselves. (Fewer runs when repeats agree, ``agree_tol``, was retired in issue 37: it saved
-time on records that are not the costly ones and cost the MR damper's worst seed, docs/engine-results.md.)
+owns the runs themselves.
 """
 
 from __future__ import annotations

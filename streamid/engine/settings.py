@@ -16,7 +16,8 @@ from typing import Any
 
 from streamid.errors import ConfigError
 
-__all__ = ["CoEAConfig", "PAPER", "DEFAULT", "FALLBACK_BELOW", "MORE_BELOW", "REFINE_ABOVE", "RIDGE", "SELECTIONS"]
+__all__ = ["CoEAConfig", "PAPER", "DEFAULT", "FALLBACK_BELOW", "HMCR", "MORE_BELOW", "PAR", "REFINE_ABOVE", "RIDGE",
+           "SELECTIONS"]
 
 #: Relative Tikhonov term of every least squares of the weights (the search's batched normal equations, scaled to
 #: unit diagonal, and the final models' QR fits; :mod:`streamid.engine.rbf`): bounds the condition number at
@@ -42,6 +43,12 @@ REFINE_ABOVE = 0.8
 #: measurement set another value; the lag stage of a two-stage run evolves them throughout: ``harmony_stop=1.0``).
 HARMONY_STOP = 0.5
 
+#: The harmony memory consideration rate and pitch adjusting rate, each moved linearly from the first value to the
+#: second over a run's generations (the paper's Table 3, eqs. 10a-b; no preset, stream or measurement set others:
+#: ``Coevolution(..., hmcr=(a, b), par=(c, d))`` for one run).
+HMCR = (0.8, 1.0)
+PAR = (0.1, 0.9)
+
 #: Values of ``CoEAConfig.direct_terms``: the inputs' direct terms u(t) never, always or by a test of the data.
 DIRECT_TERMS = ("off", "on", "test")
 
@@ -59,6 +66,9 @@ REPLACED_BY = {
     "feedthrough_test": 'direct_terms = "test"',
     "harmony_stop": "the constant streamid.engine.settings.HARMONY_STOP (0.5, the paper's; "
                     "Coevolution(..., harmony_stop=F) for one run)",
+    **{f"{c.lower()}{end}": f"the constant streamid.engine.settings.{c} {v} (the paper's schedule from the first "
+       f"value to the second; Coevolution(..., {c.lower()}=(a, b)) for one run)"
+       for c, v in (("HMCR", HMCR), ("PAR", PAR)) for end in ("0", "f")},
 }
 
 #: Every retired field: those measured not to earn their place, then those something else replaced (above).
@@ -122,7 +132,7 @@ _INT_RANGES: dict[str, tuple[int, int | None]] = {
 }
 #: Number fields: (low, high, whether low itself is refused).
 _FLOAT_RANGES: dict[str, tuple[float, float, bool]] = {
-    "de_f": (0.0, 2.0, True), **{k: (0.0, 1.0, False) for k in ("de_cr", "hmcr0", "hmcrf", "par0", "parf")},
+    "de_f": (0.0, 2.0, True), "de_cr": (0.0, 1.0, False),
 }
 #: Fields that must be true or false.
 _BOOL_FIELDS = ("linear_terms", "run_ensembles", "require_input")
@@ -134,8 +144,9 @@ class CoEAConfig:
 
     The defaults of the method's own parameters are the paper's (Table 3):
     10 candidate lags on the output and on every input, populations of 20,
-    DE/rand/1/bin with F = 0.6 and CR = 0.8, HMCR 0.8 -> 1.0 and PAR 0.1 -> 0.9,
-    centres in [-4, 4] and widths in [0.01, 20] (data normalised to [-1, 1]).
+    DE/rand/1/bin with F = 0.6 and CR = 0.8, centres in [-4, 4] and widths in
+    [0.01, 20] (data normalised to [-1, 1]); the harmony search's HMCR 0.8 -> 1.0
+    and PAR 0.1 -> 0.9 are constants (:data:`HMCR`, :data:`PAR`).
 
     Attributes
     ----------
@@ -153,9 +164,6 @@ class CoEAConfig:
         (DE/rand/1 needs three partners distinct from the target).
     de_f, de_cr : float
         DE scale factor F and crossover probability CR.
-    hmcr0, hmcrf, par0, parf : float
-        Harmony memory consideration rate and pitch adjusting rate, moved
-        linearly from the initial to the final value over the generations.
     centre_bounds, width_bounds : tuple of float
         Search ranges of the centres and widths (normalised units).
     lag_search_neurons : int
@@ -250,10 +258,6 @@ class CoEAConfig:
     population: int = 20
     de_f: float = 0.6
     de_cr: float = 0.8
-    hmcr0: float = 0.8
-    hmcrf: float = 1.0
-    par0: float = 0.1
-    parf: float = 0.9
     centre_bounds: tuple[float, float] = (-4.0, 4.0)
     width_bounds: tuple[float, float] = (0.01, 20.0)
     lag_search_neurons: int = 0
@@ -362,31 +366,18 @@ class CoEAConfig:
     def recommended(cls, **changes: Any) -> CoEAConfig:
         """streamid's default identification (``streamid identify`` without options).
 
-        Four two-stage runs in this process: lags from the paper's coevolution
-        with 10 neurons (100 generations), then 100 generations of DE for 30
-        neurons on those lags. Candidate lags ``1..L`` with ``L`` in [10, 30] chosen
-        from the data (:mod:`streamid.engine.lagspace`; when ``L >= 20`` the odd
-        restarts keep ``1..10``, restart 1 with 10 neurons, the paper's size); a lag
-        set without an input term is infeasible.
-        The search sees at most 2000 randomly drawn rows (models are fitted and
-        scored on all rows). The final model is, among every run's best pair and its
-        10 fittest final members, the highest free-run R^2 on the estimation data
-        among those whose free run stays within the data's range widened by 25 % of
-        its span and that have an input term (:mod:`streamid.engine.choice`); when
-        no run has one or the best fits at most 0.5, one more run with 15 neurons, then 8. When the best
-        run fits the estimation record at free-run R^2 between 0 and 0.95, four more runs (``more_restarts``).
-        Each input's direct term ``u(t)`` is a candidate when a likelihood-ratio test on the estimation data
-        finds the output responds within the sample (``direct_terms="test"``).
+        Four two-stage runs (lags by the paper's coevolution with 10 neurons, then DE for 30 neurons on them,
+        100 generations each) on candidate lags ``1..L``, ``L`` in [10, 30] from the data (odd restarts ``1..10``
+        when ``L >= 20``), the search on at most 2000 random rows, a lag set without an input infeasible, the
+        direct terms by a test of the data. Among every run's best pair and 10 fittest members, each offered with
+        and without a linear part: the admissible candidate (free run in range, an input term) of the lowest AIC
+        on the estimation free run; fallback runs of 15 then 8 neurons when none is admissible or the best fits at
+        most 0.5; four more runs when it fits between 0 and 0.95. Then pruned sizes of the two best runs, means of
+        the best runs' networks and a long linear part (order up to 512) compete by the same AIC, and the kept
+        model's weights are refined to its free run when that holds out of sample.
 
-        Every run's candidates are offered with a direct linear part and without it (``linear_terms``, the same
-        centres and widths from the RBF-only search), the kind chosen by AIC.
-        Then (``prune_runs=2``, ``run_ensembles``, ``refine_iterations=10``) the size by
-        AIC on the estimation free run with the two best runs' pruned networks competing, the means of the best
-        runs' networks competing by the same AIC, and the kept model's weights (and linear part) fitted to its
-        free run.
-
-        What drove each default, with the figures that did: docs/method.md (one bullet per step, measured) and
-        docs/engine-results.md (rounds 1-14; issue 37 round 4: what each step earns on the two-experiment suite).
+        Each step and what it measured: docs/method.md; docs/engine-results.md (issue 37 rounds 4-6: what each
+        step earns on the two-experiment suite).
         """
         base = {
             "neurons": 30,
