@@ -59,3 +59,34 @@ def test_two_fold_refits_the_weights_on_one_half_and_scores_the_other() -> None:
     fold1 = r2(y[h:][L:], first.simulate(u[h:], y[h:][:L])[L:])
     assert o.kept_cv <= fold1 and o.kept_cv <= 1.0
     assert spread(t, FAST, 3).runs_cv == ()  # only when asked
+
+
+def test_local_radius_is_the_largest_root_of_the_linearised_feedback() -> None:
+    import numpy as np
+
+    from benchmarks.run_spread import local_radius
+    from streamid.engine.model import Model
+    from streamid.engine.regressors import Normalisation, Regressor
+
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-1, 1, (400, 1))
+    y = np.zeros(400)
+    for k in range(2, 400):
+        y[k] = 1.2 * y[k - 1] - 0.5 * y[k - 2] + u[k - 1, 0]
+    norm = Normalisation.fit(u, y)
+    regs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 1))
+
+    def linear_model(a1: float, a2: float) -> Model:  # a far, wide, zero-weight Gaussian: the linear part alone
+        return Model(regs, np.full((1, 3), 3.0), np.array([1.0]), np.array([0.0]), norm, input_names=("u",),
+                     linear=np.array([a1, a2, 0.3, 0.0]))
+
+    # y(t) = a1 y(t-1) + a2 y(t-2) + ...: the roots of z^2 - a1 z - a2, the same at every sample
+    assert local_radius(linear_model(1.2, -0.5), u, y) == pytest.approx(np.sqrt(0.5))  # complex pair, |z|^2 = 0.5
+    assert local_radius(linear_model(0.5, 0.3), u, y) == pytest.approx((0.5 + np.sqrt(0.25 + 1.2)) / 2)
+    # a Gaussian adds its slope in y(t-1): w exp(-|r - c|^2 / 2 s^2) (-(r_y - c_y) / s^2), |r - c| over y(t-1), u(t-1)
+    m = Model(regs[:1] + regs[2:], np.array([[0.0, 0.0]]), np.array([0.5]), np.array([0.8]), norm,
+              input_names=("u",), linear=np.array([0.9, 0.3, 0.0]))
+    r, _ = m.regressor_rows(u, m.simulate(u, y[:1]))
+    slope = 0.9 + 0.8 * np.exp(-(r**2).sum(axis=1) / 0.5) * (-r[:, 0] / 0.25)  # one output lag: the root itself
+    assert local_radius(m, u, y, 1.0) == pytest.approx(np.abs(slope).max(), rel=1e-9)
+    assert spread(targets(("reactor_sim",))[0], FAST, 3).runs_radius == ()  # only when asked
