@@ -44,6 +44,7 @@ from streamid.engine import identify
 from streamid.engine.choice import RANGE_MARGIN
 from streamid.engine.longlinear import long_linear_choice
 from streamid.engine.model import Model
+from streamid.engine.rbf import activations
 from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.selection import refit_weights
 from streamid.engine.settings import DEFAULT, MORE_BELOW, RIDGE, CoEAConfig
@@ -85,7 +86,7 @@ def local_radius(model: Model, u: np.ndarray, y: np.ndarray, quantile: float = 0
     if not np.all(np.isfinite(sim)):
         return float("inf")
     r, _ = model.regressor_rows(u, sim)
-    phi = model._phi(r)
+    phi = activations(r, model.centres, model.widths)
     own = [(j, g.lag) for j, g in enumerate(model.regressors) if g.signal == "y"]
     lin = []
     if model.linear is not None:
