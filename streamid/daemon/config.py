@@ -57,7 +57,7 @@ from streamid.online.stream_config import ENGINE_RESERVED, StreamConfig
 from streamid.errors import ConfigError
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
-__all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping", "to_toml"]
+__all__ = ["StreamConfig", "DaemonConfig", "load_config", "config_from_mapping", "stream_table_config", "to_toml"]
 
 @dataclass(frozen=True)
 class DaemonConfig:
@@ -281,7 +281,9 @@ def _unknown(where: str, table: Mapping[str, Any], accepted: Any) -> None:
         raise ConfigError(f"unknown key {path!r}; accepted keys in [{where or 'top level'}]: {', '.join(sorted(accepted))}")
 
 
-def _stream_config(where: str, table: Any, base: StreamConfig) -> StreamConfig:
+def stream_table_config(where: str, table: Any, base: StreamConfig) -> StreamConfig:
+    """``base`` with a ``[where]`` table of stream settings applied, checked as the daemon's configuration file is
+    (unknown or retired keys refused naming them; ``engine`` and ``refresh`` merged over ``base``'s)."""
     if not isinstance(table, dict):
         raise ConfigError(f"[{where}] must be a table of stream settings; got {table!r}")
     _unknown(where, table, _STREAM_KEYS)
@@ -333,7 +335,7 @@ def _from_mapping(data: Mapping[str, Any]) -> DaemonConfig:
     _unknown("", data, _TOP_KEYS)
     defaults = StreamConfig()
     if "defaults" in data:
-        defaults = _stream_config("defaults", data["defaults"], defaults)
+        defaults = stream_table_config("defaults", data["defaults"], defaults)
     overrides: list[tuple[str, StreamConfig]] = []
     streams_tab = data.get("streams", {})
     if not isinstance(streams_tab, dict):
@@ -341,7 +343,7 @@ def _from_mapping(data: Mapping[str, Any]) -> DaemonConfig:
     for name, tab in streams_tab.items():
         if not is_valid_stream_name(name):
             raise ConfigError(f"[streams.{name}]: the table name must be a stream name ({STREAM_NAME_RULE})")
-        overrides.append((name, _stream_config(f"streams.{name}", tab, defaults)))
+        overrides.append((name, stream_table_config(f"streams.{name}", tab, defaults)))
     dkw: dict[str, Any] = {}
     dtab = data.get("daemon", {})
     if not isinstance(dtab, dict):
