@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -290,3 +291,36 @@ def test_a_live_stream_left_without_a_model_keeps_only_its_newest_window(damper:
     feed(1000, 2000)  # windows ending at 6 ... 10 s: each replaces the one waiting
     w = ident.status()["windows"]
     assert w["live"] and w["pending_windows"] == 1 and w["coalesced"] == 5
+
+
+def test_the_rerun_diagnostics_say_a_refresh_is_a_refresh(run: tuple[OnlineIdentifier, list], tmp_path: Path) -> None:
+    """The champion's text and the events of a real .rrd, read back: a refresh says which version it re-solved,
+    as `streamid watch` does, never ``warm · G=0`` (it runs no coevolution)."""
+    from rerun.chunk import RrdReader
+
+    from streamid.daemon.report import update_report
+    from streamid.viz.reports import model_markdown
+    from streamid.viz.rerun_view import Viz, VizSettings
+
+    _, ups = run
+    drawn = [up for up in ups if up.outcome.summary is not None]
+    rrd = tmp_path / "refresh.rrd"
+    viz = Viz(VizSettings(rrd=str(rrd)))
+    viz.add_stream("damper")
+    reports = [update_report("damper", up, None) for up in drawn]
+    for r in reports:
+        viz.log_update(r)
+    viz.close()
+    for up, r in zip(drawn, reports):
+        doc = up.document or {}
+        head = model_markdown(r).splitlines()[0]
+        if doc.get("update") == "refreshed":
+            assert r.refreshed_from == doc["refreshed_from"] and f" · refreshed from v{doc['refreshed_from']} · " in head
+        else:
+            assert r.refreshed_from is None and f" · {'warm' if up.outcome.warm else 'cold'} · G=" in head
+    chunks = RrdReader(rrd).stream().filter(content="/streams/damper/events").to_chunks()
+    texts = [t for c in chunks for row in c.to_record_batch().column("TextLog:text").to_pylist()
+             for t in (row if isinstance(row, list) else [row])]
+    refreshes = sum((up.document or {}).get("update") == "refreshed" for up in drawn)
+    assert refreshes >= 8 and sum("(refreshed from v" in t for t in texts) == refreshes
+    assert not any("G=0" in t for t in texts) and any("(cold, G=40" in t for t in texts)

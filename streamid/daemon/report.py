@@ -7,6 +7,7 @@ import numpy as np
 
 from streamid.engine.ensemble import members_of
 from streamid.online import Update
+from streamid.online.refresh import RefreshOutcome
 from streamid.viz.reports import UpdateReport, first_input_tests
 
 __all__ = ["update_report"]
@@ -50,5 +51,6 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         linear_parts=sum(m.linear is not None for m in nets),
         long_linear_order=max((m.linear_order for m in nets), default=0),
         refinement=out.model.metrics.get("refinement") if out.model is not None else None,
+        refreshed_from=out.refreshed_from if isinstance(out, RefreshOutcome) else None,
     )
 

@@ -26,6 +26,7 @@ __all__ = [
     "parse_rerun_url",
     "first_input_tests",
     "model_markdown",
+    "run_text",
     "fmt_metric",
     "TEST_LABELS",
     "SERIES_STYLES",
@@ -191,6 +192,15 @@ class UpdateReport:
     long_linear_order: int = 0  # > 0: its linear part is a dense ARX part of this order (CoEAConfig.long_linear)
     judged_only: bool = False  # a model judged on a record (streamid validate): no identification ran
     refinement: Mapping[str, Any] | None = None  # the model's metrics.refinement (streamid.engine.refine), if any
+    refreshed_from: int | None = None  # a refresh (streamid.online.refresh): the champion's version it re-solved
+
+
+def run_text(r: UpdateReport, sep: str = " · ") -> str:
+    """How the model was made, as ``streamid watch`` says it: ``refreshed from v3`` (the champion's weights
+    re-solved on new data, no coevolution run) or ``warm`` / ``cold`` and the run's generations ``G=30``."""
+    if r.refreshed_from is not None:
+        return f"refreshed from v{r.refreshed_from}"
+    return f"{'warm' if r.warm else 'cold'}{sep}G={r.generations}"
 
 
 def fmt_metric(v: float | None) -> str:
@@ -214,7 +224,7 @@ def model_markdown(r: UpdateReport) -> str:
         head = [f"**{r.stream}** · the model judged on this record (no identification ran)", "",
                 f"R² on the record: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}**"]
     else:
-        head = [f"**{r.stream} v{r.version}** · {'warm' if r.warm else 'cold'} · G={r.generations} · "
+        head = [f"**{r.stream} v{r.version}** · {run_text(r)} · "
                 f"{r.identification_s:.2f} s{'' if r.accepted else ' · **rejected**'}", "",
                 f"R² validation: OSA **{fmt_metric(m.get('r2_osa_val'))}** · FR **{fmt_metric(m.get('r2_fr_val'))}** "
                 f"(estimation {fmt_metric(m.get('r2_osa_est'))} · {fmt_metric(m.get('r2_fr_est'))})"]

@@ -70,6 +70,7 @@ from streamid.viz.reports import (
     VizSettings,
     fmt_metric as _f,
     model_markdown,
+    run_text,
     parse_rerun_url,
 )
 
@@ -344,7 +345,7 @@ class Viz:
                 if metric is not None and math.isfinite(metric):
                     rec.log(f"{base}/history/{name}", rr.Scalars(max(metric, -1.0)))
             rec.log(f"{base}/events", rr.TextLog(
-                f"challenger REJECTED (G={r.generations}, {r.identification_s:.2f} s): R² val OSA "
+                f"challenger REJECTED ({run_text(r, ', ')}, {r.identification_s:.2f} s): R² val OSA "
                 f"{_f(r.metrics.get('r2_osa_val'))} FR {_f(r.metrics.get('r2_fr_val'))}; {r.note}", level="INFO"))
             return
         n = len(r.y_val)
@@ -396,7 +397,7 @@ class Viz:
         figures = (f"R² val OSA {_f(r.metrics.get('r2_osa_val'))} FR {_f(r.metrics.get('r2_fr_val'))}"
                    f"{'; ' + r.note if r.note else ''}")
         text = (f"the model judged on this record: {figures}" if r.judged_only else
-                f"model v{r.version} {verdict} ({'warm' if r.warm else 'cold'}, G={r.generations}, "
+                f"model v{r.version} {verdict} ({run_text(r, ', ')}, "
                 f"{r.identification_s:.2f} s): {figures}")
         rec.log(f"{base}/events", rr.TextLog(text, level=level))
 
