@@ -64,6 +64,7 @@ from streamid.daemon.share_link import ShareLink
 from streamid.daemon.sharing import Life, Shares
 from streamid.daemon.versions import VersionKeeper
 from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
+from streamid.online.refresh import RefreshOutcome
 from streamid.engine import warm_up_kernels
 from streamid.engine.parallel import EvalHelper
 from streamid.errors import CodecError, StreamidError
@@ -444,7 +445,7 @@ class Daemon(SlotKeeping):
             m = up.metrics
             _log.info("stream %s: window %d identified, model v%d published (%s, R² validation OSA %.4f FR %.4f, "
                       "%.2f s, latency %.2f s)", name, window.number, up.version,
-                      "refreshed" if out.generations == 0 and out.warm else "warm" if out.warm else "cold",
+                      "refreshed" if isinstance(out, RefreshOutcome) else "warm" if out.warm else "cold",
                       m.get("r2_osa_val", float("nan")), m.get("r2_fr_val", float("nan")), out.seconds, latency_s)
         else:
             _log.info("stream %s: window %d %s, model v%d kept: %s", name, window.number, up.kind, up.version, up.reason)
