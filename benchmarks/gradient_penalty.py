@@ -7,7 +7,9 @@ first order, the network's slope (Bishop 1995, "Training with noise is equivalen
     min_w  sum_t (y_t - yhat_t)^2 + s2 * sum_t ||d net(r_t) / d r_S||^2
 
 with ``S`` the output lags (``"y"``) or every regressor (``"all"``) and ``s2`` the kept model's estimation
-free-run mean squared error in normalised units. The linear part (if any) is refitted with the network and not
+free-run mean squared error in normalised units. The refit is a least squares: a kept model whose weights the
+engine fitted to its free run (the refinement) loses that fit, so the plain refit (``s2 = 0``, column ``refit``)
+is reported too, to tell the penalty's effect from the refinement's removal. The linear part (if any) is refitted with the network and not
 penalised; a refit whose linear autoregression leaves the unit circle is refused (the engine's rule).
 
 Each row: the defaults' kept model on the suite's target, its validation free-run R^2 on the other experiment;
@@ -109,6 +111,8 @@ def row(system: str, index: int, seed: int) -> dict[str, Any]:
     model = identify(u, y, DEFAULT, seed).model
     h = len(y) // 2
     out: dict[str, Any] = {"row": t.name, "seed": seed, "base": free_run_val(model, t)}
+    plain = penalised_refit(model, u, y, 0.0, "y")  # the least squares again: a refined model loses its refinement
+    out["refit"] = None if plain is None else free_run_val(plain, t)
     half = penalised_refit(model, u[:h], y[:h], 0.0, "y")
     out["held_base"] = _held_out(half, u, y, h)
     s2, s2_half = free_run_mse(model, u, y), free_run_mse(half if half is not None else model, u[:h], y[:h])
@@ -123,6 +127,11 @@ def _row(job: tuple[str, int, int]) -> dict[str, Any]:
     return row(*job)
 
 
+def _or_kept(o: dict[str, Any], key: str) -> float:
+    """A refit refused (its autoregression left the unit circle) is not made: the kept model stays."""
+    return float(o["base"]) if o[key] is None else float(o[key])
+
+
 def _judged(o: dict[str, Any], which: str) -> float:
     if o[which] is None or o["held_" + which] is None:
         return float(o["base"])
@@ -133,8 +142,9 @@ def _judged(o: dict[str, Any], which: str) -> float:
 #: The columns of :func:`summarise`: the defaults, the penalised refits, and each judged out of sample.
 COLUMNS = {
     "defaults": lambda o: float(o["base"]),
-    "y": lambda o: float("-inf") if o["y"] is None else float(o["y"]),
-    "all": lambda o: float("-inf") if o["all"] is None else float(o["all"]),
+    "refit": lambda o: _or_kept(o, "refit"),
+    "y": lambda o: _or_kept(o, "y"),
+    "all": lambda o: _or_kept(o, "all"),
     "y judged": lambda o: _judged(o, "y"),
     "all judged": lambda o: _judged(o, "all"),
 }

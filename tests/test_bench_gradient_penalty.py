@@ -42,3 +42,15 @@ def test_no_penalty_is_the_least_squares_and_a_penalty_flattens_the_network() ->
     flat = penalised_refit(model, u, y, 10 * free_run_mse(model, u, y), "all")
     assert flat is not None
     assert flat.weights @ g @ flat.weights < plain.weights @ g @ plain.weights
+
+
+def test_the_summary_counts_targets_and_keeps_the_model_where_a_refit_is_refused() -> None:
+    from benchmarks.gradient_penalty import summarise
+
+    rows = [{"row": "rlc [id->test]", "seed": s, "base": 0.97, "refit": None, "y": 0.5, "all": 0.96,
+             "held_base": 0.9, "held_y": 0.95, "held_all": 0.8} for s in range(5)]
+    lines, met = summarise(rows)
+    assert met["defaults"] == 1 and met["refit"] == 1  # refused: the kept model's 0.97 (FROLS 0.9412)
+    assert met["y"] == 0 and met["y judged"] == 0  # 0.5, taken: its half held out better
+    assert met["all"] == 1 and met["all judged"] == 1  # 0.96 not taken (its half held out worse): 0.97
+    assert lines[0].startswith("| rlc [id->test] | 0.9700 / 0.97 *")
