@@ -296,6 +296,7 @@ def test_a_live_stream_left_without_a_model_keeps_only_its_newest_window(damper:
 def test_the_rerun_diagnostics_say_a_refresh_is_a_refresh(run: tuple[OnlineIdentifier, list], tmp_path: Path) -> None:
     """The champion's text and the events of a real .rrd, read back: a refresh says which version it re-solved,
     as `streamid watch` does, never ``warm · G=0`` (it runs no coevolution)."""
+    import pyarrow as pa
     from rerun.chunk import RrdReader
 
     from streamid.daemon.report import update_report
@@ -324,3 +325,11 @@ def test_the_rerun_diagnostics_say_a_refresh_is_a_refresh(run: tuple[OnlineIdent
     refreshes = sum((up.document or {}).get("update") == "refreshed" for up in drawn)
     assert refreshes >= 8 and sum("(refreshed from v" in t for t in texts) == refreshes
     assert not any("G=0" in t for t in texts) and any("(cold, G=40" in t for t in texts)
+    # the update-time panel: every update's time, the rejected challengers' too (not only the published models')
+    times = []
+    for c in RrdReader(rrd).stream().filter(content="/streams/damper/history/identification_s").to_chunks():
+        b = c.to_record_batch()
+        if "Scalars:scalars" in b.schema.names:
+            times += zip(b.column("stream_time").cast(pa.int64()).to_pylist(), b.column("Scalars:scalars").to_pylist())
+    assert sum(not r.accepted for r in reports) >= 3
+    assert [v[0] for _, v in sorted(times)] == [r.identification_s for r in sorted(reports, key=lambda r: r.window_end_ns)]

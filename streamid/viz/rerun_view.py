@@ -16,8 +16,10 @@ draws, per stream, under ``streams/<stream>/``:
 ``correlation/<test>/{value,outside,band,band_low}``
     the five residual correlation tests; values outside the ±95 % band again in red
 ``history/{r2_osa,r2_fr,identification_s,latency_s}``
-    validation R², identification time and window-closed-to-published time of
-    every update (at the window's end)
+    validation R² and identification time of every update (a rejected
+    challenger's R² as ``rejected_r2_fr``, beside ``champion_r2_fr`` on the same
+    data), and window-closed-to-published time of every published model (at the
+    window's end)
 ``model``, ``events``
     the newest model (lags, R², share of lags inside each band; Markdown) and a
     text log (model published, bad input, gaps, backlog)
@@ -344,6 +346,9 @@ class Viz:
             for name, metric in (("rejected_r2_fr", r.metrics.get("r2_fr_val")), ("champion_r2_fr", r.champion_r2_fr)):
                 if metric is not None and math.isfinite(metric):
                     rec.log(f"{base}/history/{name}", rr.Scalars(max(metric, -1.0)))
+            # the work spent, whatever the verdict: with only the accepted updates drawn, a champion that keeps
+            # winning left the panel one line from its first run to its last publication
+            rec.log(f"{base}/history/identification_s", rr.Scalars(r.identification_s))
             rec.log(f"{base}/events", rr.TextLog(
                 f"challenger REJECTED ({run_text(r, ', ')}, {r.identification_s:.2f} s): R² val OSA "
                 f"{_f(r.metrics.get('r2_osa_val'))} FR {_f(r.metrics.get('r2_fr_val'))}; {r.note}", level="INFO"))
