@@ -99,3 +99,22 @@ def test_a_model_without_an_input_term_is_not_admissible(reactor, good_model) ->
     assert ev["excursion_spans"] is None and json.loads(json.dumps(ev, allow_nan=False))["admissible"] == 0
     fr2 = free_run_scores([autonomous, good_model], u, y)
     assert fr2.best() == 1 and fr2.admissible == 1
+
+
+def test_scores_streamed_in_chunks_are_the_whole_records(reactor, good_model,  # type: ignore[no-untyped-def]
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """``keep_paths=False`` simulates a few rows at a time, each chunk from the last outputs of the one before:
+    the same free runs (their excursions to the bit, scores to rounding), no paths kept."""
+    import streamid.engine.choice as choice
+
+    u, y = reactor
+    lin = replace(good_model, linear=np.r_[np.full(len(good_model.regressors), 0.01), 0.02])
+    cands = [good_model, replace(good_model, weights=good_model.weights * 4.0), lin,
+             replace(good_model, weights=good_model.weights * 1.1)]
+    whole = free_run_scores(cands, u, y, range_margin=0.25, score_from=100)
+    monkeypatch.setattr(choice, "SCORE_CHUNK_ROWS", 37)  # 600 samples: 17 chunks, none aligned with score_from
+    streamed = free_run_scores(cands, u, y, range_margin=0.25, score_from=100, keep_paths=False)
+    assert streamed.excursions == whole.excursions and whole.admissible == streamed.admissible >= 2
+    assert np.allclose(streamed.scores, whole.scores, rtol=1e-12, atol=0)  # the -inf ones: equal
+    assert all(p is None for p in streamed.paths) and all(p is not None for p in whole.paths)
+    assert streamed.best() == whole.best()

@@ -102,7 +102,8 @@ def test_the_compiled_free_runs_follow_the_formula(linear: bool, direct: bool) -
     for n, w in zip(nets, want):  # one network (Model.simulate), and its sensitivities kernel
         np.testing.assert_allclose(NORM.y(n.simulate(u, y[:2])), w, rtol=0, atol=1e-11)
         du, cy, a, lags, lin_y, lin_u = parts(n, NORM.u(u[:, None]))
-        got, _ = free_run_sensitivities(du, cy, a, lags, n.weights, lin_y, lin_u, NORM.y(y)[:2], 2, np.zeros((400, 0)), 0)
+        got, _ = free_run_sensitivities(du, cy, a, lags, n.weights, lin_y, lin_u, NORM.y(y)[:2], 2, np.zeros((400, 0)), 0,
+                                        np.zeros((2, n.neurons)))
         np.testing.assert_allclose(got, w, rtol=0, atol=1e-11)
     # several networks sharing their regressors advance together (the final choice's batched free runs)
     both = free_run(nets[0].regressors, np.stack([n.centres for n in nets]), np.stack([n.widths for n in nets]),
@@ -294,3 +295,26 @@ def test_the_penalty_keeps_the_weights_at_the_searchs_scale(monkeypatch: pytest.
     monkeypatch.setattr(refine, "WEIGHT_PENALTY", 0.0)  # the same refinement without it: what the penalty prevents
     loose, _ = refine.refine_weights(model, t.u_est, t.y_est, 10, 0.8, 0.25)
     assert max(float(np.abs(m.weights).max()) for m in members_of(loose)) > 1e6 * scale
+
+
+def test_the_refinement_made_in_chunks_is_the_same(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Free runs and derivatives made a few rows at a time (each member continued from the outputs and
+    derivatives ending the chunk before; members of different lags) give the one-piece refinement: memory bounded
+    by the chunk, not the record."""
+    import streamid.engine.refine as refine
+
+    u, y = _plant()
+    net = _osa_net(u, y, (Y1, Y2, U1, U2), 7, 2, linear=True)
+    ens = ensemble_of([_osa_net(u, y, (Y1, Y2, U1, U2), 6, 3), _osa_net(u, y, (Y1, U1), 5, 4, linear=True)])
+    assert isinstance(ens, EnsembleModel) and {m.max_lag for m in ens.members} == {1, 2}
+    whole = [refine_weights(m, u[:, None], y, 10, 0.0, 0.25) for m in (net, ens)]
+    monkeypatch.setattr(refine, "CHUNK_ROWS", 37)  # 600 samples: 17 chunks
+    assert refine.chunks(2, 600)[:2] == [(2, 39), (39, 76)] and refine.chunks(2, 600)[-1][1] == 600
+    for model, (want, ev_want) in zip((net, ens), whole):
+        got, ev = refine_weights(model, u[:, None], y, 10, 0.0, 0.25)
+        assert ev["taken"] is True and ev["iterations"] == ev_want["iterations"] >= 2
+        assert ev["r2_fr_est_after"] == pytest.approx(ev_want["r2_fr_est_after"], abs=1e-12)
+        for a, b in zip(members_of(got), members_of(want)):
+            np.testing.assert_allclose(a.weights, b.weights, rtol=1e-9, atol=1e-12)
+            if b.linear is not None:
+                np.testing.assert_allclose(a.linear, b.linear, rtol=1e-9, atol=1e-12)

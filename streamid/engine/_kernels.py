@@ -221,7 +221,7 @@ def recursion(un: F64, ulags: NDArray[np.int64], uidx: NDArray[np.int64], cu: F6
 
 @njit(cache=True, nogil=True)
 def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w: F64, lin_y: F64, lin_u: F64, y0: F64,
-                           L: int, xu: F64, ny: int) -> tuple[F64, F64]:
+                           L: int, xu: F64, ny: int, s0: F64) -> tuple[F64, F64]:
     """The network's free run (n,) with weights ``w`` (M,) from ``y0`` (L,), and its derivatives along it.
 
     ``du`` (n, M): the input regressors' scaled squared distances; ``cy`` (ky, M): the centres' output
@@ -231,9 +231,13 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
     part's output coefficients ``lin_y``, then by the coefficients of the columns ``xu`` (n, q) of which
     ``lin_u`` is made (a linear part's input regressors and its constant; q = 0 and ny = 0 to
     differentiate by the weights only). Each column follows ``s(t) = x(t) + sum_k g_k(t) s(t - lag_k)``,
-    zero before ``L`` (measured outputs), where ``x(t)`` is the parameter's own term at step ``t``
+    given before ``L`` (``s0``), where ``x(t)`` is the parameter's own term at step ``t``
     (``phi_m(t)``, ``yhat(t - lag_k)`` or ``xu(t, j)``) and ``g_k(t) = lin_y_k - sum_m 2 a_m w_m phi_m(t)
     (yhat(t - lag_k) - cy_mk)`` the derivative of step ``t``'s output by its fed-back outputs.
+
+    ``s0`` (L, P): the derivatives of the ``L`` given outputs (zeros: measured ones). A free run simulated in
+    pieces continues from the last ``L`` outputs (``y0``) and derivatives (``s0``) of the piece before, and
+    gives the same rows as in one piece.
     """
     n, M = du.shape
     ky = lags.shape[0]
@@ -248,6 +252,8 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
     v = np.empty(P)
     for t in range(L):
         Y[t] = y0[t]
+        for m in range(P):
+            S[t, m] = s0[t, m]
     for t in range(L, n):
         acc = lin_u[t]
         for k in range(ky):
@@ -279,7 +285,7 @@ def free_run_sensitivities(du: F64, cy: F64, a: F64, lags: NDArray[np.int64], w:
             x[M + ny + j] = xu[t, j]
         for m in range(P):
             v[m] = x[m]
-        for k in range(ky):  # rows before L are zero
+        for k in range(ky):  # rows before L: s0
             gk = g[k]
             row = t - lags[k]
             for m in range(P):
@@ -337,6 +343,6 @@ def warm_up_kernels() -> None:
     recursion(np.zeros((1, 3, 1)), one, one - 1, np.zeros((1, 1, 1)), np.zeros((1, 1, 1)), np.ones((1, 1)), one,
               np.zeros((1, 1)), one, np.zeros((1, 1)), np.zeros((3, 1)), np.zeros((3, 1)), 1)
     free_run_sensitivities(np.zeros((3, 1)), np.zeros((1, 1)), np.ones(1), np.ones(1, dtype=np.int64), np.zeros(1),
-                           np.zeros(1), np.zeros(3), np.zeros(3), 1, np.zeros((3, 0)), 0)
+                           np.zeros(1), np.zeros(3), np.zeros(3), 1, np.zeros((3, 0)), 0, np.zeros((1, 1)))
     exp2_rows(np.zeros((1, 2, 3)), 1, 2)
     gram_rows(np.zeros((1, 3, 4)), 1, 3, np.empty((1, 3, 2)))

@@ -115,6 +115,12 @@ class FreeRunScores:
             "range_margin": self.range_margin,
         }
 
+#: Rows per step of a free-run scoring that keeps no paths (``free_run_scores(..., keep_paths=False)``): its memory
+#: is this many rows of each candidate whatever the record's length (the paths of 21 candidates over a 1,000,000-
+#: sample window's estimation part were 2 x 118 MB at the online update's peak).
+SCORE_CHUNK_ROWS = 65_536
+
+
 def free_run_scores(
     models: list[Model],
     u: NDArray[np.float64],
@@ -123,11 +129,15 @@ def free_run_scores(
     score_from: int | None = None,
     range_margin: float = 0.25,  # (RANGE_MARGIN)
     threads: int = 1,
+    keep_paths: bool = True,
 ) -> FreeRunScores:
     """Free-run scores and range guard of ``models`` on ``(u, y)`` (``u`` of shape (N, n_inputs)).
 
     Models sharing regressors and normalisation are simulated together (one recursion; in ``threads``
-    groups at once, the same result).
+    groups at once, the same result). ``keep_paths=False``: single networks are simulated
+    :data:`SCORE_CHUNK_ROWS` rows at a time, each step from the last outputs of the one before (the same free run
+    to the bit), their scores accumulated and no path kept (``paths`` all None): memory bounded by the chunk,
+    not the record.
     """
     if not models:
         raise DataError("no candidate models to choose from")
@@ -149,12 +159,18 @@ def free_run_scores(
         first = L if score_from is None else max(int(score_from), L)
         if first >= len(y) - 1:
             raise DataError(f"free-run scoring from sample {first} leaves fewer than 2 of {len(y)} samples")
+        drives = all(any(r.signal == "u" for r in mm.regressors) for mm in members_of(m0))
+        if not keep_paths and not isinstance(m0, EnsembleModel):
+            group = [models[i] for i in idx]
+            for k, out in enumerate(_streamed(group, u, y, first, lo, hi, range_margin, threads)):
+                if out is not None and drives and is_bounded(group[k]):
+                    scores[idx[k]], exc[idx[k]] = out
+            continue
         with np.errstate(over="ignore", invalid="ignore"):
             if isinstance(m0, EnsembleModel):  # each member on its own past outputs, averaged
                 ys = m0.simulate(u, y[:L])[None]
             else:
                 ys = m0.normalisation.y_inverse(group_free_run([models[i] for i in idx], u, y[:L], threads))
-        drives = all(any(r.signal == "u" for r in mm.regressors) for mm in members_of(m0))
         for k, i in enumerate(idx):
             if not np.all(np.isfinite(ys[k, L:])):
                 continue
@@ -162,6 +178,45 @@ def free_run_scores(
             if drives and is_bounded(models[i]):
                 scores[i], exc[i] = path_score(ys[k], y, L, first, lo, hi, range_margin)
     return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin), tuple(paths))
+
+def _streamed(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64], first: int, lo: float, hi: float,
+              range_margin: float, threads: int) -> list[tuple[float, float] | None]:
+    """:func:`path_score` of each network's free run (networks sharing their regressors, as
+    :func:`group_free_run`), simulated :data:`SCORE_CHUNK_ROWS` rows at a time; None where it is not finite."""
+    m0 = models[0]
+    L, n, C = m0.max_lag, len(y), len(models)
+    norm = m0.normalisation
+    un = norm.u(u)
+    centres, widths = np.stack([m.centres for m in models]), np.stack([m.widths for m in models])
+    weights, linear = np.stack([m.weights for m in models]), _linear_parts(models)
+    init = np.ascontiguousarray(np.broadcast_to(norm.y(y[:L]), (C, L)))
+    sse, top, bottom = np.zeros(C), np.full(C, -np.inf), np.full(C, np.inf)
+    finite = np.ones(C, dtype=bool)
+    for a in range(L, n, SCORE_CHUNK_ROWS):
+        b = min(n, a + SCORE_CHUNK_ROWS)
+        with np.errstate(over="ignore", invalid="ignore"):
+            path = free_run(m0.regressors, centres, widths, weights, un[a - L : b], init, linear, threads=threads,
+                            linear_regressors=m0.linear_regressors)  # rows a - L .. b - 1, the first L given
+            out = norm.y_inverse(path[:, L:])
+            finite &= np.all(np.isfinite(out), axis=1)
+            top, bottom = np.maximum(top, out.max(axis=1)), np.minimum(bottom, out.min(axis=1))
+            if b > first:
+                s = max(first, a)
+                sse += np.sum((y[None, s:b] - out[:, s - a :]) ** 2, axis=1)
+        init = np.ascontiguousarray(path[:, path.shape[1] - L :])
+    ss = float(np.sum((y[first:] - y[first:].mean()) ** 2))
+    if not ss > 0:
+        raise DataError(f"the output is constant over the scored part (from sample {first}); nothing to score")
+    span = hi - lo
+    res: list[tuple[float, float] | None] = []
+    for c in range(C):
+        if not finite[c]:
+            res.append(None)
+            continue
+        e = max(max(float(top[c]) - hi, lo - float(bottom[c]), 0.0) / span - range_margin, 0.0)
+        res.append(((1.0 - float(sse[c]) / ss) if e == 0.0 else -np.inf, e))
+    return res
+
 
 def path_score(path: NDArray[np.float64], y: NDArray[np.float64], L: int, first: int, lo: float, hi: float,
                range_margin: float) -> tuple[float, float]:

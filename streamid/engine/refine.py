@@ -80,6 +80,18 @@ _TRIALS = 4  # free runs per iteration on average, at most (a bound on the work 
 
 _STOP = 1e-4  # stop when an iteration lowers the error by less than this fraction of it
 
+#: Rows of the free run and its derivatives made at a time (:func:`chunks`): the refinement's memory is this many
+#: rows of every parameter whatever the record's length (its Jacobian over a 1,000,000-sample window's estimation
+#: part was 112 MB, with 62 MB of derivatives besides, at the online update's peak). A record of up to
+#: ``max_lag + CHUNK_ROWS`` samples is one chunk, as before.
+CHUNK_ROWS = 65_536
+
+
+def chunks(L: int, n: int) -> list[tuple[int, int]]:
+    """The rows ``[a, b)`` of each chunk of a free run over ``n`` samples from ``L`` given ones (the first from
+    ``L``, then :data:`CHUNK_ROWS` each)."""
+    return [(a, min(n, a + CHUNK_ROWS)) for a in range(L, n, CHUNK_ROWS)] or [(L, n)]
+
 
 def parts(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[Any], ...]:
     """``(du, cy, a, lags, lin_y, lin_u)`` of one network on the normalised inputs ``un`` (N, n_inputs): the
@@ -127,12 +139,13 @@ def sensitivities(model: Model, un: NDArray[np.float64], y0: NDArray[np.float64]
     the weights (n, M), then, with a linear part, its coefficients in the model's order and its constant
     (n, M + k + 1)."""
     du, cy, a, lags, lin_y, lin_u = parts(model, un)
+    L = model.max_lag
     if model.linear is None:
         return np.asarray(free_run_sensitivities(du, cy, a, lags, np.array(model.weights), lin_y, lin_u, y0,
-                                                 model.max_lag, np.zeros((un.shape[0], 0)), 0)[1])
+                                                 L, np.zeros((un.shape[0], 0)), 0, np.zeros((L, model.neurons)))[1])
     xu, yj, uj = _linear_columns(model, un)
-    S = free_run_sensitivities(du, cy, a, lags, np.array(model.weights), lin_y, lin_u, y0, model.max_lag, xu,
-                               len(yj))[1]
+    S = free_run_sensitivities(du, cy, a, lags, np.array(model.weights), lin_y, lin_u, y0, L, xu,
+                               len(yj), np.zeros((L, model.neurons + len(yj) + xu.shape[1])))[1]
     return np.asarray(S[:, _model_order(model.neurons, yj, uj)])
 
 
@@ -191,30 +204,54 @@ def refine_weights(
     none = np.zeros((un.shape[0], 0))
     offs = np.cumsum([0, *sizes])
 
-    def one(i: int, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Network ``i``'s free run with parameters ``theta`` (weights, then a linear part) and its derivatives."""
+    n = un.shape[0]
+    bounds = chunks(L, n)
+
+    def one(i: int, theta: NDArray[np.float64], start: int, stop: int, y0: NDArray[np.float64],
+            s0: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Network ``i``'s free run over rows ``start..stop-1`` with parameters ``theta`` (weights, then a linear
+        part) and its derivatives (the kernel's column order), its first ``max_lag`` outputs ``y0`` and their
+        derivatives ``s0`` given."""
         du, cy, a, lags, lin_y, lin_u = P[i]
-        M, li = nets[i].neurons, lin[i]
+        M, li, Li = nets[i].neurons, lin[i], nets[i].max_lag
         if li is None:
-            return free_run_sensitivities(du, cy, a, lags, theta, lin_y, lin_u, yn, nets[i].max_lag, none, 0)
+            return free_run_sensitivities(du[start:stop], cy, a, lags, theta, lin_y, lin_u[start:stop], y0, Li,
+                                          none[start:stop], 0, s0)
         xu, yj, uj = li
         c = theta[M:]
-        Y, S = free_run_sensitivities(du, cy, a, lags, theta[:M], np.ascontiguousarray(c[yj]),
-                                      xu @ np.append(c[uj], c[-1]), yn, nets[i].max_lag, xu, len(yj))
-        return Y, S[:, orders[i]]
+        return free_run_sensitivities(du[start:stop], cy, a, lags, theta[:M], np.ascontiguousarray(c[yj]),
+                                      xu[start:stop] @ np.append(c[uj], c[-1]), y0, Li, xu[start:stop], len(yj), s0)
 
-    def runs(ws: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The mean free run with parameters ``ws`` and the Jacobian of that mean by all of them (rows L:)."""
+    def runs(ws: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The mean free run with parameters ``ws``, ``J'J`` and ``J'(y - mean)`` (rows L:), ``J`` the Jacobian of
+        that mean by all of them: made :data:`CHUNK_ROWS` rows at a time (each member's free run continued from
+        the outputs and derivatives that end the chunk before), so that no ``n x parameters`` array is held."""
+        mean = np.empty(n)
+        jtj, jtr = np.zeros((w0_size, w0_size)), np.zeros(w0_size)
+        tails: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+        for k, (a, b) in enumerate(bounds):
 
-        def member(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            with np.errstate(over="ignore", invalid="ignore"):  # (numpy's error state is each thread's own)
-                return one(i, ws[i])
+            def member(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                Li = nets[i].max_lag
+                y0, s0 = (yn, np.zeros((Li, sizes[i]))) if k == 0 else tails[i]
+                with np.errstate(over="ignore", invalid="ignore"):  # (numpy's error state is each thread's own)
+                    return one(i, ws[i], 0 if k == 0 else a - Li, b, y0, s0)
 
-        outs = thread_map(member, range(K), threads)
-        with np.errstate(over="ignore", invalid="ignore"):
-            return np.mean([o[0] for o in outs], axis=0), np.concatenate([o[1][L:] for o in outs], axis=1) / K
+            outs = thread_map(member, range(K), threads)
+            tails = [(Y[Y.shape[0] - m.max_lag :].copy(), S[S.shape[0] - m.max_lag :].copy())
+                     for (Y, S), m in zip(outs, nets)]
+            first = 0 if k == 0 else a  # the first chunk's rows start at 0 for every member
+            keep = [b - first if k == 0 else b - a for _ in outs]  # rows first..b-1 of each
+            with np.errstate(over="ignore", invalid="ignore"):
+                mean[first:b] = np.mean([Y[Y.shape[0] - r :] for (Y, _), r in zip(outs, keep)], axis=0)
+                J = np.concatenate([(S if o is None else S[:, o])[S.shape[0] - (b - a) :]
+                                    for (_, S), o in zip(outs, orders)], axis=1) / K
+                jtj += J.T @ J
+                jtr += J.T @ (yn[a:b] - mean[a:b])
+        return mean, jtj, jtr
 
-    mean, J = runs(W)
+    w0_size = int(sum(sizes))
+    mean, jtj, jtr = runs(W)
     with np.errstate(over="ignore", invalid="ignore"):
         ok = bool(np.all(np.isfinite(mean[L:])))
         score = path_score(norm.y_inverse(mean), y, L, L, lo, hi, range_margin)[0] if ok else -np.inf
@@ -222,8 +259,7 @@ def refine_weights(
     if not score >= above:
         return model, {**ev, "reason": f"estimation free-run R2 {score:.4f} below the gate {above}"}
     w0 = np.concatenate(W)
-    A = J.T @ J
-    rho = WEIGHT_PENALTY * max(float(np.mean(np.diag(A))), 1e-300)  # the weights' penalty (WEIGHT_PENALTY: why)
+    rho = WEIGHT_PENALTY * max(float(np.mean(np.diag(jtj))), 1e-300)  # the weights' penalty (WEIGHT_PENALTY: why)
     eye = np.eye(w0.size)
 
     def objective(mean_run: NDArray[np.float64], w: NDArray[np.float64]) -> float:
@@ -234,7 +270,7 @@ def refine_weights(
     lam, trials = DAMPING[0], 0
     for it in range(iterations):
         w_now = np.concatenate(W)
-        A, b = J.T @ J + rho * eye, J.T @ (yn[L:] - mean[L:]) - rho * (w_now - w0)
+        A, b = jtj + rho * eye, jtr - rho * (w_now - w0)
         D = np.diag(np.diag(A))
         gain = -1.0
         while lam <= DAMPING[2] and trials < iterations * _TRIALS:
@@ -245,10 +281,10 @@ def refine_weights(
                 lam *= 10.0
                 continue
             ws = [W[i] + step[offs[i] : offs[i + 1]] for i in range(K)]
-            m_new, J_new = runs(ws)
+            m_new, jtj_new, jtr_new = runs(ws)
             c_new = objective(m_new, w_now + step)
             if np.isfinite(c_new) and c_new < cost:  # accepted: a bolder step next time
-                W, mean, J, gain, cost = ws, m_new, J_new, (cost - c_new) / cost, c_new
+                W, mean, jtj, jtr, gain, cost = ws, m_new, jtj_new, jtr_new, (cost - c_new) / cost, c_new
                 lam = max(lam / 10.0, DAMPING[1])
                 break
             lam *= 10.0

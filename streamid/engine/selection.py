@@ -213,7 +213,7 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
     pairs = run.candidate_pairs(run.config.fr_candidates or None)
     cands = [run.model_for(h, x, search_rows=True) for h, x in pairs]
     with one_blas_thread():
-        fr = free_run_scores(cands, u, y, range_margin=margin)
+        fr = free_run_scores(cands, u, y, range_margin=margin, keep_paths=False)  # bounded memory: no paths kept
         if not fr.admissible:
             return None
         k = fr.best()

@@ -348,6 +348,8 @@ def identify_window(
         # with a sample of rows the candidates are screened on it and only the chosen one refitted on every row:
         # fitting all of them on every row would cost what the sample saved
         model, score = select_model(co, u_est, y_est, engine_cfg.selection, screen_rows=sample is not None)
+        state, fitness = co.state(), np.asarray(co.history, dtype=np.float64)
+        del co  # its lag matrix of every row (n x candidate lags) is not needed past the choice: freed before refining
         model, score = long_linear_part(model, score, engine_cfg, u_est, y_est)
         if engine_cfg.selection != "fitness":
             model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
@@ -357,8 +359,6 @@ def identify_window(
             model, refined = refine_judged(model, u_est, y_est, engine_cfg.refine_iterations, REFINE_ABOVE,
                                            RANGE_MARGIN)
             model = model.with_metrics(refinement=refined)
-        state = co.state()
-        fitness = np.asarray(co.history, dtype=np.float64)
         with one_blas_thread():  # the validation's products: steady with one thread (see identify_window)
             summary = summarise(model, u_est, y_est, u_val, y_val)
             if generations is not None and champion is not None and champion.n_inputs == u_est.shape[1]:
