@@ -118,3 +118,63 @@ def test_scores_streamed_in_chunks_are_the_whole_records(reactor, good_model,  #
     assert np.allclose(streamed.scores, whole.scores, rtol=1e-12, atol=0)  # the -inf ones: equal
     assert all(p is None for p in streamed.paths) and all(p is not None for p in whole.paths)
     assert streamed.best() == whole.best()
+
+
+@pytest.mark.parametrize("linear", [False, True])
+def test_a_long_records_final_fit_is_made_in_blocks_with_the_same_weights(  # type: ignore[no-untyped-def]
+        reactor, linear: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past ``FIT_BLOCK_ROWS`` rows the chosen pair's activations and regressors are made a block at a time, never
+    for every row: the weights of the streamed least squares the whole-record fit takes there, the same to the bit."""
+    import streamid.engine.coevolution as coevolution
+    import streamid.engine.rbf as rbf
+    from streamid.engine.coevolution import Coevolution
+    from streamid.engine.rbf import activations
+
+    u, y = reactor
+    co = Coevolution(u, y, PAPER.replace(neurons=6, generations=4, linear_terms=linear), 3)
+    for _ in co:
+        pass
+    for module in (rbf, coevolution):
+        monkeypatch.setattr(module, "FIT_BLOCK_ROWS", 64)  # 590 rows: 10 blocks
+    mask, x = co.best_h, co.best_x
+    blocks = co.model_for(mask, x)
+    cols = np.flatnonzero(mask)
+    M, D = co.config.neurons, co.D
+    whole = co._fitted(cols, x, activations(co.R[:, cols], x[: M * D].reshape(M, D)[:, cols], x[M * D:]),
+                       co.R[:, cols], co.target)
+    np.testing.assert_array_equal(blocks.weights, whole.weights)
+    assert (blocks.linear is None) == (not linear) and (blocks.linear is None or
+                                                        np.array_equal(blocks.linear, whole.linear))
+    assert blocks.metrics["fitness"] == pytest.approx(whole.metrics["fitness"], rel=1e-12)
+
+
+def test_a_large_windows_fallback_fits_and_scores_every_candidate_in_blocks(  # type: ignore[no-untyped-def]
+        reactor, monkeypatch: pytest.MonkeyPatch) -> None:
+    """When the screened choice's refit is not admissible, every candidate is fitted on every row: for a record
+    past ``FIT_BLOCK_ROWS`` that is done a block at a time and scored without keeping free runs; the same choice
+    as the whole-record way (the weights to an ulp of the activations)."""
+    import streamid.engine.coevolution as coevolution
+    import streamid.engine.rbf as rbf
+    import streamid.engine.selection as selection
+    from streamid.engine.coevolution import Coevolution
+
+    u, y = reactor
+    cfg = PAPER.replace(neurons=6, generations=6, selection="fr_est", linear_terms=True, search_rows=128)
+    rows = np.sort(np.random.default_rng(0).choice(len(y) - cfg.max_lag, 128, replace=False))
+    co = Coevolution(u, y, cfg, 4, rows=rows)
+    for _ in co:
+        pass
+    whole, score_whole, path = selection.select_model_path(co, u, y, "fr_est")
+    for module in (rbf, coevolution):
+        monkeypatch.setattr(module, "FIT_BLOCK_ROWS", 64)
+    monkeypatch.setattr(selection, "_screened", lambda *a: None)  # the screened refit not admissible
+    blocks = co.candidate_models(None, both=True, in_blocks=True)
+    plain = co.candidate_models(None, both=True)
+    assert len(blocks) == len(plain) >= 4
+    for a, b in zip(blocks, plain):
+        np.testing.assert_allclose(a.weights, b.weights, rtol=1e-7, atol=1e-9)
+    chosen, score, none = selection.select_model_path(co, u, y, "fr_est", screen_rows=True)
+    assert none is None and path is not None  # no free run kept in blocks
+    np.testing.assert_allclose(chosen.weights, whole.weights, rtol=1e-7, atol=1e-9)
+    assert score == pytest.approx(score_whole, abs=1e-9)
+    assert chosen.metrics["free_run_choice"]["candidates"] == whole.metrics["free_run_choice"]["candidates"]

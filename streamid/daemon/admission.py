@@ -19,30 +19,31 @@ Memory of one stream
       neurons, population ``P`` and ``C`` free-run candidates (``P + 1``, or
       ``fr_candidates + 1``), in doubles:
 
-      - the search, over its ``k = min(m, bound)`` rows (:mod:`streamid.online.rows`:
-        ``bound = max(4096, 128 (M + D + 1))``): the evaluator's data and feature tables,
-        activations and residuals, the rows' copies (and the helper's), the populations,
-        ``k (P (D + M + 4) + 4 D + 2) + 2 P M (D + 1)``: bounded whatever the window;
-      - the data: the window's copy, the output column, the estimation part and its
-        normalised copy, the lag matrix, ``n c + n + 2 n_est (i + 1) + m D``;
-      - the passes over every row, the largest of: the candidates' free runs for the choice
-        (their paths and one working copy), ``2 C + i + 4``; the chosen one's regressors and
-        activations for its refit beside the paths, ``C + D + M + 4``; and, when that refit
-        leaves the data's range, the selection's fallback (:func:`~streamid.engine.selection.select_model`
-        fits every candidate on every row), the activations of all of them, ``C M + 2 D + 2``; and, when the
-        updates refine (:func:`~streamid.engine.refine.refine_judged`, the default), the refinement's input terms,
-        free run and Jacobians over the output weights (``M``, and ``D + 1`` more with ``linear_terms``),
-        ``5 M + 8`` (``5 M + 4 D + 12``); times ``m``;
-      - the blocks of those passes (:mod:`streamid.engine.rbf`: a streamed QR of
-        ``FIT_BLOCK_ROWS`` rows, activations of ``BLOCK_ROWS``), the larger of
-        ``4 min(m, 16384) (M + D + 1)`` and ``2 min(m, 8192) M D``;
-      - the long linear part's trial, when it can be offered: four copies of its design,
-        which is at most ``LONG_LINEAR_DESIGN_BYTES`` (8 MiB).
+      - the data, held throughout: the window's copy, the output column, the estimation part and its
+        normalised copy, ``n c + n + 2 n_est (i + 1)``; then the larger of two phases, or of the long linear
+        part's trial (four copies of its design, at most ``LONG_LINEAR_DESIGN_BYTES``, 8 MiB);
+      - the run and its choice: the run's lag matrix ``m D``; the search, over its ``k = min(m, bound)`` rows
+        (:mod:`streamid.online.rows`: ``bound = max(4096, 128 (M + D + 1))``): the evaluator's data and feature
+        tables, activations and residuals, the rows' copies (and the helper's), the populations,
+        ``k (P (D + M + 4) + 4 D + 2) + 2 P M (D + 1)``, bounded whatever the window; the choice's passes over
+        every row: a window searched on a sample of its rows (``m`` above the bound) is chosen without holding
+        any candidate over every row (their free runs scored ``SCORE_CHUNK_ROWS`` rows at a time, the fits, the
+        fallback's included, a block of ``FIT_BLOCK_ROWS``), only the chosen one's free run and copies,
+        ``(i + 8) m``; a window searched on every row holds them, ``m`` times the largest of the candidates'
+        free runs (their paths and one working copy) ``2 C + i + 4``, the chosen one's regressors and activations
+        ``C + D + M + 4``, and the selection's fallback (every candidate fitted on every row) ``C M + 2 D + 2``;
+        and the blocks and chunks, the largest of a streamed QR's ``4 min(m, 16384) (M + D + 1)``, activations'
+        ``2 min(m, 8192) M D`` and the candidates' free runs' ``4 C min(m, 65536)``;
+      - the refinement, once the run is freed (:func:`~streamid.engine.refine.refine_judged`, the default): its
+        input terms and mean free run, ``(M + i + 4) m`` (``+ (D + 1) m`` with ``linear_terms``), and its
+        derivatives and Jacobian, made ``CHUNK_ROWS`` (65,536) rows at a time, ``(4 M + 4) min(m, 65536)``
+        (``4 (M + D + 1) + 4`` with ``linear_terms``).
 
-      So a window's cost grows by about 2.2 kB per estimation row with the defaults
-      (``C = 21``, ``D = 20``: the fallback's activations), where the search alone used to take
-      ``8 P (2 D + M + 5)`` (8.8 kB) a row: a 10 s window of a 20 kHz stream, 200,000 samples,
-      is estimated at ~350 MiB (tracemalloc peak of a warm update 102 MiB; it was 1,316 MiB and refused).
+      So a window's cost grows by about 0.3 kB per estimation row with the defaults (the lag matrix, ``D =
+      20``, and the chosen free run), where it was 2.2 kB while every candidate was held over every row and
+      8.8 kB when the search used every row: a 10 s window of a 20 kHz stream, 200,000 samples, is estimated at
+      ~106 MiB (it was ~350 MiB, and 1,316 MiB and refused before that), a 1,000,000-sample one at 265 MiB
+      (memray's peak of such a cold update: 255 MB).
 
     The estimate is checked against tracemalloc peaks in
     ``tests/test_daemon_bounds.py`` and ``tests/test_bounded_update.py`` (small and
@@ -70,8 +71,10 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sized
 
+from streamid.engine.choice import SCORE_CHUNK_ROWS
 from streamid.engine.longlinear import ROWS_PER_PARAMETER
 from streamid.engine.rbf import BLOCK_ROWS, FIT_BLOCK_ROWS
+from streamid.engine.refine import CHUNK_ROWS
 from streamid.online.rows import search_row_bound
 from streamid.online.stream_config import ONLINE_LONG_LINEAR, ONLINE_REFINE, ONLINE_SELECTION, StreamConfig
 from streamid.online.update import LONG_LINEAR_DESIGN_BYTES
@@ -89,8 +92,8 @@ def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: Str
     """Upper estimate of the working memory of one identification of an ``n_samples`` window (bytes).
 
     The module docstring gives the terms: the search's part is bounded by its rows (:mod:`streamid.online.rows`);
-    the passes over every estimation row (lag matrix, the candidates' free runs, the chosen one's refit, the
-    selection's fallback) grow with the window, by ~2.2 kB a row with the defaults.
+    the lag matrix, the chosen free run and the refinement's input terms grow with the window, by ~0.3 kB a row
+    with the defaults (the candidates' free runs and fits are made in chunks and blocks).
     """
     n, i = max(0, int(n_samples)), max(1, n_inputs)
     c = i + max(1, n_outputs)
@@ -104,12 +107,19 @@ def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: Str
     fr = engine.get("fr_candidates", 0)
     cands = (min(p, int(fr)) if fr else p) + 1
     search = k * (p * (d + m_neurons + 4) + 4 * d + 2) + 2 * p * m_neurons * (d + 1)
-    data = n * c + n + 2 * n_est * (i + 1) + rows * d
+    data = n * c + n + 2 * n_est * (i + 1)  # and, while the run lives, its lag matrix: rows * d
     lin = d + 1 if engine.get("linear_terms", False) else 0  # a linear part's weights (refined with the network's)
-    refine = 5 * m_neurons + 4 * lin + 8 if engine.get("refine_iterations", ONLINE_REFINE) else 0
-    passes = rows * max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2, refine)
-    blocks = max(4 * min(rows, FIT_BLOCK_ROWS) * (m_neurons + d + 1), 2 * min(rows, BLOCK_ROWS) * m_neurons * d)
-    return 8 * (data + search + passes + blocks + _long_linear(n_est, i, cfg, engine))
+    if bound and rows > bound:  # screened: the free runs in chunks, the fits in blocks (also the fallback's)
+        passes = rows * (i + 8)
+    else:  # every candidate on every row at once (rows <= bound, or every row searched)
+        passes = rows * max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2)
+    blocks = max(4 * min(rows, FIT_BLOCK_ROWS) * (m_neurons + d + 1), 2 * min(rows, BLOCK_ROWS) * m_neurons * d,
+                 4 * cands * min(rows, SCORE_CHUNK_ROWS))  # the last: the candidates' free runs, a chunk at a time
+    choice = rows * d + search + passes + blocks  # the run's lag matrix and tables live until the choice is made
+    refine = 0  # then the run is freed: the refinement's input terms and mean free run, and its chunk
+    if engine.get("refine_iterations", ONLINE_REFINE):
+        refine = rows * (m_neurons + lin + i + 4) + (4 * (m_neurons + lin) + 4) * min(rows, CHUNK_ROWS)
+    return 8 * (data + max(choice, refine, _long_linear(n_est, i, cfg, engine)))
 
 
 def _long_linear(n_est: int, n_inputs: int, cfg: StreamConfig, engine: dict[str, object]) -> int:

@@ -43,7 +43,7 @@ from scipy.linalg import solve_triangular as _solve_triangular
 from streamid.engine._kernels import exp2_rows, gram_rows
 
 __all__ = ["LOG2E", "MIN_NORM", "NUMPY_PATH", "BLOCK_ROWS", "FIT_BLOCK_ROWS", "TINY", "activations", "activations_batch", "exp2_block", "fit_linear_rbf",
-           "fit_weights", "gram_block", "rbf_output"]
+           "fit_weights", "gram_block", "rbf_output", "streamed_fit"]
 
 #: added to a squared norm before its square root is divided by
 TINY = 1e-300
@@ -153,7 +153,7 @@ def fit_weights(
     ndarray, shape (M,)
     """
     if phi.shape[0] > FIT_BLOCK_ROWS:  # a long record: the same solution, the QR streamed over blocks of rows
-        return _streamed_fit(lambda a, b: phi[a:b], phi.shape[0], phi.shape[1], y, ridge)
+        return streamed_fit(lambda a, b: phi[a:b], phi.shape[0], phi.shape[1], y, ridge)
     n2 = (phi * phi).sum(axis=0)
     s = np.where(n2 > MIN_NORM**2, 1.0 / np.sqrt(n2 + TINY), 0.0)  # as the search's BatchEvaluator: inactive -> w = 0
     a = phi * s
@@ -168,7 +168,7 @@ def fit_weights(
     return w
 
 
-def _streamed_fit(
+def streamed_fit(
     rows: Callable[[int, int], NDArray[np.float64]], n: int, m: int, y: NDArray[np.float64], ridge: float,
 ) -> NDArray[np.float64]:
     """:func:`fit_weights` of the ``(n, m)`` design whose rows ``a:b`` are ``rows(a, b)``, in blocks of
@@ -238,7 +238,7 @@ def fit_linear_rbf(
     """
     n = phi.shape[0]
     if n > FIT_BLOCK_ROWS:  # a long record: the design built block by block, never whole
-        z = _streamed_fit(lambda a, b: np.hstack([phi[a:b], r[a:b], np.ones((b - a, 1))]), n,
+        z = streamed_fit(lambda a, b: np.hstack([phi[a:b], r[a:b], np.ones((b - a, 1))]), n,
                           phi.shape[1] + r.shape[1] + 1, y, ridge)
     else:
         z = fit_weights(np.hstack([phi, r, np.ones((n, 1))]), y, ridge)

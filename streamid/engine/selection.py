@@ -148,7 +148,11 @@ def select_model_path(
 
     ``screen_rows`` (a run searched on a sample of its rows, the online updates): the candidates are fitted on
     the search's rows only for the free-run choice, and the chosen one is refitted on all rows and scored again
-    (the full way if that refit is not admissible); otherwise every candidate is fitted on all rows.
+    (the full way if that refit is not admissible: then each candidate fitted and simulated a block of rows at a
+    time, :meth:`~streamid.engine.coevolution.Coevolution.models_for`'s ``in_blocks`` and
+    :func:`~streamid.engine.choice.free_run_scores`'s ``keep_paths=False``, so that a window's memory does not
+    grow with every candidate's activations and free run; no path is returned); otherwise every candidate is
+    fitted on all rows.
     ``range_margin`` defaults to :data:`~streamid.engine.choice.RANGE_MARGIN`. ``threads`` > 1: the candidates are fitted
     and simulated in that many threads (for a caller with a core to spare; the same result). A run with no
     candidate in range scores below -1e9 (any run with one wins over it); its model says ``admissible: 0``.
@@ -160,18 +164,21 @@ def select_model_path(
         raise ConfigError(f"selection must be one of 'fitness', 'fr_est'; got {selection!r}")
     n = len(y)
     margin = RANGE_MARGIN if range_margin is None else float(range_margin)
+    bounded = False  # a large record's fallback: every candidate on every row, in blocks, no paths kept
     if screen_rows and run.search_rows < len(run.target):
         screened = _screened(run, u, y, margin)
         if screened is not None:
             return screened
+        bounded = True
     both = run.config.linear_terms  # both kinds compete (_by_criterion)
-    cands = run.candidate_models(run.config.fr_candidates or None, both=both, threads=threads)  # the best pair first
+    cands = run.candidate_models(run.config.fr_candidates or None, both=both, threads=threads,
+                                 in_blocks=bounded)  # the best pair first
     with one_blas_thread():
-        fr = free_run_scores(cands, u, y, range_margin=margin, threads=threads)
+        fr = free_run_scores(cands, u, y, range_margin=margin, threads=threads, keep_paths=not bounded)
     k = _by_criterion(cands, fr, n) if both and fr.admissible else fr.best()
     score = fr.scores[k] if fr.admissible else -1e9 * (1.0 + min(fr.excursions[k], 1e6))  # finite: JSON-able
     chosen = cands[k].with_metrics(free_run_choice=fr.evidence(k))
-    return chosen, float(score), fr.paths[k] if fr.admissible else None
+    return chosen, float(score), fr.paths[k] if fr.admissible and not bounded else None
 
 
 def _by_criterion(cands: list[Model], fr: FreeRunScores, n: int) -> int:
