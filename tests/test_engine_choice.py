@@ -125,7 +125,7 @@ def test_a_long_records_final_fit_is_made_in_blocks_with_the_same_weights(  # ty
         reactor, linear: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """Past ``FIT_BLOCK_ROWS`` rows the chosen pair's activations and regressors are made a block at a time, never
     for every row: the weights of the streamed least squares the whole-record fit takes there, the same to the bit."""
-    import streamid.engine.coevolution as coevolution
+    import streamid.engine.candidates as candidates
     import streamid.engine.rbf as rbf
     from streamid.engine.coevolution import Coevolution
     from streamid.engine.rbf import activations
@@ -134,7 +134,7 @@ def test_a_long_records_final_fit_is_made_in_blocks_with_the_same_weights(  # ty
     co = Coevolution(u, y, PAPER.replace(neurons=6, generations=4, linear_terms=linear), 3)
     for _ in co:
         pass
-    for module in (rbf, coevolution):
+    for module in (rbf, candidates):
         monkeypatch.setattr(module, "FIT_BLOCK_ROWS", 64)  # 590 rows: 10 blocks
     mask, x = co.best_h, co.best_x
     blocks = co.model_for(mask, x)
@@ -153,7 +153,7 @@ def test_a_large_windows_fallback_fits_and_scores_every_candidate_in_blocks(  # 
     """When the screened choice's refit is not admissible, every candidate is fitted on every row: for a record
     past ``FIT_BLOCK_ROWS`` that is done a block at a time and scored without keeping free runs; the same choice
     as the whole-record way (the weights to an ulp of the activations)."""
-    import streamid.engine.coevolution as coevolution
+    import streamid.engine.candidates as candidates
     import streamid.engine.rbf as rbf
     import streamid.engine.selection as selection
     from streamid.engine.coevolution import Coevolution
@@ -165,7 +165,7 @@ def test_a_large_windows_fallback_fits_and_scores_every_candidate_in_blocks(  # 
     for _ in co:
         pass
     whole, score_whole, path = selection.select_model_path(co, u, y, "fr_est")
-    for module in (rbf, coevolution):
+    for module in (rbf, candidates):
         monkeypatch.setattr(module, "FIT_BLOCK_ROWS", 64)
     monkeypatch.setattr(selection, "_screened", lambda *a: None)  # the screened refit not admissible
     blocks = co.candidate_models(None, both=True, in_blocks=True)

@@ -43,7 +43,7 @@ from scipy.linalg import solve_triangular as _solve_triangular
 from streamid.engine._kernels import exp2_rows, gram_rows
 
 __all__ = ["LOG2E", "MIN_NORM", "NUMPY_PATH", "BLOCK_ROWS", "FIT_BLOCK_ROWS", "TINY", "activations", "activations_batch", "exp2_block", "fit_linear_rbf",
-           "fit_weights", "gram_block", "rbf_output", "streamed_fit"]
+           "fit_in_blocks", "fit_weights", "gram_block", "rbf_output", "streamed_fit"]
 
 #: added to a squared norm before its square root is divided by
 TINY = 1e-300
@@ -244,6 +244,36 @@ def fit_linear_rbf(
         z = fit_weights(np.hstack([phi, r, np.ones((n, 1))]), y, ridge)
     M = phi.shape[1]
     return z[:M], z[M:]
+
+
+def fit_in_blocks(
+    R: NDArray[np.float64], cols: NDArray[np.intp], centres: NDArray[np.float64], widths: NDArray[np.float64],
+    y: NDArray[np.float64], ridge: float, linear: bool, batch: bool = False,
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, float]:
+    """:func:`fit_weights` (``linear``: :func:`fit_linear_rbf`) of the network ``centres``, ``widths`` on the columns
+    ``cols`` of the regressor rows ``R``, its activations and regressors made :data:`FIT_BLOCK_ROWS` rows at a time
+    and never for every row at once (past that many rows the whole-record fit streams its QR over the same
+    blocks: the same weights). Returns ``(w, linear part or None, sum of squared residuals)``. ``batch``: the
+    activations by :func:`activations_batch` (within an ulp of :func:`activations`)."""
+    n, M = y.shape[0], centres.shape[0]
+
+    def block(a: int, b: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        r = np.ascontiguousarray(R[a:b, cols])
+        return (activations_batch(r, centres[None], widths[None])[0].T if batch else activations(r, centres, widths)), r
+
+    def rows(a: int, b: int) -> NDArray[np.float64]:
+        phi, r = block(a, b)
+        return np.hstack([phi, r, np.ones((b - a, 1))]) if linear else phi
+
+    z = streamed_fit(rows, n, M + (len(cols) + 1 if linear else 0), y, ridge)
+    w, lin = (z[:M], z[M:]) if linear else (z, None)
+    sse = 0.0
+    for a in range(0, n, FIT_BLOCK_ROWS):
+        b = min(n, a + FIT_BLOCK_ROWS)
+        phi, r = block(a, b)
+        fit = phi @ w if lin is None else phi @ w + r @ lin[:-1] + lin[-1]
+        sse += float(np.sum((fit - y[a:b]) ** 2))
+    return w, lin, sse
 
 
 LOG2E = 1.4426950408889634  # exp(x) = exp2(x log2 e); exp2 is ~15 % faster here
