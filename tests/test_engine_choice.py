@@ -178,3 +178,40 @@ def test_a_large_windows_fallback_fits_and_scores_every_candidate_in_blocks(  # 
     np.testing.assert_allclose(chosen.weights, whole.weights, rtol=1e-7, atol=1e-9)
     assert score == pytest.approx(score_whole, abs=1e-9)
     assert chosen.metrics["free_run_choice"]["candidates"] == whole.metrics["free_run_choice"]["candidates"]
+
+
+def test_a_sampled_run_never_makes_every_rows_regressors_for_a_long_record(  # type: ignore[no-untyped-def]
+        reactor, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run searched on a sample of rows holds that sample's regressors only; the screened choice of a record past
+    ``FIT_BLOCK_ROWS`` fits its chosen one a block at a time: the lag matrix of every row is never made (it is
+    made once if asked for, as ``R``), and the model is the one fitted on the whole matrix."""
+    import streamid.engine.candidates as candidates
+    import streamid.engine.rbf as rbf
+    from streamid.engine.coevolution import Coevolution
+    from streamid.engine.regressors import lag_matrix, lag_rows
+    from streamid.engine.rbf import activations
+    from streamid.engine.selection import select_model
+
+    u, y = reactor
+    cfg = PAPER.replace(neurons=6, generations=6, selection="fr_est", linear_terms=True, search_rows=128)
+    un, yn = np.random.default_rng(1).uniform(-1, 1, (50, 2)), np.random.default_rng(2).uniform(-1, 1, 50)
+    idx = np.array([0, 3, 39])
+    np.testing.assert_array_equal(lag_rows(un, yn, 4, 6, idx, min_lag_u=0), lag_matrix(un, yn, 4, 6, min_lag_u=0)[idx])
+    rows = np.sort(np.random.default_rng(0).choice(len(y) - cfg.max_lag, 128, replace=False))
+    co = Coevolution(u, y, cfg, 4, rows=rows)
+    for _ in co:
+        pass
+    for module in (rbf, candidates):
+        monkeypatch.setattr(module, "FIT_BLOCK_ROWS", 64)
+    model, _ = select_model(co, u, y, "fr_est", screen_rows=True)
+    assert co._R is None  # every row's regressors never made
+    full = co.R  # made on demand, once: the same regressors
+    assert co._R is full and full.shape == (len(y) - cfg.max_lag, co.D)
+    np.testing.assert_array_equal(full[rows], co._search[0])
+    cols = np.array([co.candidates.index(r) for r in model.regressors])
+    x = np.zeros(co.DX)
+    x[: 6 * co.D].reshape(6, co.D)[:, cols] = model.centres
+    x[6 * co.D :] = model.widths
+    whole = co._fitted(cols, x, activations(full[:, cols], model.centres, model.widths), full[:, cols], co.target)
+    np.testing.assert_array_equal(model.weights, whole.weights)  # the chosen one fitted on the whole matrix
+    np.testing.assert_array_equal(model.linear, whole.linear)

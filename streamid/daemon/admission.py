@@ -22,28 +22,29 @@ Memory of one stream
       - the data, held throughout: the window's copy, the output column, the estimation part and its
         normalised copy, ``n c + n + 2 n_est (i + 1)``; then the larger of two phases, or of the long linear
         part's trial (four copies of its design, at most ``LONG_LINEAR_DESIGN_BYTES``, 8 MiB);
-      - the run and its choice: the run's lag matrix ``m D``; the search, over its ``k = min(m, bound)`` rows
+      - the run and its choice: the search, over its ``k = min(m, bound)`` rows
         (:mod:`streamid.online.rows`: ``bound = max(4096, 128 (M + D + 1))``): the evaluator's data and feature
         tables, activations and residuals, the rows' copies (and the helper's), the populations,
         ``k (P (D + M + 4) + 4 D + 2) + 2 P M (D + 1)``, bounded whatever the window; the choice's passes over
         every row: a window searched on a sample of its rows (``m`` above the bound) is chosen without holding
-        any candidate over every row (their free runs scored ``SCORE_CHUNK_ROWS`` rows at a time, the fits, the
-        fallback's included, a block of ``FIT_BLOCK_ROWS``), only the chosen one's free run and copies,
-        ``(i + 8) m``; a window searched on every row holds them, ``m`` times the largest of the candidates'
-        free runs (their paths and one working copy) ``2 C + i + 4``, the chosen one's regressors and activations
-        ``C + D + M + 4``, and the selection's fallback (every candidate fitted on every row) ``C M + 2 D + 2``;
+        any candidate, or every row's regressors, over every row (their free runs scored ``SCORE_CHUNK_ROWS`` rows
+        at a time, the fits, the fallback's included, and their regressors a block of ``FIT_BLOCK_ROWS``), only
+        the chosen one's free run and copies, ``(i + 8) m``; a window searched on every row holds them, ``m``
+        times the lag matrix ``D`` and the largest of the candidates' free runs (their paths and one working
+        copy) ``2 C + i + 4``, the chosen one's regressors and activations ``C + D + M + 4``, and the selection's
+        fallback (every candidate fitted on every row) ``C M + 2 D + 2``;
         and the blocks and chunks, the largest of a streamed QR's ``4 min(m, 16384) (M + D + 1)``, activations'
         ``2 min(m, 8192) M D`` and the candidates' free runs' ``4 C min(m, 65536)``;
       - the refinement, once the run is freed (:func:`~streamid.engine.refine.refine_judged`, the default): its
-        input terms and mean free run, ``(M + i + 4) m`` (``+ (D + 1) m`` with ``linear_terms``), and its
+        input terms and mean free run, ``(M + i + 6) m`` (``+ (D + 1) m`` with ``linear_terms``), and its
         derivatives and Jacobian, made ``CHUNK_ROWS`` (65,536) rows at a time, ``(4 M + 4) min(m, 65536)``
         (``4 (M + D + 1) + 4`` with ``linear_terms``).
 
-      So a window's cost grows by about 0.3 kB per estimation row with the defaults (the lag matrix, ``D =
-      20``, and the chosen free run), where it was 2.2 kB while every candidate was held over every row and
-      8.8 kB when the search used every row: a 10 s window of a 20 kHz stream, 200,000 samples, is estimated at
-      ~106 MiB (it was ~350 MiB, and 1,316 MiB and refused before that), a 1,000,000-sample one at 265 MiB
-      (memray's peak of such a cold update: 255 MB).
+      So a window's cost grows by about 0.15 kB per estimation row with the defaults (the data, the chosen
+      free run, the refinement's input terms), where it was 2.2 kB while every candidate and every row's
+      regressors were held and 8.8 kB when the search used every row: a 10 s window of a 20 kHz stream, 200,000
+      samples, is estimated at ESTIMATE_200K (it was ~350 MiB, and 1,316 MiB and refused before that), a
+      1,000,000-sample one at ESTIMATE_1M.
 
     The estimate is checked against tracemalloc peaks in
     ``tests/test_daemon_bounds.py`` and ``tests/test_bounded_update.py`` (small and
@@ -110,15 +111,15 @@ def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: Str
     data = n * c + n + 2 * n_est * (i + 1)  # and, while the run lives, its lag matrix: rows * d
     lin = d + 1 if engine.get("linear_terms", False) else 0  # a linear part's weights (refined with the network's)
     if bound and rows > bound:  # screened: the free runs in chunks, the fits in blocks (also the fallback's)
-        passes = rows * (i + 8)
-    else:  # every candidate on every row at once (rows <= bound, or every row searched)
-        passes = rows * max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2)
+        passes = rows * (i + 8)  # (and no lag matrix of every row: the sample's rows, then a block at a time)
+    else:  # every candidate on every row at once (rows <= bound, or every row searched), and the lag matrix
+        passes = rows * (d + max(2 * cands + i + 4, cands + d + m_neurons + 4, cands * m_neurons + 2 * d + 2))
     blocks = max(4 * min(rows, FIT_BLOCK_ROWS) * (m_neurons + d + 1), 2 * min(rows, BLOCK_ROWS) * m_neurons * d,
                  4 * cands * min(rows, SCORE_CHUNK_ROWS))  # the last: the candidates' free runs, a chunk at a time
-    choice = rows * d + search + passes + blocks  # the run's lag matrix and tables live until the choice is made
+    choice = search + passes + blocks  # the run's tables live until the choice is made
     refine = 0  # then the run is freed: the refinement's input terms and mean free run, and its chunk
     if engine.get("refine_iterations", ONLINE_REFINE):
-        refine = rows * (m_neurons + lin + i + 4) + (4 * (m_neurons + lin) + 4) * min(rows, CHUNK_ROWS)
+        refine = rows * (m_neurons + lin + i + 6) + (4 * (m_neurons + lin) + 4) * min(rows, CHUNK_ROWS)
     return 8 * (data + max(choice, refine, _long_linear(n_est, i, cfg, engine)))
 
 

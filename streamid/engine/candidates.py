@@ -10,6 +10,7 @@ a block of rows at a time (:func:`~streamid.engine.rbf.fit_in_blocks`), never wi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from streamid.engine._blas import one_blas_thread
 from streamid.engine.fanout import thread_map
 from streamid.engine.model import Model
 from streamid.engine.rbf import FIT_BLOCK_ROWS, activations, activations_batch, fit_in_blocks, fit_linear_rbf, fit_weights
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.engine.regressors import Normalisation, Regressor, lag_matrix, lag_rows
 from streamid.engine.settings import RIDGE, CoEAConfig
 from streamid.errors import DataError
 
@@ -31,7 +32,9 @@ class CandidateModels:
 
     config: CoEAConfig
     D: int
-    R: NDArray[np.float64]
+    _R: NDArray[np.float64] | None  # every row's regressors, when made
+    _lag_data: tuple[NDArray[np.float64], NDArray[np.float64]]  # the normalised inputs and output
+    _search: tuple[NDArray[np.float64], NDArray[np.float64]]  # the search's rows' regressors and targets
     target: NDArray[np.float64]
     _rows: NDArray[np.intp] | None
     scale: float
@@ -55,19 +58,22 @@ class CandidateModels:
         (``search_rows``: on the rows the search used only; a cheaper fit for screening candidates)."""
         M, D = self.config.neurons, self.D
         cols = np.flatnonzero(mask)
+        if not (search_rows and self._rows is not None) and self.target.shape[0] > FIT_BLOCK_ROWS:
+            with one_blas_thread():
+                return self._fitted_in_blocks(cols, x)
         R, target = self._fit_rows(search_rows)
         with one_blas_thread():
-            if target.shape[0] > FIT_BLOCK_ROWS:
-                return self._fitted_in_blocks(cols, x, R, target)
             phi = activations(R[:, cols], x[: M * D].reshape(M, D)[:, cols], x[M * D :])
             return self._fitted(cols, x, phi, R[:, cols], target)
 
-    def _fitted_in_blocks(self, cols: NDArray[np.intp], x: NDArray[np.float64], R: NDArray[np.float64],
-                          target: NDArray[np.float64], linear: bool | None = None, batch: bool = False) -> Model:
-        """:meth:`_fitted` of a long record by :func:`~streamid.engine.rbf.fit_in_blocks` (the same weights, never
-        every row's activations at once); ``batch``: its activations as :meth:`models_for` computes them."""
+    def _fitted_in_blocks(self, cols: NDArray[np.intp], x: NDArray[np.float64], linear: bool | None = None,
+                          batch: bool = False) -> Model:
+        """:meth:`_fitted` on every row of a long record by :func:`~streamid.engine.rbf.fit_in_blocks` (the same
+        weights, never every row's activations or regressors at once); ``batch``: its activations as
+        :meth:`models_for` computes them."""
         M, D = self.config.neurons, self.D
-        w, lin, sse = fit_in_blocks(R, cols, x[: M * D].reshape(M, D)[:, cols], x[M * D :], target, RIDGE,
+        target = self.target
+        w, lin, sse = fit_in_blocks(self._regressor_block(cols), target, x[: M * D].reshape(M, D)[:, cols], x[M * D :], RIDGE,
                                     self.config.linear_terms if linear is None else linear, batch)
         return self._model(cols, x, w, lin, sse / target.shape[0] * self.scale)
 
@@ -85,12 +91,12 @@ class CandidateModels:
             return []
         M, D = self.config.neurons, self.D
         cols = np.flatnonzero(mask)
-        R, target = self._fit_rows(search_rows)
         kinds = (None, False) if both and self.config.linear_terms else (None,)
-        if in_blocks and target.shape[0] > FIT_BLOCK_ROWS:
+        if in_blocks and not search_rows and self.target.shape[0] > FIT_BLOCK_ROWS:
             with one_blas_thread():
-                return thread_map(lambda j: self._fitted_in_blocks(cols, j[1], R, target, j[0], batch=True),
+                return thread_map(lambda j: self._fitted_in_blocks(cols, j[1], j[0], batch=True),
                                   [(kind, x) for kind in kinds for x in xs], threads)
+        R, target = self._fit_rows(search_rows)
         X = np.stack(xs)
         with one_blas_thread():
             rs = np.ascontiguousarray(R[:, cols])
@@ -98,9 +104,27 @@ class CandidateModels:
             jobs = [(kind, x, phi) for kind in kinds for x, phi in zip(xs, phis)]
             return thread_map(lambda j: self._fitted(cols, j[1], j[2].T, rs, target, linear=j[0]), jobs, threads)
 
+    @property
+    def R(self) -> NDArray[np.float64]:
+        """Every estimation row's regressors, all candidate lags (row ``k``: time ``max_lag + k``); made on first
+        use when the search used a sample of rows (the fits of a long record take them a block at a time)."""
+        if self._R is None:
+            un, yn = self._lag_data
+            self._R = lag_matrix(un, yn, self.config.max_lag_y, self.config.max_lag_u, min_lag_u=self.config.min_lag_u)
+        return self._R
+
+    def _regressor_block(self, cols: NDArray[np.intp]) -> Callable[[int, int], NDArray[np.float64]]:
+        """Rows ``a..b-1`` of :attr:`R`'s columns ``cols``, without making every row's when they are not made."""
+        if self._R is not None:
+            R = self._R
+            return lambda a, b: np.ascontiguousarray(R[a:b, cols])
+        un, yn = self._lag_data
+        c = self.config
+        return lambda a, b: lag_rows(un, yn, c.max_lag_y, c.max_lag_u, np.arange(a, b), min_lag_u=c.min_lag_u)[:, cols]
+
     def _fit_rows(self, search_rows: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if search_rows and self._rows is not None:
-            return self.R[self._rows], self.target[self._rows]
+            return self._search
         return self.R, self.target
 
     def _fitted(self, cols: NDArray[np.intp], x: NDArray[np.float64], phi: NDArray[np.float64],

@@ -50,7 +50,7 @@ from streamid.engine.settings import HARMONY_STOP, HMCR, PAR, RIDGE, CoEAConfig
 from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.batch import BatchEvaluator
 from streamid.engine.candidates import CandidateModels
-from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix
+from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix, lag_rows
 from streamid.engine.populations import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
 
@@ -170,7 +170,11 @@ class Coevolution(CandidateModels):
                 f"the normalisation given has {self.norm.n_inputs} input(s); the data have {self.n_inputs}"
             )
         un, yn = self.norm.u(ua), self.norm.y(ya)
-        self.R = lag_matrix(un, yn, cfg.max_lag_y, cfg.max_lag_u, min_lag_u=cfg.min_lag_u)
+        self._lag_data = (un, yn)
+        # every row's regressors (all candidate lags) only when the search uses every row; otherwise its sample's
+        # rows, and a block of rows at a time for the fits (the property R makes them all, once, if asked)
+        self._R = None if rows is not None else lag_matrix(un, yn, cfg.max_lag_y, cfg.max_lag_u,
+                                                           min_lag_u=cfg.min_lag_u)
         self.target = yn[L:]
         self.candidates = candidate_regressors(cfg.max_lag_y, cfg.max_lag_u, self.n_inputs, cfg.min_lag_u)
         self.D = len(self.candidates)
@@ -179,8 +183,9 @@ class Coevolution(CandidateModels):
         self.DX = (self.D + 1) * M
         self.scale = self.norm.y_half_range**2  # normalised MSE -> output units
         # The search's fitness may use a subset of the rows (large N); models are refitted on all of them.
-        r_s, t_s = (self.R, self.target) if rows is None else (self.R[rows], self.target[rows])
-        self._rows = rows
+        r_s, t_s = (self.R, self.target) if rows is None else (
+            lag_rows(un, yn, cfg.max_lag_y, cfg.max_lag_u, rows, min_lag_u=cfg.min_lag_u), self.target[rows])
+        self._rows, self._search = rows, (r_s, t_s)
         self.search_rows = int(t_s.shape[0])
         # The search's fitness is the RBF network's alone: a linear part (linear_terms) enters when candidates
         # are fitted (searched with it, round 11 of docs/engine-results.md: the F-16 accel3 median 0.425 -> 0.298).

@@ -247,25 +247,27 @@ def fit_linear_rbf(
 
 
 def fit_in_blocks(
-    R: NDArray[np.float64], cols: NDArray[np.intp], centres: NDArray[np.float64], widths: NDArray[np.float64],
-    y: NDArray[np.float64], ridge: float, linear: bool, batch: bool = False,
+    regressors: Callable[[int, int], NDArray[np.float64]], y: NDArray[np.float64], centres: NDArray[np.float64],
+    widths: NDArray[np.float64], ridge: float, linear: bool, batch: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, float]:
-    """:func:`fit_weights` (``linear``: :func:`fit_linear_rbf`) of the network ``centres``, ``widths`` on the columns
-    ``cols`` of the regressor rows ``R``, its activations and regressors made :data:`FIT_BLOCK_ROWS` rows at a time
-    and never for every row at once (past that many rows the whole-record fit streams its QR over the same
-    blocks: the same weights). Returns ``(w, linear part or None, sum of squared residuals)``. ``batch``: the
-    activations by :func:`activations_batch` (within an ulp of :func:`activations`)."""
+    """:func:`fit_weights` (``linear``: :func:`fit_linear_rbf`) of the network ``centres``, ``widths`` on the rows
+    ``regressors(a, b)`` (rows ``a..b-1``, one column per centre coordinate) of the targets ``y``, its activations
+    and regressors made :data:`FIT_BLOCK_ROWS` rows at a time and never for every row at once (past that many rows
+    the whole-record fit streams its QR over the same blocks: the same weights). Returns ``(w, linear part or
+    None, sum of squared residuals)``. ``batch``: the activations by :func:`activations_batch` (within an ulp of
+    :func:`activations`)."""
     n, M = y.shape[0], centres.shape[0]
+    cols = centres.shape[1]
 
     def block(a: int, b: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        r = np.ascontiguousarray(R[a:b, cols])
+        r = np.ascontiguousarray(regressors(a, b))
         return (activations_batch(r, centres[None], widths[None])[0].T if batch else activations(r, centres, widths)), r
 
     def rows(a: int, b: int) -> NDArray[np.float64]:
         phi, r = block(a, b)
         return np.hstack([phi, r, np.ones((b - a, 1))]) if linear else phi
 
-    z = streamed_fit(rows, n, M + (len(cols) + 1 if linear else 0), y, ridge)
+    z = streamed_fit(rows, n, M + (cols + 1 if linear else 0), y, ridge)
     w, lin = (z[:M], z[M:]) if linear else (z, None)
     sse = 0.0
     for a in range(0, n, FIT_BLOCK_ROWS):

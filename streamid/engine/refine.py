@@ -108,7 +108,9 @@ def parts(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[Any], ...]:
             continue
         col = np.zeros(n)
         col[reg.lag :] = un[: n - reg.lag, reg.index]
-        du += (col[:, None] - model.centres[None, :, j]) ** 2
+        for m in range(model.neurons):  # a neuron at a time: no (n, M) temporary (the same sums)
+            d = col - model.centres[m, j]
+            du[:, m] += d * d
         if model.linear is not None:
             lin_u += model.linear[j] * col
     du *= a[None, :]
@@ -241,9 +243,8 @@ def refine_weights(
             tails = [(Y[Y.shape[0] - m.max_lag :].copy(), S[S.shape[0] - m.max_lag :].copy())
                      for (Y, S), m in zip(outs, nets)]
             first = 0 if k == 0 else a  # the first chunk's rows start at 0 for every member
-            keep = [b - first if k == 0 else b - a for _ in outs]  # rows first..b-1 of each
             with np.errstate(over="ignore", invalid="ignore"):
-                mean[first:b] = np.mean([Y[Y.shape[0] - r :] for (Y, _), r in zip(outs, keep)], axis=0)
+                mean[first:b] = np.mean([Y[Y.shape[0] - (b - first) :] for Y, _ in outs], axis=0)
                 J = np.concatenate([(S if o is None else S[:, o])[S.shape[0] - (b - a) :]
                                     for (_, S), o in zip(outs, orders)], axis=1) / K
                 jtj += J.T @ J

@@ -31,6 +31,7 @@ __all__ = [
     "as_data",
     "candidate_regressors",
     "lag_matrix",
+    "lag_rows",
     "regressor_columns",
     "check_finite",
     "format_lags",
@@ -304,6 +305,24 @@ def lag_matrix(
     for i in range(n_in):
         for k in range(min_lag_u, max_lag_u + 1):
             R[:, col] = un[s - k : n - k, i]
+            col += 1
+    return R
+
+
+def lag_rows(un: NDArray[np.float64], yn: NDArray[np.float64], max_lag_y: int, max_lag_u: int, rows: ArrayLike, *,
+             min_lag_u: int = 1) -> NDArray[np.float64]:
+    """The rows ``rows`` (row ``k``: time ``max(max_lag_y, max_lag_u) + k``) of :func:`lag_matrix`, the same values,
+    without making the others: a sample of rows, or a block of them, of a long record."""
+    t = max(max_lag_y, max_lag_u) + np.asarray(rows, dtype=np.intp)
+    n_in = un.shape[1]
+    R = np.empty((t.shape[0], max_lag_y + n_in * (max_lag_u - min_lag_u + 1)))
+    col = 0
+    for k in range(1, max_lag_y + 1):
+        R[:, col] = yn[t - k]
+        col += 1
+    for i in range(n_in):
+        for k in range(min_lag_u, max_lag_u + 1):
+            R[:, col] = un[t - k, i]
             col += 1
     return R
 
