@@ -43,8 +43,9 @@ Memory of one stream
       So a window's cost grows by about 0.15 kB per estimation row with the defaults (the data, the chosen
       free run, the refinement's input terms), where it was 2.2 kB while every candidate and every row's
       regressors were held and 8.8 kB when the search used every row: a 10 s window of a 20 kHz stream, 200,000
-      samples, is estimated at ESTIMATE_200K (it was ~350 MiB, and 1,316 MiB and refused before that), a
-      1,000,000-sample one at ESTIMATE_1M.
+      samples, is estimated at ~84 MiB (it was ~350 MiB, and 1,316 MiB and refused before that), a
+      1,000,000-sample one at 158 MiB (memray's peak of such a cold update, 165 MB, holds 32 MiB of OpenBLAS's
+      buffer that tracemalloc does not see).
 
     The estimate is checked against tracemalloc peaks in
     ``tests/test_daemon_bounds.py`` and ``tests/test_bounded_update.py`` (small and
