@@ -94,8 +94,8 @@ def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: Str
     """Upper estimate of the working memory of one identification of an ``n_samples`` window (bytes).
 
     The module docstring gives the terms: the search's part is bounded by its rows (:mod:`streamid.online.rows`);
-    the lag matrix, the chosen free run and the refinement's input terms grow with the window, by ~0.3 kB a row
-    with the defaults (the candidates' free runs and fits are made in chunks and blocks).
+    the data, the chosen free run and the refinement's input terms grow with the window, by ~0.15 kB a row with the
+    defaults (the candidates' free runs and fits, and their regressors, are made in chunks and blocks).
     """
     n, i = max(0, int(n_samples)), max(1, n_inputs)
     c = i + max(1, n_outputs)
@@ -109,7 +109,7 @@ def identification_bytes(n_samples: int, n_inputs: int, n_outputs: int, cfg: Str
     fr = engine.get("fr_candidates", 0)
     cands = (min(p, int(fr)) if fr else p) + 1
     search = k * (p * (d + m_neurons + 4) + 4 * d + 2) + 2 * p * m_neurons * (d + 1)
-    data = n * c + n + 2 * n_est * (i + 1)  # and, while the run lives, its lag matrix: rows * d
+    data = n * c + n + 2 * n_est * (i + 1)
     lin = d + 1 if engine.get("linear_terms", False) else 0  # a linear part's weights (refined with the network's)
     if bound and rows > bound:  # screened: the free runs in chunks, the fits in blocks (also the fallback's)
         passes = rows * (i + 8)  # (and no lag matrix of every row: the sample's rows, then a block at a time)

@@ -207,13 +207,12 @@ def _streamed(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64
     ss = float(np.sum((y[first:] - y[first:].mean()) ** 2))
     if not ss > 0:
         raise DataError(f"the output is constant over the scored part (from sample {first}); nothing to score")
-    span = hi - lo
     res: list[tuple[float, float] | None] = []
     for c in range(C):
         if not finite[c]:
             res.append(None)
             continue
-        e = max(max(float(top[c]) - hi, lo - float(bottom[c]), 0.0) / span - range_margin, 0.0)
+        e = _excursion(float(top[c]), float(bottom[c]), lo, hi, range_margin)
         res.append(((1.0 - float(sse[c]) / ss) if e == 0.0 else -np.inf, e))
     return res
 
@@ -222,8 +221,12 @@ def path_score(path: NDArray[np.float64], y: NDArray[np.float64], L: int, first:
                range_margin: float) -> tuple[float, float]:
     """The range guard and score of one finite free run ``path`` (output units) of ``y``: (R^2 over
     ``first:``, or -inf when not admissible; excursion beyond the widened range ``[lo, hi]`` in spans)."""
-    span = hi - lo
     run = path[L:]
-    beyond = max(float(run.max()) - hi, lo - float(run.min()), 0.0) / span
-    e = max(beyond - range_margin, 0.0)
+    e = _excursion(float(run.max()), float(run.min()), lo, hi, range_margin)
     return (r2(y[first:], path[first:]) if e == 0.0 else -np.inf), e
+
+
+def _excursion(top: float, bottom: float, lo: float, hi: float, range_margin: float) -> float:
+    """How far a free run reaching ``[bottom, top]`` goes beyond ``[lo, hi]`` widened by ``range_margin`` of its span
+    each side, in spans (0: admissible)."""
+    return max(max(top - hi, lo - bottom, 0.0) / (hi - lo) - range_margin, 0.0)

@@ -50,7 +50,7 @@ from streamid.engine.settings import HARMONY_STOP, HMCR, PAR, RIDGE, CoEAConfig
 from streamid.engine.parallel import EvalHelper, HelperBinding
 from streamid.engine.batch import BatchEvaluator
 from streamid.engine.candidates import CandidateModels
-from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_matrix, lag_rows
+from streamid.engine.regressors import Normalisation, as_data, candidate_regressors, lag_rows
 from streamid.engine.populations import STATE_FORMAT, CoEAState
 from streamid.errors import ConfigError, DataError
 
@@ -173,8 +173,7 @@ class Coevolution(CandidateModels):
         self._lag_data = (un, yn)
         # every row's regressors (all candidate lags) only when the search uses every row; otherwise its sample's
         # rows, and a block of rows at a time for the fits (the property R makes them all, once, if asked)
-        self._R = None if rows is not None else lag_matrix(un, yn, cfg.max_lag_y, cfg.max_lag_u,
-                                                           min_lag_u=cfg.min_lag_u)
+        self._R: NDArray[np.float64] | None = None
         self.target = yn[L:]
         self.candidates = candidate_regressors(cfg.max_lag_y, cfg.max_lag_u, self.n_inputs, cfg.min_lag_u)
         self.D = len(self.candidates)

@@ -349,7 +349,7 @@ def identify_window(
         # fitting all of them on every row would cost what the sample saved
         model, score = select_model(co, u_est, y_est, engine_cfg.selection, screen_rows=sample is not None)
         state, fitness = co.state(), np.asarray(co.history, dtype=np.float64)
-        del co  # its lag matrix of every row (n x candidate lags) is not needed past the choice: freed before refining
+        del co  # the run's tables (the search's, any lag matrix) are not needed past the choice: freed before refining
         model, score = long_linear_part(model, score, engine_cfg, u_est, y_est)
         if engine_cfg.selection != "fitness":
             model = model.with_metrics(selection=engine_cfg.selection, selection_score=score)
