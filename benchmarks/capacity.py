@@ -261,7 +261,7 @@ def engine_main(n: int, seed: int, mode: str = "offline", record: int = 0, strea
     when drawn as 12,000-sample records and 0.922 / 0.910 / 0.880 when cut from 102,000-sample records.
     """
     from streamid.engine import identify
-    from streamid.engine._kernels import warm_up_kernels
+    from streamid.engine.warmup import warm_up_kernels
     from streamid.daemon.config import stream_table_config
     from streamid.engine.validation import r2
     from streamid.online import OnlineIdentifier, StreamConfig

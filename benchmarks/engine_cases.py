@@ -15,7 +15,7 @@ Figures and targets (issue 2)
   <= 3 s wall, OSA val R^2 >= 0.996, FR val R^2 median >= 0.98, min >= 0.97);
 * piezo (first half / second half, M=13, G=100): FR val R^2 >= 0.9997;
 * scaling: seconds of one run for N = 480, 2000, 10000 and M = 10, 20, 40;
-* a controller's loop (:class:`~streamid.engine.predictor.Predictor`, an MR damper model of the paper's size):
+* a controller's loop (:class:`~streamid.model.predictor.Predictor`, an MR damper model of the paper's size):
   microseconds per sample of ``learn_one`` + ``predict_one``, and per 1 s (200-sample) ``forecast``.
 """
 
@@ -30,7 +30,7 @@ import numpy as np
 
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.identification import identify
-from streamid.engine.parallel import EvalHelper
+from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.validation import prediction_r2
 
 __all__ = [
@@ -107,7 +107,7 @@ def _case(cfg: CoEAConfig, seed: int, data: tuple[np.ndarray, ...], **kw: Any) -
 def reactor_case(seed: int, helper: EvalHelper | None = None) -> dict[str, Any]:
     """The paper's reactor identification (one run, G=400, M=10, L=10) on simulated 480 + 480 samples.
 
-    With ``helper`` (a started :class:`~streamid.engine.parallel.EvalHelper`) the run uses both cores.
+    With ``helper`` (a started :class:`~streamid.engine.search.parallel.EvalHelper`) the run uses both cores.
     """
     out = _case(REACTOR_CONFIG, seed, reactor_data(seed), helper=helper)
     out["lags_ok"] = reactor_lags_ok(out["lags"])
@@ -153,7 +153,7 @@ def predictor_case(seed: int) -> dict[str, Any]:
     the first 2,000 samples, then every sample of the log through ``learn_one`` and ``predict_one``, a
     ``forecast`` of 200 samples (1 s) from each of 50 points, and ``forecast_many`` of 50 plans from 10 of
     them (medians)."""
-    from streamid.engine.predictor import Predictor
+    from streamid.model.predictor import Predictor
 
     u, y, _, _ = mr_damper_data()
     model = identify(u, y, MR_PAPER_CONFIG.replace(generations=50), np.random.default_rng(seed)).model
@@ -195,7 +195,7 @@ def bench(options: Any) -> Iterator[Any]:
     """``streamid bench`` provider: the engine's figures (medians over ``options.repeat`` seeds).
 
     One-run cases are measured twice where it matters: in one process (one core)
-    and with an :class:`~streamid.engine.parallel.EvalHelper` started beforehand
+    and with an :class:`~streamid.engine.search.parallel.EvalHelper` started beforehand
     (both cores; a daemon or ``streamid identify`` keeps one for all its runs).
     """
     helper = EvalHelper() if EvalHelper.supported() else None

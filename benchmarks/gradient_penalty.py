@@ -40,11 +40,11 @@ from numpy.typing import NDArray
 from benchmarks.ablation import _targets, verdict
 from benchmarks.suite import free_run_val
 from streamid.engine import identify
-from streamid.engine.ensemble import EnsembleModel
-from streamid.engine.model import Model
-from streamid.engine.rbf import activations
+from streamid.model.ensemble import EnsembleModel
+from streamid.model.narx import Model
+from streamid.engine.fit.rbf import activations
 from streamid.engine.settings import DEFAULT, RIDGE
-from streamid.engine.stability import radius
+from streamid.engine.choice.stability import radius
 
 Array = NDArray[np.float64]
 

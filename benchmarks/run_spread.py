@@ -41,16 +41,16 @@ import numpy as np
 
 from benchmarks.suite import Target, free_run_val, targets, validation_run
 from streamid.engine import identify
-from streamid.engine.choice import RANGE_MARGIN
-from streamid.engine.longlinear import long_linear_choice
-from streamid.engine.model import Model
-from streamid.engine.rbf import activations
-from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
-from streamid.engine.selection import refit_weights
+from streamid.engine.choice.scores import RANGE_MARGIN
+from streamid.engine.choice.longlinear import long_linear_choice
+from streamid.model.narx import Model
+from streamid.engine.fit.rbf import activations
+from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
+from streamid.engine.choice.selection import refit_weights
 from streamid.engine.settings import DEFAULT, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.engine.validation import r2
 
-#: A run whose estimation score is at most this left no admissible candidate (streamid.engine.selection).
+#: A run whose estimation score is at most this left no admissible candidate (streamid.engine.choice.selection).
 INADMISSIBLE = -1e9
 
 

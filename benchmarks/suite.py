@@ -62,10 +62,10 @@ from typing import Any
 
 import numpy as np
 
-from streamid.engine.ensemble import members_of
+from streamid.model.ensemble import members_of
 from streamid.engine.identification import identify
-from streamid.engine.model import Model
-from streamid.engine.parallel import EvalHelper
+from streamid.model.narx import Model
+from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.settings import DEFAULT, PAPER, CoEAConfig
 from streamid.engine.validation import r2
 
@@ -223,7 +223,7 @@ def free_run_val(model: Model, t: Target) -> float:
 
 def identify_target(t: Target, cfg: CoEAConfig, seed: int, helper: EvalHelper | None = None) -> dict[str, Any]:
     """One identification of ``t`` with ``cfg``: validation free-run R^2, wall seconds, chosen structure.
-    ``helper``: a started :class:`~streamid.engine.parallel.EvalHelper` (the second core; the same result)."""
+    ``helper``: a started :class:`~streamid.engine.search.parallel.EvalHelper` (the second core; the same result)."""
     t0 = time.perf_counter()
     res = identify(t.u_est, t.y_est, cfg, seed, helper=helper)
     seconds = time.perf_counter() - t0
@@ -288,7 +288,7 @@ def run_suite(
     helper: EvalHelper | None = None,
 ) -> list[dict[str, Any]]:
     """Every target x config x seed (and the peers): one dict per target. ``helper``: the identifications use
-    this started :class:`~streamid.engine.parallel.EvalHelper` (both cores, as ``streamid identify``; the
+    this started :class:`~streamid.engine.search.parallel.EvalHelper` (both cores, as ``streamid identify``; the
     results are the same with or without it, the seconds are not)."""
     cfgs = configs if configs is not None else {"paper": SUITE_PAPER, "default": DEFAULT}
     rows = []

@@ -20,45 +20,41 @@ Zenoh, Rerun or MCAP) for the command line and the daemon's start.
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING
 
 from streamid._lazy import lazy_exports
+from streamid._version import __version__
 from streamid.errors import StreamidError
 
 if TYPE_CHECKING:
     from streamid.daemon.config import DaemonConfig
     from streamid.online.stream_config import StreamConfig
     from streamid.daemon.service import Daemon
-    from streamid.engine.coevolution import CoEAState, Coevolution
+    from streamid.engine.search.coevolution import CoEAState, Coevolution
     from streamid.engine.identification import Result, identify
-    from streamid.engine.model import Model
-    from streamid.engine.parallel import EvalHelper
-    from streamid.engine.predictor import Predictor
+    from streamid.model.narx import Model
+    from streamid.engine.search.parallel import EvalHelper
+    from streamid.model.predictor import Predictor
     from streamid.engine.settings import CoEAConfig
     from streamid.engine.validation import assess, validate
     from streamid.online.identifier import OnlineIdentifier
     from streamid.transport.client import ModelSubscriber, latest_model
     from streamid.wire.codec import SampleBatch
 
-try:
-    __version__ = version("streamid")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.0.0+local"
 
 #: Where each lazily exported name lives.
 _EXPORTS = {
     # the engine
     "CoEAConfig": "streamid.engine.settings",
-    "CoEAState": "streamid.engine.coevolution",
-    "Coevolution": "streamid.engine.coevolution",
-    "EvalHelper": "streamid.engine.parallel",
-    "Model": "streamid.engine.model",
+    "CoEAState": "streamid.engine.search.coevolution",
+    "Coevolution": "streamid.engine.search.coevolution",
+    "EvalHelper": "streamid.engine.search.parallel",
+    "Model": "streamid.model.narx",
     "Result": "streamid.engine.identification",
     "identify": "streamid.engine.identification",
     "validate": "streamid.engine.validation",
     "assess": "streamid.engine.validation",
-    "Predictor": "streamid.engine.predictor",
+    "Predictor": "streamid.model.predictor",
     # streaming
     "OnlineIdentifier": "streamid.online.identifier",
     "Daemon": "streamid.daemon.service",

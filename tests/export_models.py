@@ -10,9 +10,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from streamid.engine.ensemble import ensemble_of
-from streamid.engine.model import Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model.ensemble import ensemble_of
+from streamid.model.narx import Model
+from streamid.model.regressors import Normalisation, Regressor
 
 PERIOD_NS = 10_000_000  # 10 ms
 INPUTS = ("force_N", "valve")

@@ -2,7 +2,7 @@
 
 Each hostile file is written for real and given to a real ``streamid`` process: every error is one
 line on standard error, exit status 2, no traceback, and nothing is allocated beyond the stated
-bounds (:mod:`streamid.engine.model_limits`, :data:`streamid.logs.csv_table.MAX_LINE_CHARS`).
+bounds (:mod:`streamid.model.limits`, :data:`streamid.logs.csv_table.MAX_LINE_CHARS`).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from conftest import STREAMID
 
-from streamid.engine import Model
-from streamid.engine.model_limits import MAX_DEPTH, MAX_LAG, MAX_MODEL_BYTES, MAX_NEURONS, MAX_PARAMETERS
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import Model
+from streamid.model.limits import MAX_DEPTH, MAX_LAG, MAX_MODEL_BYTES, MAX_NEURONS, MAX_PARAMETERS
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import DataError, ModelFormatError
 from streamid.logs.csv_table import MAX_LINE_CHARS
 from streamid.logs.datafile import load_table

@@ -6,8 +6,8 @@ import numpy as np
 
 from benchmarks.gradient_penalty import free_run_mse, gradient_gram, penalised_refit
 from streamid.engine import identify
-from streamid.engine.rbf import activations
-from streamid.engine.selection import refit_weights
+from streamid.engine.fit.rbf import activations
+from streamid.engine.choice.selection import refit_weights
 from streamid.engine.settings import DEFAULT, RIDGE
 from streamid.sim import simulate_reactor
 

@@ -44,7 +44,7 @@ def test_finished_runs_are_given_the_final_stage() -> None:
 
 def test_two_fold_refits_the_weights_on_one_half_and_scores_the_other() -> None:
     from benchmarks.run_spread import two_fold
-    from streamid.engine.selection import refit_weights
+    from streamid.engine.choice.selection import refit_weights
     from streamid.engine.settings import RIDGE
     from streamid.engine.validation import r2
 
@@ -65,8 +65,8 @@ def test_local_radius_is_the_largest_root_of_the_linearised_feedback() -> None:
     import numpy as np
 
     from benchmarks.run_spread import local_radius
-    from streamid.engine.model import Model
-    from streamid.engine.regressors import Normalisation, Regressor
+    from streamid.model.narx import Model
+    from streamid.model.regressors import Normalisation, Regressor
 
     rng = np.random.default_rng(0)
     u = rng.uniform(-1, 1, (400, 1))

@@ -16,10 +16,10 @@ import pytest
 from conftest import endpoint, stop_process, wait_until, start_daemon
 
 from streamid.daemon.admission import check_batch, identification_bytes, stream_bytes
-from streamid.engine import rbf
+from streamid.engine.fit import rbf
 from streamid.engine.settings import RIDGE
-from streamid.engine._kernels import warm_up_kernels
-from streamid.engine.selection import refit_weights
+from streamid.engine.warmup import warm_up_kernels
+from streamid.engine.choice.selection import refit_weights
 from streamid.errors import ConfigError
 from streamid.online.rows import SEARCH_ROWS, informative_rows, search_row_bound
 from streamid.online.stream_config import StreamConfig
@@ -91,7 +91,7 @@ def test_streamed_least_squares_is_the_one_shot_solution(monkeypatch: pytest.Mon
 def test_a_long_window_is_searched_on_the_bound_and_refitted_on_every_row() -> None:
     warm_up_kernels()
     w = _piezo_window(20_000)
-    # (no long linear part: its weights come from its own least squares, streamid.engine.longlinear)
+    # (no long linear part: its weights come from its own least squares, streamid.engine.choice.longlinear)
     cfg = StreamConfig(window_samples=20_000, cold_generations=8, warm_generations=3, engine=(("long_linear", 0),))
     out = identify_window(w, cfg, version=1)
     assert out.kind == "identified" and out.model is not None and out.summary is not None, out.reason

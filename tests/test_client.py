@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from conftest import endpoint
-from streamid.engine import Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import Model
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import ConfigError, NoDaemonError, NoModelYetError
 from streamid.transport import Bus, ZenohSettings
 from streamid.transport.client import ModelSubscriber, latest_model

@@ -93,7 +93,7 @@ def test_bounds_are_printed_and_read_back_unchanged() -> None:
 # --------------------------------------------------------------------------- admission, unit
 def test_identification_bytes_is_an_upper_bound_of_the_measured_peak() -> None:
     """tracemalloc peak of one update (numpy's allocations are traced) <= the estimate <= 2x it."""
-    from streamid.engine._kernels import warm_up_kernels
+    from streamid.engine.warmup import warm_up_kernels
 
     warm_up_kernels()  # the compiled kernels loaded first, as the daemon does at start: a one-time load is not an update's
     for n, n_in in ((1500, 1), (600, 30)):

@@ -18,8 +18,8 @@ import pytest
 from conftest import STREAMID
 
 from streamid.commands.identify_run import _best_index, _print_report, _stats, validated_run
-from streamid.engine.caveats import model_caveats
-from streamid.engine.model import Model
+from streamid.engine.choice.caveats import model_caveats
+from streamid.model.narx import Model
 from streamid.engine.settings import DEFAULT
 from streamid.engine.validation import assess, validate
 from streamid.logs.datafile import Dataset

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
-from streamid.engine import Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import Model
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.online.drift import BlockLevels, Cusum, DriftMonitor, DriftSettings, block_levels, reference_monitor
 from streamid.online.head import RETIRED_KEPT, OutputHead
 from streamid.online.recalibrate import MAX_GAIN_CHANGE, recalibrate

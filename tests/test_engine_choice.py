@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import PAPER, identify
-from streamid.engine.choice import free_run_scores
+from streamid.engine.choice.scores import free_run_scores
 from streamid.errors import ConfigError
 from streamid.sim import simulate_reactor
 
@@ -87,8 +87,8 @@ def test_bad_settings_name_the_field_and_the_accepted_form(field: str, value: ob
 def test_a_model_without_an_input_term_is_not_admissible(reactor, good_model) -> None:  # type: ignore[no-untyped-def]
     import json
 
-    from streamid.engine import Model
-    from streamid.engine.regressors import Regressor
+    from streamid.model import Model
+    from streamid.model.regressors import Regressor
 
     u, y = reactor
     autonomous = Model(regressors=(Regressor("y", 0, 1),), centres=np.zeros((2, 1)), widths=np.ones(2),
@@ -105,7 +105,7 @@ def test_scores_streamed_in_chunks_are_the_whole_records(reactor, good_model,  #
                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     """``keep_paths=False`` simulates a few rows at a time, each chunk from the last outputs of the one before:
     the same free runs (their excursions to the bit, scores to rounding), no paths kept."""
-    import streamid.engine.choice as choice
+    import streamid.engine.choice.scores as choice
 
     u, y = reactor
     lin = replace(good_model, linear=np.r_[np.full(len(good_model.regressors), 0.01), 0.02])
@@ -125,10 +125,10 @@ def test_a_long_records_final_fit_is_made_in_blocks_with_the_same_weights(  # ty
         reactor, linear: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """Past ``FIT_BLOCK_ROWS`` rows the chosen pair's activations and regressors are made a block at a time, never
     for every row: the weights of the streamed least squares the whole-record fit takes there, the same to the bit."""
-    import streamid.engine.candidates as candidates
-    import streamid.engine.rbf as rbf
-    from streamid.engine.coevolution import Coevolution
-    from streamid.engine.rbf import activations
+    import streamid.engine.search.candidates as candidates
+    import streamid.engine.fit.rbf as rbf
+    from streamid.engine.search.coevolution import Coevolution
+    from streamid.engine.fit.rbf import activations
 
     u, y = reactor
     co = Coevolution(u, y, PAPER.replace(neurons=6, generations=4, linear_terms=linear), 3)
@@ -153,10 +153,10 @@ def test_a_large_windows_fallback_fits_and_scores_every_candidate_in_blocks(  # 
     """When the screened choice's refit is not admissible, every candidate is fitted on every row: for a record
     past ``FIT_BLOCK_ROWS`` that is done a block at a time and scored without keeping free runs; the same choice
     as the whole-record way (the weights to an ulp of the activations)."""
-    import streamid.engine.candidates as candidates
-    import streamid.engine.rbf as rbf
-    import streamid.engine.selection as selection
-    from streamid.engine.coevolution import Coevolution
+    import streamid.engine.search.candidates as candidates
+    import streamid.engine.fit.rbf as rbf
+    import streamid.engine.choice.selection as selection
+    from streamid.engine.search.coevolution import Coevolution
 
     u, y = reactor
     cfg = PAPER.replace(neurons=6, generations=6, selection="fr_est", linear_terms=True, search_rows=128)
@@ -185,12 +185,12 @@ def test_a_sampled_run_never_makes_every_rows_regressors_for_a_long_record(  # t
     """A run searched on a sample of rows holds that sample's regressors only; the screened choice of a record past
     ``FIT_BLOCK_ROWS`` fits its chosen one a block at a time: the lag matrix of every row is never made (it is
     made once if asked for, as ``R``), and the model is the one fitted on the whole matrix."""
-    import streamid.engine.candidates as candidates
-    import streamid.engine.rbf as rbf
-    from streamid.engine.coevolution import Coevolution
-    from streamid.engine.regressors import lag_matrix, lag_rows
-    from streamid.engine.rbf import activations
-    from streamid.engine.selection import select_model
+    import streamid.engine.search.candidates as candidates
+    import streamid.engine.fit.rbf as rbf
+    from streamid.engine.search.coevolution import Coevolution
+    from streamid.engine.fit.lagmatrix import lag_matrix, lag_rows
+    from streamid.engine.fit.rbf import activations
+    from streamid.engine.choice.selection import select_model
 
     u, y = reactor
     cfg = PAPER.replace(neurons=6, generations=6, selection="fr_est", linear_terms=True, search_rows=128)

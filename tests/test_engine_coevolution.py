@@ -184,7 +184,7 @@ def test_mr_damper_with_streamids_defaults() -> None:
 @pytest.mark.parametrize("block", [1, 3, 7])
 def test_result_does_not_depend_on_random_block_size(monkeypatch: pytest.MonkeyPatch, block: int) -> None:
     """Uniforms drawn for blocks of generations: the same stream as one draw per generation."""
-    from streamid.engine import coevolution
+    from streamid.engine.search import coevolution
 
     u, y = narx(300, np.random.default_rng(6))
     cfg = SMALL.replace(generations=17)

@@ -1,4 +1,4 @@
-"""Complexity by an information criterion on the estimation free run (streamid.engine.complexity)."""
+"""Complexity by an information criterion on the estimation free run (streamid.engine.choice.complexity)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from streamid.engine import DEFAULT, CoEAConfig, Model, identify
+from streamid.engine import DEFAULT, CoEAConfig, identify
+from streamid.model import Model
 from streamid.engine.settings import FALLBACK_BELOW
-from streamid.engine.complexity import choose, criterion, parameter_count
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.engine.choice.complexity import choose, criterion, parameter_count
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import ConfigError
 
 
@@ -80,8 +81,8 @@ def test_identify_reports_every_candidate_size_and_its_criterion(monkeypatch: py
 
 
 def test_candidates_of_different_sizes_on_the_same_lags_are_scored_together() -> None:
-    from streamid.engine.choice import free_run_scores
-    from streamid.engine.selection import free_run_r2
+    from streamid.engine.choice.scores import free_run_scores
+    from streamid.engine.choice.selection import free_run_r2
 
     big, small = _net(30), _net(10)
     big = replace(big, weights=big.weights * 0.01)
@@ -95,7 +96,7 @@ def test_candidates_of_different_sizes_on_the_same_lags_are_scored_together() ->
 
 
 def test_forward_selection_order_takes_the_explaining_columns_first() -> None:
-    from streamid.engine.complexity import ols_order
+    from streamid.engine.choice.complexity import ols_order
 
     rng = np.random.default_rng(1)
     phi = rng.normal(size=(200, 6))
@@ -107,7 +108,7 @@ def test_forward_selection_order_takes_the_explaining_columns_first() -> None:
 
 
 def test_pruned_and_padded_networks() -> None:
-    from streamid.engine.complexity import padded, pruned
+    from streamid.engine.choice.complexity import padded, pruned
 
     m = _net(12)
     m = replace(m, weights=m.weights * 0.05, metrics={"fitness": 1.0})

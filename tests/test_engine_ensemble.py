@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from conftest import endpoint
-from streamid.engine import DEFAULT, Model, identify
-from streamid.engine.choice import free_run_scores, group_free_run
-from streamid.engine.complexity import choose, criterion, padded, parameter_count, pruned
-from streamid.engine.ensemble import MAX_MEMBERS, EnsembleModel, ensemble_of, members_of
-from streamid.engine.ensemble_choice import choose_ensemble
-from streamid.engine.regressors import Normalisation, Regressor
-from streamid.engine.selection import refit_weights
+from streamid.engine import DEFAULT, identify
+from streamid.model import Model
+from streamid.engine.choice.scores import free_run_scores, group_free_run
+from streamid.engine.choice.complexity import choose, criterion, padded, parameter_count, pruned
+from streamid.model.ensemble import MAX_MEMBERS, EnsembleModel, ensemble_of, members_of
+from streamid.engine.choice.ensemble_choice import choose_ensemble
+from streamid.model.regressors import Normalisation, Regressor
+from streamid.engine.choice.selection import refit_weights
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError, ModelFormatError
 from streamid.online.recalibrate import recalibrate
@@ -225,7 +226,7 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
         # round 12: a long linear part only below an estimation fit of 0.95; these records fit above it
         assert got["config"].pop("long_linear") == 512 and "long_linear" not in got["metrics"]["complexity"]
         # the same model to rounding: the free runs that score the candidates are compiled since round 8
-        # (streamid.engine._kernels, sums in another order than the numpy loop that recorded these)
+        # (streamid.model.kernels, sums in another order than the numpy loop that recorded these)
         want = json.loads((DATA / f"{name}_seed{seed}.json").read_text())
         # issue 37 retired these fields; these records had them at the values that did nothing (no hold-out, no
         # decay, the linear part off so never searched with, the lag search's generations those of the second stage)

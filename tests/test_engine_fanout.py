@@ -6,7 +6,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-from streamid.engine.fanout import fan_out
+from streamid.engine.search.fanout import fan_out
 
 
 def _job(job: int, helper: Any = None) -> tuple[int, Any]:

@@ -1,5 +1,5 @@
 """An output that responds within the sample: u(t) among the candidates (CoEAConfig.direct_terms "on", min_lag_u 0),
-decided by a likelihood-ratio test of the direct terms (streamid.engine.feedthrough) with direct_terms "test"."""
+decided by a likelihood-ratio test of the direct terms (streamid.engine.search.feedthrough) with direct_terms "test"."""
 
 from __future__ import annotations
 
@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from streamid.engine import DEFAULT, PAPER, CoEAConfig, identify
-from streamid.engine.coevolution import Coevolution
-from streamid.engine.feedthrough import THRESHOLD, feedthrough_test
-from streamid.engine.model import Model
-from streamid.engine.populations import CoEAState
-from streamid.engine.regressors import Normalisation, Regressor, candidate_regressors, format_lags, lag_matrix
+from streamid.engine.search.coevolution import Coevolution
+from streamid.engine.search.feedthrough import THRESHOLD, feedthrough_test
+from streamid.model.narx import Model
+from streamid.engine.search.populations import CoEAState
+from streamid.model.regressors import Normalisation, Regressor, format_lags
+from streamid.engine.fit.lagmatrix import candidate_regressors, lag_matrix
 from streamid.errors import ConfigError, ModelFormatError
 
 

@@ -12,9 +12,9 @@ import pytest
 
 from streamid.engine import PAPER, identify
 from streamid.engine.settings import MORE_BELOW
-from streamid.engine.coevolution import Coevolution
+from streamid.engine.search.coevolution import Coevolution
 from streamid.engine.restarts import wants_more
-from streamid.engine.model import Model
+from streamid.model.narx import Model
 from streamid.errors import ConfigError
 from streamid.sim import simulate_reactor
 

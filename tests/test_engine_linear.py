@@ -11,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid.engine import DEFAULT, Model, identify
-from streamid.engine.choice import group_free_run
-from streamid.engine.model import MODEL_FORMAT, MODEL_FORMAT_LINEAR
-from streamid.engine.regressors import Normalisation, Regressor
-from streamid.engine.selection import refit_weights
+from streamid.engine import DEFAULT, identify
+from streamid.model import Model
+from streamid.engine.choice.scores import group_free_run
+from streamid.model.narx import MODEL_FORMAT, MODEL_FORMAT_LINEAR
+from streamid.model.regressors import Normalisation, Regressor
+from streamid.engine.choice.selection import refit_weights
 from streamid.engine.validation import r2
 from streamid.errors import ModelFormatError
 

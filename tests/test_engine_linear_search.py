@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from streamid.engine import CoEAConfig
-from streamid.engine.choice import free_run_scores
-from streamid.engine.coevolution import Coevolution
-from streamid.engine.complexity import criterion, parameter_count
-from streamid.engine.selection import _by_criterion, select_model
+from streamid.engine.choice.scores import free_run_scores
+from streamid.engine.search.coevolution import Coevolution
+from streamid.engine.choice.complexity import criterion, parameter_count
+from streamid.engine.choice.selection import _by_criterion, select_model
 from streamid.errors import ConfigError
 
 

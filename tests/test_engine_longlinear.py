@@ -13,17 +13,18 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from streamid.engine import DEFAULT, Model, identify
+from streamid.engine import DEFAULT, identify
+from streamid.model import Model
 from streamid.engine.settings import MORE_BELOW, RIDGE
-from streamid.engine.choice import free_run_scores, group_free_run
-from streamid.engine.complexity import parameter_count
-from streamid.engine.ensemble import EnsembleModel
-from streamid.engine.longlinear import dense_regressors, long_linear_choice, orders
-from streamid.engine.model import MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_LONG_LINEAR
-from streamid.engine.refine import refine_weights
-from streamid.engine.regressors import Normalisation, Regressor
-from streamid.engine.selection import refit_weights
-from streamid.engine.stability import is_bounded
+from streamid.engine.choice.scores import free_run_scores, group_free_run
+from streamid.engine.choice.complexity import parameter_count
+from streamid.model.ensemble import EnsembleModel
+from streamid.engine.choice.longlinear import dense_regressors, long_linear_choice, orders
+from streamid.model.narx import MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_LONG_LINEAR
+from streamid.engine.choice.refine import refine_weights
+from streamid.model.regressors import Normalisation, Regressor
+from streamid.engine.choice.selection import refit_weights
+from streamid.engine.choice.stability import is_bounded
 from streamid.engine.validation import r2
 from streamid.errors import ModelFormatError
 
@@ -127,8 +128,8 @@ def test_a_mean_of_long_linear_members_is_a_model5_document_and_the_mean_of_thei
 def test_the_mean_of_the_best_offers_is_taken_only_when_its_criterion_is_lower() -> None:
     """Step 6: members' errors that cancel make the mean's criterion lower (taken, p the members' mean);
     members that agree make the mean no better (the best offer stands)."""
-    from streamid.engine.complexity import criterion
-    from streamid.engine.longlinear import _means, _Offer
+    from streamid.engine.choice.complexity import criterion
+    from streamid.engine.choice.longlinear import _means, _Offer
 
     n = 2000
     t = np.arange(n)
@@ -197,7 +198,7 @@ def test_the_choice_fits_long_memory_and_validates_on_another_excitation() -> No
     # the kept model survives the final steps: a refit keeps its structure, the refinement leaves it alone
     again = refit_weights(res.model, u, y, RIDGE)
     assert again.linear_regressors == res.model.linear_regressors
-    # The refit is the same rule (streamid.engine.longlinear.long_linear_fit) on the model's own rows (the choice
+    # The refit is the same rule (streamid.engine.choice.longlinear.long_linear_fit) on the model's own rows (the choice
     # fitted on the rows every offer shares, which start later): with the linear part's own autoregression (this
     # record's joint fits are unstable) the two least squares differ a little, and validate alike.
     assert is_bounded(again) and ev["orders"][0]["autoregression"] == "fitted alone"
@@ -272,7 +273,7 @@ def test_a_part_whose_free_run_is_worse_than_the_mean_is_refused() -> None:
     ev = res.model.metrics["complexity"]["long_linear"]
     assert not ev["taken"] and res.model.linear_regressors is None
     # every order was refused: its free run explains less than the mean, or its criterion is no lower, or (since
-    # streamid.engine.stability) its autoregression is unstable even when the linear part is fitted alone
+    # streamid.engine.choice.stability) its autoregression is unstable even when the linear part is fitted alone
     for o in ev["orders"]:
         assert (o.get("autoregression") == "unstable" or o.get("excursion_spans") is not None
                 or o["r2_fr_est"] <= 0.0 or o["criterion"] >= ev["criterion_without"]), o
@@ -303,7 +304,7 @@ def test_every_admissible_run_is_offered_the_order_and_the_lowest_criterion_is_k
 def test_the_shared_linear_block_solves_the_whole_ridge_least_squares(p: int) -> None:
     """One QR of the linear columns, a network's activations projected off a prefix: the same solution as a
     least squares of the whole scaled, ridged design (near-collinear columns included, as dense lags are)."""
-    from streamid.engine.longlinear import _LinearBlock
+    from streamid.engine.choice.longlinear import _LinearBlock
 
     rng = np.random.default_rng(p)
     n, P, M, ridge = 600, 40, 6, 1e-8

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from streamid.engine import Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import Model
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import DataError, ModelFormatError
 
 
@@ -57,7 +57,7 @@ def test_osa_prediction_reproducible_from_the_file_alone() -> None:
 def test_a_long_record_is_predicted_in_blocks_like_at_once() -> None:
     """predict_osa works through OSA_BLOCK_ROWS rows at a time (bounded memory); the rows across every block
     boundary come out as the formula gives them, and as one matrix over the whole record does."""
-    from streamid.engine.model import OSA_BLOCK_ROWS
+    from streamid.model.narx import OSA_BLOCK_ROWS
 
     m = _model()
     rng = np.random.default_rng(2)
@@ -81,7 +81,7 @@ def test_the_memory_of_a_prediction_does_not_grow_with_the_record() -> None:
     took at once (+260 MB before predict_osa worked in blocks of OSA_BLOCK_ROWS)."""
     import tracemalloc
 
-    from streamid.engine.model import OSA_BLOCK_ROWS
+    from streamid.model.narx import OSA_BLOCK_ROWS
 
     rng = np.random.default_rng(3)
     regs = tuple(Regressor("y", 0, k) for k in range(1, 16)) + tuple(Regressor("u", 0, k) for k in range(1, 16))
@@ -175,7 +175,7 @@ def test_prediction_input_errors() -> None:
 
 
 def test_lags_are_written_one_way_with_signal_names() -> None:
-    from streamid.engine.regressors import format_lags
+    from streamid.model.regressors import format_lags
 
     assert format_lags("force_N", [1, 2], ["velocity_cm_s"], [[1, 2, 3]]) == "force_N(t-1,t-2) velocity_cm_s(t-1..t-3)"
     assert format_lags("y", [1, 2], ["u"], [[1, 2, 3, 6, 7]]) == "y(t-1,t-2) u(t-1..t-3,t-6,t-7)"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamid.engine import de, harmony
+from streamid.engine.search import de, harmony
 
 
 def test_mutation_by_hand() -> None:

@@ -1,6 +1,6 @@
-"""The evaluation helper process (streamid.engine.parallel): exact, never stalls, cleans up.
+"""The evaluation helper process (streamid.engine.search.parallel): exact, never stalls, cleans up.
 
-A real helper process is started (``python -m streamid.engine._evalhelper``) and
+A real helper process is started (``python -m streamid.engine.search._evalhelper``) and
 shares memory with the test; nothing is mocked.
 """
 
@@ -18,7 +18,7 @@ import pytest
 from streamid.engine import CoEAConfig, Coevolution, EvalHelper, identify
 from streamid.engine.settings import RIDGE
 from benchmarks.engine_cases import reactor_data
-from streamid.engine.batch import BatchEvaluator
+from streamid.engine.search.batch import BatchEvaluator
 from streamid.errors import StreamidError
 
 pytestmark = pytest.mark.skipif(not EvalHelper.supported(), reason="the helper needs POSIX on x86-64")
@@ -137,9 +137,9 @@ def test_the_defaults_with_a_helper_give_the_same_model(helper, data):
 
 
 def test_free_runs_in_threads_are_the_same_to_the_bit():
-    from streamid.engine.fanout import thread_map
-    from streamid.engine.freerun import free_run
-    from streamid.engine.regressors import Regressor
+    from streamid.threads import thread_map
+    from streamid.model.freerun import free_run
+    from streamid.model.regressors import Regressor
 
     rng = np.random.default_rng(0)
     regs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 1), Regressor("u", 1, 2))

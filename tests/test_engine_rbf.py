@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamid.engine.batch import BatchEvaluator
-from streamid.engine.rbf import activations, fit_weights, rbf_output
+from streamid.engine.search.batch import BatchEvaluator
+from streamid.engine.fit.rbf import activations, fit_weights, rbf_output
 
 
 def _direct(r: np.ndarray, c: np.ndarray, s: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -118,7 +118,7 @@ def test_capacity_checked() -> None:
 
 
 def test_batched_solve_and_its_singular_fallback() -> None:
-    from streamid.engine.batch import _solve
+    from streamid.engine.search.batch import _solve
 
     rng = np.random.default_rng(11)
     a = rng.standard_normal((4, 5, 5))
@@ -152,10 +152,10 @@ def test_batched_activations_with_empty_and_full_masks() -> None:
 
 
 def test_compiled_exp2_is_numpys_to_one_ulp_and_keeps_its_special_values() -> None:
-    """The activations' exp2 off AVX-512 (streamid.engine._kernels.exp2_rows): within 1 ulp of numpy's on the
+    """The activations' exp2 off AVX-512 (streamid.engine.fit.kernels.exp2_rows): within 1 ulp of numpy's on the
     evaluator's range, exact at integers, 0 below -1022 (numpy: subnormals), inf above 1023, nan kept; only the
     rows asked for are touched, and rows longer than one chunk are done whole."""
-    from streamid.engine._kernels import exp2_rows
+    from streamid.engine.fit.kernels import exp2_rows
 
     rng = np.random.default_rng(7)
     buf = np.empty((3, 5, 2500))
@@ -176,10 +176,10 @@ def test_compiled_exp2_is_numpys_to_one_ulp_and_keeps_its_special_values() -> No
 
 
 def test_compiled_gram_is_numpys_product_for_every_block_shape() -> None:
-    """The search's Gram off AVX-512 (streamid.engine._kernels.gram_rows): ``ext[:p, :R] @ ext[:p, 1:R].T`` to
+    """The search's Gram off AVX-512 (streamid.engine.fit.kernels.gram_rows): ``ext[:p, :R] @ ext[:p, 1:R].T`` to
     rounding, for every row count (the 2 x 4 blocks' edges), sample counts off the chunk size, and only the first
     ``p`` members written."""
-    from streamid.engine._kernels import gram_rows
+    from streamid.engine.fit.kernels import gram_rows
 
     rng = np.random.default_rng(11)
     for R in range(2, 12):
@@ -196,7 +196,7 @@ def test_compiled_gram_is_numpys_product_for_every_block_shape() -> None:
 def test_both_paths_of_the_evaluator_give_the_same_fitness(monkeypatch: pytest.MonkeyPatch) -> None:
     """numpy's path (AVX-512 machines) and the compiled kernels' agree on a batch's fitness and weights, with
     per-member and shared masks."""
-    import streamid.engine.rbf as rbf
+    import streamid.engine.fit.rbf as rbf
 
     rng = np.random.default_rng(5)
     n, D, M, P = 900, 6, 9, 5

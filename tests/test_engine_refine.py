@@ -1,4 +1,4 @@
-"""Output-error refinement of the final model's weights (``streamid.engine.refine``, ``CoEAConfig.refine_iterations``):
+"""Output-error refinement of the final model's weights (``streamid.engine.choice.refine``, ``CoEAConfig.refine_iterations``):
 the free run's sensitivities against finite differences, the gate, the keep-only-if-better rule, ensembles refined
 jointly, determinism, and ``identify``'s evidence."""
 
@@ -12,13 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from streamid.engine import DEFAULT, Model, identify
-from streamid.engine.ensemble import EnsembleModel, ensemble_of, members_of
-from streamid.engine._kernels import free_run_sensitivities
-from streamid.engine.freerun import free_run
-from streamid.engine.refine import parts, refine_judged, refine_weights, sensitivities
+from streamid.engine import DEFAULT, identify
+from streamid.model import Model
+from streamid.model.ensemble import EnsembleModel, ensemble_of, members_of
+from streamid.engine.choice.sensitivities import free_run_sensitivities
+from streamid.model.freerun import free_run
+from streamid.engine.choice.refine import parts, refine_judged, refine_weights, sensitivities
 from streamid.engine.settings import REFINE_ABOVE
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError
 
@@ -268,7 +269,7 @@ def test_online_updates_refine_by_default_judged_out_of_sample() -> None:
 
 def test_warm_up_compiles_the_versions_the_engine_then_uses() -> None:
     from streamid.engine import warm_up_kernels
-    from streamid.engine._kernels import recursion
+    from streamid.model.kernels import recursion
 
     warm_up_kernels()
     before = (list(recursion.signatures), list(free_run_sensitivities.signatures))
@@ -283,7 +284,7 @@ def test_warm_up_compiles_the_versions_the_engine_then_uses() -> None:
 
 
 def test_the_penalty_keeps_the_weights_at_the_searchs_scale(monkeypatch: pytest.MonkeyPatch) -> None:
-    import streamid.engine.refine as refine
+    import streamid.engine.choice.refine as refine
     from benchmarks.suite import targets
 
     t = targets(("mr_damper",))[0]  # seed 3 of round 8 (before u(t) was a candidate): its weights ran off to 1e43
@@ -301,7 +302,7 @@ def test_the_refinement_made_in_chunks_is_the_same(monkeypatch: pytest.MonkeyPat
     """Free runs and derivatives made a few rows at a time (each member continued from the outputs and
     derivatives ending the chunk before; members of different lags) give the one-piece refinement: memory bounded
     by the chunk, not the record."""
-    import streamid.engine.refine as refine
+    import streamid.engine.choice.refine as refine
 
     u, y = _plant()
     net = _osa_net(u, y, (Y1, Y2, U1, U2), 7, 2, linear=True)

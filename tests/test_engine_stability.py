@@ -1,6 +1,6 @@
 """Bounded by construction (issue 37): a kept model's linear part has a stable autoregression.
 
-The rule of :mod:`streamid.engine.stability`, checked on hand-built parts (the radius, the refusal in the final
+The rule of :mod:`streamid.engine.choice.stability`, checked on hand-built parts (the radius, the refusal in the final
 choice, the refit with the linear part's own autoregression) and end to end: on a record where the network and its
 linear part fitted together have an unstable autoregression, ``identify`` keeps a model whose free run stays bounded
 on inputs far beyond the record's, and from a far-off initial state.
@@ -13,12 +13,12 @@ import json
 import numpy as np
 
 from streamid.engine import identify
-from streamid.engine.choice import free_run_scores
-from streamid.engine.model import Model
-from streamid.engine.regressors import Regressor
+from streamid.engine.choice.scores import free_run_scores
+from streamid.model.narx import Model
+from streamid.model.regressors import Regressor
 from streamid.engine.settings import DEFAULT
-from streamid.engine.longlinear import _LinearBlock
-from streamid.engine.stability import ar_radius, is_bounded, radius
+from streamid.engine.choice.longlinear import _LinearBlock
+from streamid.engine.choice.stability import ar_radius, is_bounded, radius
 
 Y1, Y2, U1 = Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 1)
 
@@ -59,7 +59,7 @@ def test_the_final_choice_refuses_an_unstable_linear_part_however_well_it_fits()
 
 
 def test_a_long_linear_part_keeps_the_autoregression_of_the_linear_part_fitted_alone() -> None:
-    # The refit of streamid.engine.longlinear (step 3b) when the network and the linear part fitted together have an
+    # The refit of streamid.engine.choice.longlinear (step 3b) when the network and the linear part fitted together have an
     # unstable autoregression: the output terms are the linear part's own least squares, the rest refitted on them.
     rng = np.random.default_rng(1)
     n = 2000

@@ -186,7 +186,7 @@ def test_assess_is_validate_on_one_record() -> None:
 
 
 def test_record_caveats_read_the_range_from_the_model() -> None:
-    from streamid.engine.caveats import record_caveats
+    from streamid.engine.choice.caveats import record_caveats
 
     model, u, y = _toy_model()
     inside = record_caveats(model, 0.99, 0.9, u[400:], y[400:])

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from export_models import INPUTS, kinds, record, second_output
-from streamid.engine.model import Model
+from streamid.model.narx import Model
 from streamid.export import write_c
 
 KINDS = [*kinds(), "two_outputs"]

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from export_models import INPUTS, PERIOD_NS, kinds, record, second_output
-from streamid.engine.model import Model
+from streamid.model.narx import Model
 from streamid.export import write_fmu
 from streamid.export.plan import plan_of
 

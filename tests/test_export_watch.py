@@ -15,7 +15,7 @@ import pytest
 
 from conftest import STREAMID, endpoint, read_until
 from replay.player import ReplayConfig, replay_log
-from streamid.engine.model import Model
+from streamid.model.narx import Model
 from streamid.logs import bundled_log
 from streamid.transport import ZenohSettings
 

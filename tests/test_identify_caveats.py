@@ -1,4 +1,4 @@
-"""Caveats on a kept model (streamid.engine.caveats): each raised by the figure it names, none on good data;
+"""Caveats on a kept model (streamid.engine.choice.caveats): each raised by the figure it names, none on good data;
 ``streamid identify`` prints them under the kept model and reports them (a real subprocess on a bundled record)."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from conftest import STREAMID
-from streamid.engine.caveats import BEYOND_RANGE, MARGINAL_RADIUS, arx_pole_radius, model_caveats
+from streamid.model.domain import BEYOND_RANGE
+from streamid.engine.choice.caveats import MARGINAL_RADIUS, arx_pole_radius, model_caveats
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = {"osa_est": 0.999, "fr_est": 0.98, "osa_val": 0.998, "fr_val": 0.97}
@@ -82,7 +83,7 @@ def test_identify_prints_and_reports_the_ball_and_beams_caveats(tmp_path: Path) 
 def test_a_kept_model_much_larger_than_a_close_competitor_is_named_with_it() -> None:
     """Issue 37's real piezo: 30 neurons, lags up to 30 and a linear part kept for an estimation free-run R² of
     0.99992 against 0.99988 of a 10-neuron, 10-lag restart (-3.96 on the next record)."""
-    from streamid.engine.caveats import size_caveat
+    from streamid.engine.choice.caveats import size_caveat
 
     cx = {"rule": "aic", "candidates": [
         {"run": 0, "neurons": 30, "lag_space": 30, "linear": True, "params": 61, "r2_fr_est": 0.99992},

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from streamid.commands.identify_io import Bar as _Bar
-from streamid.engine import Model
+from streamid.model import Model
 from streamid.engine.validation import prediction_r2
 
 STREAMID = [sys.executable, "-m", "streamid"]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from streamid.engine import identify
-from streamid.engine.coevolution import Progress
-from streamid.engine.parallel import EvalHelper
+from streamid.engine.search.coevolution import Progress
+from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.settings import DEFAULT
 
 

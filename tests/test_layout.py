@@ -14,17 +14,20 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
                         streamid/viz/rerun_view.py
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
+model-stands-alone      streamid/model/ (the identified model) imports only the stdlib, numpy, numba,
+                        streamid.errors, streamid._lazy, streamid.bounded_files, streamid.threads and
+                        streamid.model.* (never the engine, online, daemon, transport, ...)
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
-                        streamid.errors, streamid._lazy, streamid.bounded_files (stdlib only: a file
-                        read under a bound, which Model.load and the daemon's state store share) and
+                        streamid.errors, streamid._lazy, streamid.threads, streamid.model.* and
                         streamid.engine.* (so never online, daemon, wire, logs, viz, transport,
                         commands, bench, zenoh, rerun, mcap)
-sim-is-numerics         streamid/sim/ imports only the stdlib, numpy, scipy, streamid.errors,
-                        streamid.sim.* and streamid.engine.*
+sim-is-numerics         streamid/sim/ imports only the stdlib, numpy, scipy, streamid.errors and
+                        streamid.sim.*
 wire-stands-alone       streamid/wire/ imports only the stdlib, numpy, streamid.errors and
                         streamid.wire.*
 online-core             streamid/online/ imports of streamid are only streamid.online.*,
-                        streamid.engine.*, streamid.wire.*, streamid.errors and streamid._lazy
+                        streamid.model.*, streamid.engine.*, streamid.wire.*, streamid.errors and
+                        streamid._lazy
                         (never transport, daemon, viz, logs, commands, sim)
 product-not-tooling     no module of streamid/ imports recorders, replay or benchmarks (they are
                         reached through entry points)
@@ -33,6 +36,8 @@ benchmarks-apart        no product package (streamid/, recorders/, replay/) impo
 recorders-not-replay    recorders/ never imports replay
 replay-not-recorders    replay/ never imports recorders
 module-size             no scanned file is longer than 550 lines (the aim is under 500)
+layers                  every import of one unit by another is listed in docs/architecture.md's table
+                        (which names every unit and has no circle), and no module is on an import circle
 ======================  ==========================================================================
 
 The data flow is one way, transport -> online -> engine -> publishers: engine-is-numerics keeps the
@@ -181,10 +186,11 @@ def _allow_only(scope: str, third_party: tuple[str, ...], internal: tuple[str, .
 
 
 def _online(imp: Import) -> str | None:
-    allowed = ("streamid.online", "streamid.engine", "streamid.wire", "streamid.errors", "streamid._lazy")
+    allowed = ("streamid.online", "streamid.model", "streamid.engine", "streamid.wire", "streamid.errors",
+               "streamid._lazy")
     if within(imp.importer, "streamid.online") and within(imp.target, "streamid") and not within(imp.target, *allowed):
-        return ("streamid.online may import only streamid.online, streamid.engine, streamid.wire, streamid.errors "
-                "and streamid._lazy of streamid")
+        return ("streamid.online may import only streamid.online, streamid.model, streamid.engine, streamid.wire, "
+                "streamid.errors and streamid._lazy of streamid")
     return None
 
 
@@ -214,13 +220,15 @@ def _replay_not_recorders(imp: Import) -> str | None:
 
 RULES: dict[str, Callable[[Import], str | None]] = {
     **{name: _adapter_rule(families, owner) for name, (families, owner) in ADAPTERS.items()},
+    "model-stands-alone": _allow_only(
+        "streamid.model", ("numpy", "numba"),
+        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.threads", "streamid.model"),
+    ),
     "engine-is-numerics": _allow_only(
         "streamid.engine", ("numpy", "scipy", "threadpoolctl", "numba"),
-        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.engine"),
+        ("streamid.errors", "streamid._lazy", "streamid.threads", "streamid.model", "streamid.engine"),
     ),
-    "sim-is-numerics": _allow_only(
-        "streamid.sim", ("numpy", "scipy"), ("streamid.errors", "streamid.sim", "streamid.engine")
-    ),
+    "sim-is-numerics": _allow_only("streamid.sim", ("numpy", "scipy"), ("streamid.errors", "streamid.sim")),
     "wire-stands-alone": _allow_only("streamid.wire", ("numpy",), ("streamid.errors", "streamid.wire")),
     "online-core": _online,
     "product-not-tooling": _product_not_tooling,
@@ -311,11 +319,15 @@ def test_rules_flag_what_they_must() -> None:
         imp = Import(importer, "x.py", 1, target)
         return {rule for rule, check in RULES.items() if check(imp) is not None}
 
-    assert broken("streamid.engine.model", "streamid.online.window") == {"engine-is-numerics"}
-    assert broken("streamid.engine.model", "rerun") == {"engine-is-numerics", "rerun-adapter"}
+    assert broken("streamid.engine.identification", "streamid.online.window") == {"engine-is-numerics"}
+    assert broken("streamid.engine.search.coevolution", "rerun") == {"engine-is-numerics", "rerun-adapter"}
+    assert broken("streamid.model.narx", "streamid.engine.fit.rbf") == {"model-stands-alone"}
+    assert broken("streamid.model.narx", "scipy.linalg") == {"model-stands-alone"}
+    assert broken("streamid.engine.fit.rbf", "streamid.model.narx") == set()
     assert broken("streamid.online.update", "streamid.daemon.config") == {"online-core"}
-    assert broken("streamid.wire.documents", "streamid.engine.model") == {"wire-stands-alone"}
-    assert broken("streamid.sim.piezo", "streamid.engine.model") == set()
+    assert broken("streamid.online.update", "streamid.model.narx") == set()
+    assert broken("streamid.wire.documents", "streamid.model.narx") == {"wire-stands-alone"}
+    assert broken("streamid.sim.piezo", "streamid.engine.settings") == {"sim-is-numerics"}
     assert broken("streamid.commands.main", "replay.cli") == {"product-not-tooling"}
     assert broken("streamid.commands.main", "benchmarks.kit") == {"product-not-tooling", "benchmarks-apart"}
     assert broken("replay.player", "benchmarks.kit") == {"benchmarks-apart"}
@@ -325,3 +337,110 @@ def test_rules_flag_what_they_must() -> None:
     assert broken("recorders.cli", "replay.player") == {"recorders-not-replay"}
     assert broken("recorders.recorder", "mcap.writer") == {"mcap-adapter"}
     assert broken("streamid.transport.zenoh_bus", "zenoh") == set()
+
+
+# --- the layers: docs/architecture.md's table is the rule ------------------------------------------
+
+ARCHITECTURE = ROOT / "docs" / "architecture.md"
+TOOLING = ("recorders", "replay", "benchmarks")
+
+
+def unit_of(module: str) -> str:
+    """The unit ``module`` belongs to, named as in docs/architecture.md (without ``streamid.``): a package under
+    streamid/, the engine's subpackages and top-level modules each their own, the top-level modules, the tooling."""
+    parts = module.split(".")
+    if parts[0] != "streamid":
+        return parts[0]
+    if len(parts) == 1:
+        return "streamid"
+    if parts[1] == "engine":
+        return ".".join(parts[1:3])
+    return parts[1]
+
+
+def architecture_table(text: str) -> dict[str, set[str]]:
+    """``unit -> the units it may import``, from the page's table (rows ``| `unit` | owns | `a`, `b` |``)."""
+    table: dict[str, set[str]] = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].startswith("`") and cells[0].endswith("`"):
+            unit = cells[0].strip("`")
+            if unit in table:
+                raise AssertionError(f"docs/architecture.md names the unit {unit!r} twice")
+            table[unit] = {n.strip().strip("`") for n in cells[2].split(",") if n.strip() not in ("", "—")}
+    return table
+
+
+def circle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One circle of ``graph`` (a list of nodes, the first repeated at the end), or None: it is acyclic."""
+    state: dict[str, int] = {}  # 1 on the path, 2 done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def unit_imports() -> dict[tuple[str, str], list[Import]]:
+    names = {s.module for s in sources()}
+    found: dict[tuple[str, str], list[Import]] = {}
+    for imp in all_imports():
+        if imp.target in names and unit_of(imp.importer) != unit_of(imp.target):
+            found.setdefault((unit_of(imp.importer), unit_of(imp.target)), []).append(imp)
+    return found
+
+
+def test_the_architecture_page_names_every_unit_once_and_has_no_circle() -> None:
+    table = architecture_table(ARCHITECTURE.read_text(encoding="utf-8"))
+    units = {unit_of(s.module) for s in sources()}
+    assert units - set(table) == set(), f"units missing from docs/architecture.md's table: {sorted(units - set(table))}"
+    assert set(table) - units == set(), f"docs/architecture.md names units that do not exist: {sorted(set(table) - units)}"
+    unknown = {f"{u} -> {t}" for u, ts in table.items() for t in ts if t not in table}
+    assert not unknown, f"docs/architecture.md lets units import what it does not name: {sorted(unknown)}"
+    product = {u: {t for t in ts if t not in TOOLING} for u, ts in table.items() if u not in TOOLING}
+    assert circle(product) is None, f"docs/architecture.md's layers have a circle: {' -> '.join(circle(product) or [])}"
+
+
+def test_every_import_between_units_is_allowed_by_the_architecture_page() -> None:
+    table = architecture_table(ARCHITECTURE.read_text(encoding="utf-8"))
+    broken = sorted(f"{imp.path}:{imp.line}: {imp.importer} imports {imp.target}  [layers] {a} may import only "
+                    f"{', '.join(sorted(table.get(a, ()))) or 'nothing of the product'} (docs/architecture.md)"
+                    for (a, b), imps in unit_imports().items() if b not in table.get(a, set()) for imp in imps)
+    if broken:
+        pytest.fail(f"{len(broken)} import(s) run against the layers:\n" + "\n".join(broken), pytrace=False)
+
+
+def test_no_module_of_the_product_is_on_an_import_circle() -> None:
+    names = {s.module for s in sources()}
+    graph: dict[str, set[str]] = {}
+    for imp in all_imports():
+        if imp.target in names and imp.target != imp.importer and not within(imp.importer, *TOOLING):
+            graph.setdefault(imp.importer, set()).add(imp.target)
+    found = circle(graph)
+    assert found is None, f"an import circle: {' -> '.join(found or [])}"
+
+
+def test_the_layer_checks_catch_what_they_must() -> None:
+    assert unit_of("streamid.engine.search.coevolution") == "engine.search"
+    assert unit_of("streamid.engine.identification") == "engine.identification"
+    assert unit_of("streamid.engine") == "engine" and unit_of("streamid.model.narx") == "model"
+    assert unit_of("streamid") == "streamid" and unit_of("replay.player") == "replay"
+    assert circle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert circle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+    page = "| unit | owns | may import |\n| --- | --- | --- |\n| `model` | x | `errors`, `threads` |\n| `errors` | y | — |\n"
+    assert architecture_table(page) == {"model": {"errors", "threads"}, "errors": set()}
+    with pytest.raises(AssertionError, match="twice"):
+        architecture_table(page + "| `model` | again | — |\n")

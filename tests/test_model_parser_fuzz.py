@@ -21,8 +21,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from streamid.commands.watch import decision_text, format_update
-from streamid.engine import EnsembleModel, Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import EnsembleModel, Model
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import CodecError, ModelFormatError
 from streamid.transport.updates import ModelUpdate, is_newer, parse_model_update, recency
 from streamid.wire.codec import SampleBatch, decode
@@ -321,7 +321,7 @@ def test_watch_lines_say_why_and_escape_what_came_from_the_network() -> None:
     assert "v\\u202e(t-" in line and "accepted (odd): line\\x0abreak \\u202eevil" in line
     assert unsafe_char(line) is None and "\n" not in line
     # a model with a long linear part (online, where its network explains less than 95 %) says so
-    from streamid.engine.longlinear import dense_regressors
+    from streamid.engine.choice.longlinear import dense_regressors
     net = _model("force_N")
     lregs = dense_regressors(24, net.n_inputs, direct=False)
     ll = replace(net, linear=np.zeros(len(lregs) + 1), linear_regressors=lregs)

@@ -23,8 +23,8 @@ import pytest
 from conftest import STREAMID, endpoint
 from streamid.daemon.config import DaemonConfig, StreamConfig
 from streamid.daemon.service import Daemon
-from streamid.engine import Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import Model
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import NoModelYetError
 from streamid.sim import get_device
 from streamid.transport import Bus, ZenohSettings
@@ -306,7 +306,7 @@ def test_a_mean_with_long_linear_parts_arrives_whole_and_a_broken_one_is_counted
     """streamid.model/5 (a mean of networks with long linear parts, as an offline identification of the F-16 saves it,
     published by a user or a forger): delivered with every member's linear regressors; a member whose ``linear``
     does not match them is counted malformed and never delivered."""
-    from streamid.engine import EnsembleModel
+    from streamid.model import EnsembleModel
 
     lregs = (Regressor("y", 0, 1), Regressor("y", 0, 2), Regressor("u", 0, 0), Regressor("u", 0, 1))
     a = dataclasses.replace(_model("y"), linear=np.array([0.5, -0.2, 0.1, 0.05, 0.0]), linear_regressors=lregs)

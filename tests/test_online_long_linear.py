@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
-from streamid.engine import Model
+from streamid.model import Model
 from streamid.engine.settings import MORE_BELOW, RIDGE
-from streamid.engine.choice import RANGE_MARGIN
+from streamid.engine.choice.scores import RANGE_MARGIN
 from streamid.engine.identification import free_run_r2
-from streamid.engine.longlinear import long_linear_choice
+from streamid.engine.choice.longlinear import long_linear_choice
 from streamid.logs import bundled_log, read_log_arrays
 from streamid.online.stream_config import ONLINE_LONG_LINEAR
 from streamid.daemon.report import update_report

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from streamid import CoEAConfig, Model, Predictor, identify
-from streamid.engine.predictor import MIN_HISTORY, has_direct_terms
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model.predictor import MIN_HISTORY, has_direct_terms
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import DataError
 from streamid.sim import simulate_reactor
 
@@ -74,7 +74,7 @@ def test_every_kind_of_model_predicts_its_own_one_step_across_swaps_and_wraps() 
     """Networks with and without a linear part (on their regressors, or long: its own), of two inputs, an
     ensemble of them, and a direct term: ``predict_one`` is ``predict_osa``'s last value at every sample,
     including right after a swap to a model of another normalisation and across the buffer's wraps."""
-    from streamid.engine.ensemble import ensemble_of
+    from streamid.model.ensemble import ensemble_of
 
     a = _net([("y", 0, 1), ("u", 0, 1), ("u", 1, 3), ("y", 0, 2)])
     b = _net([("u", 1, 2), ("y", 0, 3), ("u", 0, 5)], linear="own", seed=1, scale=3.0)

@@ -90,7 +90,7 @@ def test_the_command_line_parser_loads_no_engine_and_no_scipy() -> None:
     solver, numba or scipy at module level (1.9 s before, 0.45 s now); a command pays for them when it runs."""
     code = (
         "import sys; from streamid.commands.main import build_parser; build_parser(); "
-        "print(' '.join(m for m in ('streamid.engine.coevolution', 'numba', 'scipy') if m in sys.modules))"
+        "print(' '.join(m for m in ('streamid.engine.search.coevolution', 'numba', 'scipy') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
     assert out.stdout.strip() == "", f"the parser loaded {out.stdout.strip()}"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from streamid import OnlineIdentifier, StreamConfig
-from streamid.engine.rbf import activations
+from streamid.engine.fit.rbf import activations
 from streamid.errors import ConfigError
 from streamid.online import RefreshPolicy, StreamState
 from streamid.online.head import OutputHead
@@ -207,12 +207,12 @@ def test_a_loaded_caller_gets_a_refresh_where_a_scheduled_run_was_due(damper: tu
 
 
 def test_a_refresh_keeps_the_linear_parts_autoregression_stable() -> None:
-    # tests/test_online_identifier.py's damper: its first champion is bounded (streamid.engine.stability), and the
+    # tests/test_online_identifier.py's damper: its first champion is bounded (streamid.engine.choice.stability), and the
     # joint least squares of the next windows split its fit into autoregressions of roots 1.72 and 3.45 (measured
     # before this rule: both refreshes failed). Now the output terms are the linear part's own solution.
     from test_online_identifier import CFG as CFG_OI, NAMES as NAMES_OI
 
-    from streamid.engine.stability import is_bounded, radius
+    from streamid.engine.choice.stability import is_bounded, radius
     from streamid.online.refresh import RefreshOutcome, own_autoregression
 
     t, u, y = get_device("mr_damper").simulate_seconds(8.2, seed=3)

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from streamid.engine import Model
-from streamid.engine.regressors import Normalisation, Regressor
+from streamid.model import Model
+from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import ModelFormatError
 from streamid.transport.updates import ModelUpdate, parse_model_update
 from streamid.wire.documents import encode_json, model_update_message, parse_model_update_fields

@@ -87,7 +87,7 @@ def test_validate_gives_the_figures_identify_gave_on_the_same_record(fitted: dic
         assert t["values"] == pytest.approx(want["correlation"]["val"]["tests"][name]["values"], abs=1e-12)
     assert got["model"]["period_ns"] == 10_000_000 and got["data"]["period_ns"] == 10_000_000 and got["notes"] == []
     # the fit and the RMSE from the model's own free run, computed here
-    from streamid.engine import Model
+    from streamid.model import Model
 
     m = Model.load(fitted["model"])
     uv, yv = fitted["uv"], plant(fitted["uv"])

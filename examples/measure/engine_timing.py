@@ -5,7 +5,7 @@ Usage: ``python examples/measure/engine_timing.py SYSTEM SEEDS [both|numpy|kerne
 ``SYSTEM`` a name of ``benchmarks.suite.SYSTEMS`` (e.g. ``bouc_wen``: 10,000 estimation samples), ``SEEDS``
 comma-separated. ``both`` (default): both cores, the evaluation helper as ``streamid identify`` uses it.
 ``numpy`` / ``kernel``: one core, the activations' ``exp2`` and the search's Gram by numpy (its BLAS) or by the
-compiled kernels (``streamid.engine.rbf.NUMPY_PATH``, set in this process only): an A/B of the two on this machine.
+compiled kernels (``streamid.engine.fit.rbf.NUMPY_PATH``, set in this process only): an A/B of the two on this machine.
 Prints one line per seed and the median seconds (docs/benchmarks.md quotes it).
 """
 
@@ -15,9 +15,9 @@ import contextlib
 import statistics
 import sys
 
-import streamid.engine.rbf as rbf
+import streamid.engine.fit.rbf as rbf
 from benchmarks.suite import SYSTEMS, identify_target
-from streamid.engine.parallel import EvalHelper
+from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.settings import DEFAULT
 
 

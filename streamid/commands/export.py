@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from streamid.engine.model import Model
+    from streamid.model.narx import Model
     from streamid.errors import ConfigError
     from streamid.export import c_identifier, plan_of, write_c, write_fmu
 

@@ -19,7 +19,7 @@ from streamid.logs.csv_table import parse_delimiter
 from streamid.logs.datafile import Dataset, load_dataset, load_table
 
 if TYPE_CHECKING:
-    from streamid.engine.coevolution import Progress
+    from streamid.engine.search.coevolution import Progress
 
 __all__ = ["r2_text", "Bar", "add_reading_flags", "reading", "load", "read_summary", "read_text", "split_text", "check_rrd_target", "draw_rrd", "emit_report",
            "json_safe"]
@@ -187,7 +187,7 @@ def check_rrd_target(path: str) -> None:
 
 def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, generations: int) -> list[str]:
     """Draw the kept run into ``path`` in the daemon's layout (:mod:`streamid.viz.identify_report`); the files written."""
-    from streamid.engine.model import Model
+    from streamid.model.narx import Model
     from streamid.engine.validation import validate
     from streamid.viz.identify_report import Clock, draw_identification, identify_update_report
 

@@ -15,13 +15,13 @@ from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit
                                            split_text)
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import MORE_BELOW, CoEAConfig
-from streamid.engine.caveats import model_caveats, size_caveat
-from streamid.engine.complexity import parameter_count
-from streamid.engine.ensemble import members_of
-from streamid.engine.fanout import fan_out
+from streamid.engine.choice.caveats import model_caveats, size_caveat
+from streamid.engine.choice.complexity import parameter_count
+from streamid.model.ensemble import members_of
+from streamid.engine.search.fanout import fan_out
 from streamid.engine.identification import identify
-from streamid.engine.model import Model
-from streamid.engine.parallel import EvalHelper
+from streamid.model.narx import Model
+from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.validation import CorrelationTest, validate
 
 __all__ = ["identify_command", "identify_runs", "validated_run"]
@@ -213,7 +213,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
       + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
       + (f" + {'each its own' if k > 1 else 'a'} linear ARX part of order {kept.linear_order}"
          if kept.linear_regressors else "") + "\n")
-    for c in caveats:  # what to know before trusting it (streamid.engine.caveats)
+    for c in caveats:  # what to know before trusting it (streamid.engine.choice.caveats)
         w(f"caveat: {c}\n")
     made = kept.metrics
     if made.get("more_restarts") or made.get("fallback_runs"):  # runs beyond --restarts (streamid.engine.restarts)
@@ -224,17 +224,17 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
           + (f" + fallback runs of {', '.join(str(m) for m in made['fallback_runs'])} neurons" if made.get("fallback_runs") else "")
           + "\n")
     lag = made.get("max_lag_choice")
-    if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.lagspace)
+    if lag:  # the candidate lags 1..L chosen from the data (streamid.engine.search.lagspace)
         w(f"candidate lags 1..{lag['max_lag']} chosen from the data: input-output correlation peak at lag {lag['k_u']}, "
           f"output autocorrelation below 0.5 from lag {lag['k_y']} (floor {lag['floor']}, cap {lag['cap']})\n")
     ft = made.get("feedthrough")
-    if ft:  # u(t) a candidate? (streamid.engine.feedthrough)
+    if ft:  # u(t) a candidate? (streamid.engine.search.feedthrough)
         lr = ", ".join(f"{name} {v:.1f}" for name, v in zip(ds.input_names, ft["lr"]))
         w(("direct terms u(t) are candidates: the output responds within the sample" if ft["min_lag_u"] == 0 else
            "direct terms u(t) are not candidates: no response within the sample was found")
           + f" (likelihood ratio of u(t) in a linear ARX model of order {ft['order']}: {lr}; threshold {ft['threshold']})\n")
     cx = made.get("complexity")
-    if cx:  # the network size chosen among the restarts' candidates (streamid.engine.complexity)
+    if cx:  # the network size chosen among the restarts' candidates (streamid.engine.choice.complexity)
         w(f"complexity by {cx['rule']} on the estimation free run: {cx['neurons']} neurons (restart {cx['chosen_run']});"
           " candidates (neurons, lags 1..L, weights p, FR R2 est, criterion): "
           + "; ".join(f"{c['neurons']}, 1..{c['lag_space']}, {c['params']}, "
@@ -249,10 +249,10 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
             ("kept" if with_lin else "not kept") if len(nets) == 1 else f"in {with_lin} of the {len(nets)} networks")
           + " (every candidate was offered with and without one, the kind chosen by aic)\n")
     ll = (cx or {}).get("long_linear")
-    if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.longlinear)
+    if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.choice.longlinear)
         w(_long_linear_line(ll, MORE_BELOW))
     rf = made.get("refinement")
-    if rf:  # the weights fitted to the free run (streamid.engine.refine)
+    if rf:  # the weights fitted to the free run (streamid.engine.choice.refine)
         held = rf.get("held_out") or {}
         w("weights refined to the free run: " + (
             f"{rf['iterations']} iterations, FR R2 est {rf['r2_fr_est_before']:.5f} -> {rf['r2_fr_est_after']:.5f}"

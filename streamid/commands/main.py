@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 from importlib.metadata import entry_points
 
-from streamid import __version__
+from streamid._version import __version__
 from streamid.commands.helptext import plain_parser
 from streamid.errors import StreamidError
 

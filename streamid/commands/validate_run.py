@@ -12,8 +12,8 @@ from typing import TextIO
 import numpy as np
 
 from streamid.commands.identify_io import check_rrd_target, emit_report, read_text, reading
-from streamid.engine.caveats import record_caveats
-from streamid.engine.model import Model
+from streamid.engine.choice.caveats import record_caveats
+from streamid.model.narx import Model
 from streamid.engine.validation import RecordReport, assess, fit_percent
 from streamid.errors import ConfigError, DataError
 from streamid.logs.bundled import data_file

@@ -35,7 +35,7 @@ Memory of one stream
         fallback (every candidate fitted on every row) ``C M + 2 D + 2``;
         and the blocks and chunks, the largest of a streamed QR's ``4 min(m, 16384) (M + D + 1)``, activations'
         ``2 min(m, 8192) M D`` and the candidates' free runs' ``4 C min(m, 65536)``;
-      - the refinement, once the run is freed (:func:`~streamid.engine.refine.refine_judged`, the default): its
+      - the refinement, once the run is freed (:func:`~streamid.engine.choice.refine.refine_judged`, the default): its
         input terms and mean free run, ``(M + i + 6) m`` (``+ (D + 1) m`` with ``linear_terms``), and its
         derivatives and Jacobian, made ``CHUNK_ROWS`` (65,536) rows at a time, ``(4 M + 4) min(m, 65536)``
         (``4 (M + D + 1) + 4`` with ``linear_terms``).
@@ -73,10 +73,10 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sized
 
-from streamid.engine.choice import SCORE_CHUNK_ROWS
-from streamid.engine.longlinear import ROWS_PER_PARAMETER
-from streamid.engine.rbf import BLOCK_ROWS, FIT_BLOCK_ROWS
-from streamid.engine.refine import CHUNK_ROWS
+from streamid.engine.choice.scores import SCORE_CHUNK_ROWS
+from streamid.engine.choice.longlinear import ROWS_PER_PARAMETER
+from streamid.engine.fit.rbf import BLOCK_ROWS, FIT_BLOCK_ROWS
+from streamid.engine.choice.refine import CHUNK_ROWS
 from streamid.online.rows import search_row_bound
 from streamid.online.stream_config import ONLINE_LONG_LINEAR, ONLINE_REFINE, ONLINE_SELECTION, StreamConfig
 from streamid.online.update import LONG_LINEAR_DESIGN_BYTES

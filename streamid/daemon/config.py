@@ -78,7 +78,7 @@ class DaemonConfig:
         streams' champions, numpy and the compiled loops releasing the GIL; 40 simulated 2 kHz streams decided
         at least 64 windows each in 75 s with 2, 34 with 1, docs/benchmarks.md).
     helper
-        Give every worker an :class:`~streamid.engine.parallel.EvalHelper`: a
+        Give every worker an :class:`~streamid.engine.search.parallel.EvalHelper`: a
         process that evaluates half of each population batch on an otherwise
         idle core (same results; a warm piezo update ~1.5x faster). Ignored
         where the helper is not supported.

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from streamid.engine.ensemble import members_of
+from streamid.model.ensemble import members_of
 from streamid.online import Update
 from streamid.online.refresh import RefreshOutcome
 from streamid.viz.reports import UpdateReport, first_input_tests

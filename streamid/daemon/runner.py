@@ -27,7 +27,7 @@ from streamid.daemon.admission import Deadline, identification_bytes
 from streamid.daemon.config import DaemonConfig
 from streamid.daemon.scheduler import NESTED_SHARE, SLICE_S, Scheduler
 from streamid.daemon.slots import StreamSlot
-from streamid.engine.parallel import EvalHelper
+from streamid.engine.search.parallel import EvalHelper
 from streamid.online import Outcome, Stopped, UpdateJob
 from streamid.online.refresh import RefreshJob
 

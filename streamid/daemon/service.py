@@ -14,7 +14,7 @@ lock.  The daemon only moves things in and out of it:
   :meth:`~OnlineIdentifier.finish` it -- the new state is saved to ``--state-dir``
   *before* an accepted model is handed out, so a version is never reused after a
   crash -- publish the model, and only then draw the update in Rerun.  Each worker
-  owns an :class:`~streamid.engine.parallel.EvalHelper` (``daemon.helper``): a fresh
+  owns an :class:`~streamid.engine.search.parallel.EvalHelper` (``daemon.helper``): a fresh
   ``python -m`` process, started before the Zenoh session, sharing memory with the
   worker, that evaluates half of every population batch on otherwise idle CPU
   (SCHED_IDLE: it never takes a core from ingestion).  A helper that fails to start
@@ -66,7 +66,7 @@ from streamid.daemon.versions import VersionKeeper
 from streamid.online import OnlineIdentifier, Outcome, Update, UpdateJob
 from streamid.online.refresh import RefreshOutcome
 from streamid.engine import warm_up_kernels
-from streamid.engine.parallel import EvalHelper
+from streamid.engine.search.parallel import EvalHelper
 from streamid.errors import CodecError, StreamidError
 from streamid.wire.keys import PREFIX, SAMPLE_KINDS, is_valid_stream_name
 from streamid.transport import Bus, ZenohSettings

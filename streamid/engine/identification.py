@@ -2,7 +2,7 @@
 
 Strategies (``CoEAConfig.restarts`` and ``selection``; ``identify``'s ``workers``)
 ------------------------------------------------------------------------------
-* ``restarts=1, selection="fitness"`` -- the paper's procedure: one :class:`~streamid.engine.coevolution.Coevolution`
+* ``restarts=1, selection="fitness"`` -- the paper's procedure: one :class:`~streamid.engine.search.coevolution.Coevolution`
   on all the estimation data, the best pair ever evaluated, weights refitted. Runs in this process and reports
   every generation to the callback.
 * otherwise ``restarts`` independent runs (seeds drawn from ``rng``; two-stage when ``lag_search_neurons > 0``,
@@ -16,7 +16,7 @@ Strategies (``CoEAConfig.restarts`` and ``selection``; ``identify``'s ``workers`
   - ``"fitness"``: lowest OSA MSE.
 
 Before the runs, with ``max_lag_cap > 0``, the candidate lags ``1..L`` are chosen from the estimation data
-(:mod:`streamid.engine.lagspace`; evidence in ``metrics.max_lag_choice``); when ``L`` is at least twice the floor
+(:mod:`streamid.engine.search.lagspace`; evidence in ``metrics.max_lag_choice``); when ``L`` is at least twice the floor
 the odd restarts keep ``1..floor`` (restart 1 of every 4 with ``lag_search_neurons`` neurons when > 0: the
 paper's size by default). A two-stage run's second stage always trains on a lag set with an input term. After the runs,
 if no run has an admissible candidate, one more run is made with each of ``fallback_neurons`` in turn until one
@@ -24,11 +24,11 @@ has (``metrics.fallback_runs``; also while the best run's score is at most ``set
 those, with ``more_restarts``, that many more runs when the best run's score lies in ``(0, settings.MORE_BELOW)``
 (:mod:`streamid.engine.restarts`; ``metrics.more_restarts``).
 
-With ``selection="fr_est"`` the run kept is chosen by AIC (:mod:`streamid.engine.complexity`: the lowest ``n log(1 - R2_fr) + 2 p`` over the runs' admissible candidates, ``p`` the weights fitted;
+With ``selection="fr_est"`` the run kept is chosen by AIC (:mod:`streamid.engine.choice.complexity`: the lowest ``n log(1 - R2_fr) + 2 p`` over the runs' admissible candidates, ``p`` the weights fitted;
 ``metrics.complexity``), after the ``prune_runs`` best runs have offered their networks pruned to ``M // 3`` and
 ``2 M // 3`` neurons (``metrics.neuron_choice``); with ``run_ensembles`` the means of the best runs' networks
-compete by the same criterion (:mod:`streamid.engine.ensemble_choice`); with ``refine_iterations`` the kept
-model's weights are then fitted to its free run (:mod:`streamid.engine.refine`, ``metrics.refinement``).
+compete by the same criterion (:mod:`streamid.engine.choice.ensemble_choice`); with ``refine_iterations`` the kept
+model's weights are then fitted to its free run (:mod:`streamid.engine.choice.refine`, ``metrics.refinement``).
 
 The normalisation is always the min/max of all the estimation data. Validation data are never looked at.
 """
@@ -45,20 +45,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine.coevolution import CoEAState, Coevolution, Progress, _as_rng
-from streamid.engine.choice import RANGE_MARGIN
-from streamid.engine.complexity import choose as choose_complexity
-from streamid.engine.ensemble_choice import choose_ensemble
-from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
+from streamid.engine.search.coevolution import CoEAState, Coevolution, Progress, _as_rng
+from streamid.engine.choice.scores import RANGE_MARGIN
+from streamid.engine.choice.complexity import choose as choose_complexity
+from streamid.engine.choice.ensemble_choice import choose_ensemble
+from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.restarts import report_after, wants_more
-from streamid.engine.fanout import fan_out
-from streamid.engine.feedthrough import direct_terms
-from streamid.engine.lagspace import memory_lag, with_input_term
-from streamid.engine.longlinear import long_linear_choice
-from streamid.engine.model import Model
-from streamid.engine.parallel import EvalHelper
-from streamid.engine.regressors import Normalisation, as_data
-from streamid.engine.selection import free_run_r2, pruned_choice, refit_weights, select_model, select_model_path
+from streamid.engine.search.fanout import fan_out
+from streamid.engine.search.feedthrough import direct_terms
+from streamid.engine.search.lagspace import memory_lag, with_input_term
+from streamid.engine.choice.longlinear import long_linear_choice
+from streamid.model.narx import Model
+from streamid.engine.search.parallel import EvalHelper
+from streamid.model.regressors import Normalisation, as_data
+from streamid.engine.choice.selection import free_run_r2, pruned_choice, refit_weights, select_model, select_model_path
 from streamid.engine.settings import DEFAULT, FALLBACK_BELOW, MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import ConfigError, DataError
 
@@ -170,7 +170,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         lag_cfg = cfg.replace(neurons=cfg.lag_search_neurons)  # RBF-only, as every search; its lags evolve throughout
         lag_run = Coevolution(u, y, lag_cfg, rng, harmony_stop=1.0, **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
-        # ...(always with an input term: streamid.engine.lagspace)...
+        # ...(always with an input term: streamid.engine.search.lagspace)...
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,
                                          lag_run.R, lag_run.target)
         # ...then DE trains the full network on those lags.
@@ -236,7 +236,7 @@ def identify(
         Run the restarts on this executor (e.g. a long-lived process pool)
         instead of creating one when ``workers > 1``.
     helper : EvalHelper, optional
-        A started :class:`~streamid.engine.parallel.EvalHelper`: runs made in this
+        A started :class:`~streamid.engine.search.parallel.EvalHelper`: runs made in this
         process evaluate half of every population batch in it (the second core).
         The result is the same with or without it.
     workers : int
@@ -274,7 +274,7 @@ def identify(
         st = warm_start
         cfg = cfg.replace(max_lag_y=st.max_lag_y, max_lag_u=st.max_lag_u, neurons=st.neurons,
                           max_lag_cap=max(st.max_lag_y, st.max_lag_u, cfg.max_lag_cap))
-    # u(t) a candidate? A warm start's state says; else the test on the record (streamid.engine.feedthrough)
+    # u(t) a candidate? A warm start's state says; else the test on the record (streamid.engine.search.feedthrough)
     cfg, feed = direct_terms(cfg, ua, ya, warm_start, test=cfg.restarts > 1 or bool(cfg.lag_search_neurons))
     need = cfg.max_lag + 2 * cfg.neurons
     if n < need:
@@ -371,7 +371,7 @@ def identify(
     scores, paths = [float(o["score"]) for o in outs], [o.get("path") for o in outs]  # paths: estimation free runs
     complexity: dict[str, Any] | None = None
     spaces = [int(o.get("max_lag", cfg.max_lag)) for o in outs]
-    if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.complexity)
+    if cfg.selection == "fr_est":  # the network size among the runs' candidates (streamid.engine.choice.complexity)
         chosen, complexity = choose_complexity(models, scores, n, spaces)
         if cfg.prune_runs:  # the best runs' pruned networks compete too (CoEAConfig.prune_runs)
             ranked = sorted((c for c in complexity["candidates"] if c["criterion"] is not None),
@@ -383,7 +383,7 @@ def identify(
     else:
         chosen = int(np.argmax(scores))
     final, score = models[chosen], float(outs[chosen]["score"])
-    if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.ensemble_choice)
+    if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.choice.ensemble_choice)
         ens, members, complexity["ensembles"] = choose_ensemble(models, paths, complexity, ua, ya, RANGE_MARGIN)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
@@ -394,7 +394,7 @@ def identify(
                                                            RANGE_MARGIN, RIDGE, offered, chosen)
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
-    if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.refine)
+    if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.choice.refine)
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
                                        threads=_threads(helper))
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))

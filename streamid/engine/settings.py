@@ -20,7 +20,7 @@ __all__ = ["CoEAConfig", "PAPER", "DEFAULT", "FALLBACK_BELOW", "HMCR", "MORE_BEL
            "SELECTIONS"]
 
 #: Relative Tikhonov term of every least squares of the weights (the search's batched normal equations, scaled to
-#: unit diagonal, and the final models' QR fits; :mod:`streamid.engine.rbf`): bounds the condition number at
+#: unit diagonal, and the final models' QR fits; :mod:`streamid.engine.fit.rbf`): bounds the condition number at
 #: ``(M + RIDGE) / RIDGE`` (1e11 for ten neurons) and is too small to move a fit (no preset ever set another value).
 RIDGE = 1e-10
 
@@ -35,7 +35,7 @@ MORE_BELOW = 0.95
 #: did not). The defaults' only value; the paper's procedure has no fallback runs.
 FALLBACK_BELOW = 0.5
 
-#: The refinement's gate (:mod:`streamid.engine.refine`): a model is refined only when its estimation free-run R^2 is
+#: The refinement's gate (:mod:`streamid.engine.choice.refine`): a model is refined only when its estimation free-run R^2 is
 #: at least this; 0.8 lies between the F-16's highest (0.73, harmed) and the heat exchanger's lowest (0.91, helped).
 REFINE_ABOVE = 0.8
 
@@ -192,7 +192,7 @@ class CoEAConfig:
         Whether each input's direct term ``u(t)`` is a candidate lag (an output that responds within the
         sample, as an accelerometer to a force or a sampled record whose output is read after the input was
         set): ``"off"`` (the paper: ``u(t-1) .. u(t-max_lag_u)``), ``"on"`` (``u(t) .. u(t-max_lag_u)``) or
-        ``"test"``: decided from the estimation data before the runs (:mod:`streamid.engine.feedthrough`: a
+        ``"test"``: decided from the estimation data before the runs (:mod:`streamid.engine.search.feedthrough`: a
         likelihood-ratio test of the direct terms in a linear ARX model; evidence in ``metrics.feedthrough``;
         the model's configuration then says ``"on"`` or ``"off"``). The first candidate lag is
         :attr:`min_lag_u`.
@@ -204,7 +204,7 @@ class CoEAConfig:
         0: candidate lags ``1..max_lag_y`` and ``1..max_lag_u``. > 0 (with restarts or a
         two-stage run, :func:`~streamid.engine.identification.identify`): the maximum lag
         ``L`` is chosen from the estimation data between ``max(max_lag_y, max_lag_u)``
-        and this cap (:mod:`streamid.engine.lagspace`), and both use ``1..L``. When that ``L`` is at least
+        and this cap (:mod:`streamid.engine.search.lagspace`), and both use ``1..L``. When that ``L`` is at least
         twice the floor ``max(max_lag_y, max_lag_u)`` the odd restarts use ``1..floor`` instead, restart 1 of
         every 4 with ``lag_search_neurons`` neurons (when > 0), and the final choice decides between the two lag
         spaces (a hedge: a long lag space fits some records' estimation data better and their validation data
@@ -219,7 +219,7 @@ class CoEAConfig:
         False (the paper): the network is ``sum_m w_m phi_m``. True: every candidate is offered also with a
         direct linear part, ``sum_m w_m phi_m(r) + a' r + b`` over the same regressors (Chen & Billings),
         fitted with ``w`` in one least squares; a run keeps the admissible candidate of the lowest AIC
-        (:mod:`streamid.engine.complexity`; ``p`` counts the linear part's ``k + 1`` weights).
+        (:mod:`streamid.engine.choice.complexity`; ``p`` counts the linear part's ``k + 1`` weights).
     prune_runs : int
         With ``selection="fr_est"``: 0, each run offers its chosen candidate as is. K > 0,
         the K best runs by AIC also offer their networks of ``M // 3`` and
@@ -230,17 +230,17 @@ class CoEAConfig:
     run_ensembles : bool
         With ``selection="fr_est"`` and several runs: True, after that choice the means of the top 2, the top 3
         and all admissible runs' networks (ranked by AIC) compete by AIC on the estimation free run of the mean
-        (:mod:`streamid.engine.ensemble_choice`; a ``streamid.model/3`` model; ``metrics.complexity.ensembles``).
+        (:mod:`streamid.engine.choice.ensemble_choice`; a ``streamid.model/3`` model; ``metrics.complexity.ensembles``).
     refine_iterations : int
         0 (the paper): the final model's weights are the search's one-step least squares. N > 0:
         at most N Levenberg-Marquardt iterations fit them to the model's free run on the estimation
-        record (:mod:`streamid.engine.refine`; centres, widths and lags kept), when that free run's
-        R^2 is at least 0.8 (:data:`streamid.engine.refine.ABOVE`); kept only if the whole record's free run is then better
+        record (:mod:`streamid.engine.choice.refine`; centres, widths and lags kept), when that free run's
+        R^2 is at least 0.8 (:data:`streamid.engine.choice.refine.ABOVE`); kept only if the whole record's free run is then better
         and within the range guard (evidence in ``metrics.refinement``).
     long_linear : int
         0 (the paper): off. N > 0: the final choice's network with a dense linear ARX part of order
         up to N (chosen by AIC) competes with it, and so do the means of the two and
-        three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.longlinear`;
+        three best such candidates (a ``streamid.model/5`` model) (:mod:`streamid.engine.choice.longlinear`;
         :func:`~streamid.engine.identification.identify`'s final choice; an online update's model gets a single
         network's part, of an order above its lag search's only: :func:`streamid.online.update.long_linear_part`).
     require_input : bool
@@ -248,7 +248,7 @@ class CoEAConfig:
         input term is infeasible (fitness +inf): on an oscillating output an
         autoregression of ``y`` alone predicts one step ahead well, wins the lag
         search, and then ignores the input in free run (the final choice never
-        admits it, :mod:`streamid.engine.choice`).
+        admits it, :mod:`streamid.engine.choice.scores`).
     """
 
     neurons: int = 10

@@ -41,11 +41,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine.regressors import as_data
+from streamid.model.regressors import as_data
 from streamid.errors import DataError
 
 if TYPE_CHECKING:
-    from streamid.engine.model import Model
+    from streamid.model.narx import Model
 
 __all__ = [
     "TESTS",

@@ -8,7 +8,7 @@
 Both hold one model per output (several model files of one stream make one export) of every kind the engine
 writes (single networks, ensembles, linear and long linear parts, direct terms), and follow one timing
 convention (:data:`CONVENTION`, docs/export.md): a run equals :meth:`Model.simulate
-<streamid.engine.model.Model.simulate>` from the same constant initial history.
+<streamid.model.narx.Model.simulate>` from the same constant initial history.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from streamid.engine.model import Model
+from streamid.model.narx import Model
 from streamid.errors import ConfigError
 from streamid.export.ccode import c_sources
 from streamid.export.fmu import write_fmu

@@ -3,15 +3,15 @@
 The code allocates nothing and calls only ``exp`` of libm; it compiles with ``gcc -std=c99 -Wall -Wextra
 -Werror``. Every number is written with Python's ``repr`` (the shortest text that reads back to the same
 double), so the C program holds the model's exact parameters. The sums run in the file's regressor order;
-the results equal :meth:`Model.simulate <streamid.engine.model.Model.simulate>` to rounding.
+the results equal :meth:`Model.simulate <streamid.model.narx.Model.simulate>` to rounding.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from streamid import __version__
-from streamid.engine.regressors import Regressor
+from streamid._version import __version__
+from streamid.model.regressors import Regressor
 from streamid.export.plan import CONVENTION, ExportPlan, Network, Output
 
 __all__ = ["CSources", "c_sources", "comment_text"]

@@ -30,8 +30,8 @@ from importlib import resources
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from streamid import __version__
-from streamid.engine.model import Model
+from streamid._version import __version__
+from streamid.model.narx import Model
 from streamid.errors import ConfigError
 from streamid.export.ccode import c_sources
 from streamid.export.compiler import compile_shared

@@ -5,7 +5,7 @@
 (:mod:`streamid.export.ccode`, :mod:`streamid.export.fmu`) only read the plan.
 
 The timing convention (the same in the C step function, the FMU and :meth:`Model.simulate
-<streamid.engine.model.Model.simulate>`): sample ``k`` (``k = 0, 1, ...`` from the start) is computed from the
+<streamid.model.narx.Model.simulate>`): sample ``k`` (``k = 0, 1, ...`` from the start) is computed from the
 inputs of samples ``0 .. k`` (sample ``k``'s own only through a direct term, an input at lag 0) and the
 outputs of samples ``0 .. k-1``; the first ``max_lag`` outputs of a model are its initial value (the model's
 initial history, ``y_init`` of ``Model.simulate``), and each member of an ensemble starts predicting at its
@@ -19,9 +19,9 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from streamid.engine.ensemble import members_of
-from streamid.engine.model import Model
-from streamid.engine.regressors import Regressor
+from streamid.model.ensemble import members_of
+from streamid.model.narx import Model
+from streamid.model.regressors import Regressor
 from streamid.errors import ConfigError, ModelFormatError
 
 __all__ = ["CONVENTION", "ExportPlan", "Network", "Output", "c_identifier", "model_period_s", "plan_of"]

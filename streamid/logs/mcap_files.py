@@ -228,7 +228,7 @@ class LogWriter:
 
 
 def _version() -> str:
-    from streamid import __version__
+    from streamid._version import __version__
 
     return __version__
 

@@ -29,7 +29,7 @@ from typing import Any, TypeGuard
 
 import numpy as np
 
-from streamid.engine import Model
+from streamid.model import Model
 from streamid.engine.validation import diverged_at
 from streamid.online.recalibrate import describe
 from streamid.online.stream_config import StreamConfig

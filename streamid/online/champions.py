@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from streamid.engine import Model
-from streamid.engine.predictor import one_step
+from streamid.model import Model
+from streamid.model.predictor import one_step
 from streamid.errors import DataError
 from streamid.online.head import OutputHead
 
@@ -76,7 +76,7 @@ class ChampionViews:
         since the last gap or reset.  ``u_next``, the input at the predicted instant, is needed only by
         a champion with direct terms (an input at lag 0, from ``direct_terms``): without it such a
         champion raises :class:`~streamid.errors.DataError`.  (A controller holding a received model
-        uses :class:`~streamid.engine.predictor.Predictor`, which computes the same.)
+        uses :class:`~streamid.model.predictor.Predictor`, which computes the same.)
         """
         head = self._primary() if output is None else self._heads.get(output)
         m = head.model if head is not None else None

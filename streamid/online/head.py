@@ -13,7 +13,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from streamid.engine import CoEAState, Model
+from streamid.engine import CoEAState
+from streamid.model import Model
 from streamid.errors import StreamidError
 from streamid.online.drift import DriftMonitor
 from streamid.wire.documents import encode_json

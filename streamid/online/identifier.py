@@ -51,7 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from streamid.engine import EvalHelper, Model
+from streamid.engine import EvalHelper
+from streamid.model import Model
 from streamid.errors import ConfigError, ModelFormatError
 from streamid.online.acceptance import Decision, Update, decide, degraded_after
 from streamid.online.drift import DriftSettings, reference_monitor

@@ -1,7 +1,7 @@
 """Recalibration of a drifted champion: the same network in a new output scale (gain and offset).
 
 A NARX model works in normalised units, ``y_n = 2 (y - low) / (high - low) - 1``
-(:class:`~streamid.engine.regressors.Normalisation`).  If the device's output
+(:class:`~streamid.model.regressors.Normalisation`).  If the device's output
 becomes ``a y + b`` for the same input (a change of gain and offset: the
 common drift of a physical device, see :mod:`streamid.online.drift`), the
 model with ``low' = a low + b`` and ``high' = a high + b`` sees exactly the
@@ -17,7 +17,7 @@ the two on the held-out data goes to the champion/challenger rule
 (:mod:`streamid.online.acceptance`): it is served only if it beats the drifted
 champion there by the margin, like any challenger.
 
-An ensemble (``streamid.model/3``, :mod:`streamid.engine.ensemble`) has one normalisation shared by its
+An ensemble (``streamid.model/3``, :mod:`streamid.model.ensemble`) has one normalisation shared by its
 members: replacing it rescales every member, so the gain and offset fitted on the mean's free run apply to
 the mean (tests/test_engine_ensemble.py). The online updates themselves never make an ensemble (one run each).
 """
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine import Model
+from streamid.model import Model
 
 __all__ = ["recalibrate", "MAX_GAIN_CHANGE"]
 

@@ -47,9 +47,9 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from streamid.engine import Model
-from streamid.engine.rbf import MIN_NORM, activations
-from streamid.engine.stability import ar_radius, is_bounded, radius
+from streamid.model import Model
+from streamid.engine.fit.rbf import MIN_NORM, activations
+from streamid.engine.choice.stability import ar_radius, is_bounded, radius
 from streamid.online.head import OutputHead
 from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.stream_config import StreamConfig
@@ -152,7 +152,7 @@ def accumulate(normal: NormalEquations | None, model: Model, u: np.ndarray, y: n
 def refreshed_weights(normal: NormalEquations, ridge: float) -> np.ndarray | None:
     """The weights solving ``normal`` (Jacobi-scaled, ``ridge`` on the unit diagonal); None if not solvable.
 
-    A column whose weighted norm is below the engine's :data:`~streamid.engine.rbf.MIN_NORM` (a neuron where no
+    A column whose weighted norm is below the engine's :data:`~streamid.engine.fit.rbf.MIN_NORM` (a neuron where no
     sample is) gets weight 0, as in the search.
     """
     return _solve(normal.a, normal.b, ridge)
@@ -184,7 +184,7 @@ def own_autoregression(normal: NormalEquations, champion: Model, ridge: float) -
     """Weights as :func:`refreshed_weights`, with the output terms of the linear part those of the linear part solved
     alone (its own sub-block of the normal equations), when that autoregression is stable; the network's weights,
     the input terms and the constant then solved with it fixed. The engine's rule for a long linear part
-    (:mod:`streamid.engine.longlinear`, step 3b), here where the refit's network and linear part split the fit into
+    (:mod:`streamid.engine.choice.longlinear`, step 3b), here where the refit's network and linear part split the fit into
     an unstable autoregression. None: not solvable, or the linear part alone unstable too."""
     M = champion.neurons
     regs = champion.linear_regressors if champion.linear_regressors is not None else champion.regressors
@@ -271,7 +271,7 @@ def refresh_window(job: RefreshJob) -> Outcome:
                  "refreshed_samples": int(normal.rows), "refreshed_weight": round(normal.weight, 1)},
         window={**champion.window, **{k: v for k, v in meta.items() if k != "coalesced_before"}},
     )
-    if not is_bounded(model):  # the refit moved a root of the linear part's autoregression out (streamid.engine.stability)
+    if not is_bounded(model):  # the refit moved a root of the linear part's autoregression out (streamid.engine.choice.stability)
         z2 = own_autoregression(normal, champion, job.policy.ridge)
         if z2 is not None:
             model = dataclasses.replace(model, weights=z2[:M], linear=z2[M:])

@@ -48,7 +48,7 @@ After the search
     The candidates are screened on the same rows (``select_model(..., screen_rows=True)``),
     chosen by their free run over the whole estimation part, and the chosen one
     is refitted on every row (the least squares streamed in blocks:
-    :func:`streamid.engine.rbf.fit_weights`) and validated on the whole held-out
+    :func:`streamid.engine.fit.rbf.fit_weights`) and validated on the whole held-out
     part, as before.
 """
 

@@ -37,7 +37,7 @@ ONLINE_SELECTION = "fr_est"
 #: 0: off.
 ONLINE_LONG_LINEAR = 512
 #: The online default of ``engine.refine_iterations``: each coevolution run's model has its weights fitted to its free
-#: run, judged out of sample (:func:`streamid.engine.refine.refine_judged`: refined on the first half of the window's
+#: run, judged out of sample (:func:`streamid.engine.choice.refine.refine_judged`: refined on the first half of the window's
 #: estimation part, made only if that free-runs better over the second half); as offline. Measured
 #: (docs/benchmarks.md, "Online refinement"): 2 kHz damper windows scored on a common record of another excitation,
 #: 30 seeds, no seed lower (10,000 samples: median 0.9297 -> 0.9397; 100,000: 0.9253 -> 0.9369) for 0.06-0.3 s
@@ -123,9 +123,9 @@ class StreamConfig:
         ``run_ensembles`` has no
         effect online: an update is one run (warm starts need one), never a mean of runs (K x its time: piezo 0.5 s).
         ``refine_iterations`` is 10 online unless set here (:data:`ONLINE_REFINE`; 0: off): each coevolution
-        run's weights are fitted to its free run, judged out of sample (:mod:`streamid.engine.refine`).
+        run's weights are fitted to its free run, judged out of sample (:mod:`streamid.engine.choice.refine`).
         ``direct_terms = "test"`` (off online unless set here) offers ``u(t)`` to a cold run whose window shows a
-        response within the sample (:mod:`streamid.engine.feedthrough`; warm runs keep their populations'
+        response within the sample (:mod:`streamid.engine.search.feedthrough`; warm runs keep their populations'
         candidates); measured on the bundled MR damper log, x4 at max speed, every window: published models'
         held-out free-run R^2 median 0.9805 (0.9790 without) but worst 0.910 (0.967 without), so not the default.
     refresh

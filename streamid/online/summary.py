@@ -53,7 +53,7 @@ def r2_or_nan(y: np.ndarray, yhat: np.ndarray) -> float:
 def summarise(
     model: Any, u_est: np.ndarray, y_est: np.ndarray, u_val: np.ndarray, y_val: np.ndarray, *, corr_lags: int = 20
 ) -> ValidationSummary:
-    """Validation figures of ``model`` (an :class:`~streamid.engine.Model`) on one window."""
+    """Validation figures of ``model`` (an :class:`~streamid.model.Model`) on one window."""
     L = model.max_lag
     with np.errstate(over="ignore", invalid="ignore"):
         osa_e = model.predict_osa(u_est, y_est)

@@ -39,13 +39,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from streamid.engine import CoEAState, Coevolution, EvalHelper, Model
-from streamid.engine._blas import one_blas_thread
-from streamid.engine.choice import RANGE_MARGIN
-from streamid.engine.feedthrough import direct_terms
+from streamid.engine import CoEAState, Coevolution, EvalHelper
+from streamid.model import Model
+from streamid.engine.fit.blas import one_blas_thread
+from streamid.engine.choice.scores import RANGE_MARGIN
+from streamid.engine.search.feedthrough import direct_terms
 from streamid.engine.identification import select_model
-from streamid.engine.longlinear import long_linear_choice
-from streamid.engine.refine import ABOVE as REFINE_ABOVE, refine_judged
+from streamid.engine.choice.longlinear import long_linear_choice
+from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.settings import MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.recalibrate import recalibrate
@@ -176,7 +177,7 @@ class UpdateJob:
     ) -> Outcome:
         """Identify the window; pure computation (see the module docstring).
 
-        ``helper`` (an :class:`~streamid.engine.parallel.EvalHelper` the caller
+        ``helper`` (an :class:`~streamid.engine.search.parallel.EvalHelper` the caller
         owns) evaluates half of every population batch; the outcome is the same
         without it.
 
@@ -406,7 +407,7 @@ def long_linear_part(model: Model, score: float, cfg: CoEAConfig, u: np.ndarray,
     """The run's model, or the same network with a dense linear ARX part longer than the lag search's, and its score.
 
     ``engine.long_linear`` (:data:`~streamid.online.stream_config.ONLINE_LONG_LINEAR` online) > 0 and
-    ``"fr_est"``: the rule of :mod:`streamid.engine.longlinear` on the window's estimation part, tried when
+    ``"fr_est"``: the rule of :mod:`streamid.engine.choice.longlinear` on the window's estimation part, tried when
     the network's free run explains less than ``more_below`` (0.95) of it, offering only orders above the lag
     search's largest lag (``max(max_lag_y, max_lag_u)``, 10 online), with a design of at most
     :data:`LONG_LINEAR_DESIGN_BYTES`. Why only those orders: the online lag search

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from streamid.engine import Model
+from streamid.model import Model
 from streamid.online.drift import DriftMonitor, block_levels
 from streamid.online.head import OutputHead
 from streamid.online.window import WindowBuffer

@@ -356,7 +356,7 @@ def simulate_drift(
     ConfigError
         Unknown device, change out of range, or ``drift_at_s`` outside ``[0, seconds)``.
     """
-    from streamid.sim import ALIASES, get_device
+    from streamid.sim.registry import ALIASES, get_device
 
     name = ALIASES.get(device, device) if isinstance(device, str) else device
     spec = _spec(name)
@@ -391,7 +391,7 @@ def output_change(
     if not noise:
         kw["params"] = (dataclasses.replace(MRDamperParams(), noise_n=0.0) if device == "mr_damper"
                         else dataclasses.replace(PiezoParams(), noise_um=0.0))
-    from streamid.sim import get_device
+    from streamid.sim.registry import get_device
 
     total = get_device(device).n_samples(seconds)
     base = spec.simulate(total, seed, drift_at_sample=total, change=0.0, **kw).y

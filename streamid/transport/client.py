@@ -14,7 +14,7 @@ tells the two ways of getting nothing apart: :class:`~streamid.errors.NoDaemonEr
 (reachable, but no model of that stream yet); ``default=None`` returns None for both.
 
 Each update is a :class:`~streamid.transport.updates.ModelUpdate`: the engine's
-:class:`~streamid.engine.Model` rebuilt from the published JSON, its version, the
+:class:`~streamid.model.Model` rebuilt from the published JSON, its version, the
 output it predicts, why it was accepted, the window it was fitted on and its
 validation metrics.  A stream with several outputs has one current model per output
 (:func:`latest_models`, :meth:`ModelSubscriber.latest_per_output`).

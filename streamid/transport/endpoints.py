@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Protocol
 
 from streamid.errors import ConfigError
 
-if TYPE_CHECKING:
-    from streamid.transport.zenoh_bus import ZenohSettings
+__all__ = ["SessionEndpoints", "check_endpoint", "explain_open_error"]
 
-__all__ = ["check_endpoint", "explain_open_error"]
+
+class SessionEndpoints(Protocol):
+    """What :func:`explain_open_error` reads of a session's settings
+    (:class:`~streamid.transport.zenoh_bus.ZenohSettings`, which imports this module, not the reverse)."""
+
+    @property
+    def listen(self) -> Sequence[str]: ...
+
+    @property
+    def connect(self) -> Sequence[str]: ...
+
+    def resolved_mode(self) -> str | None: ...
 
 _ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe")
 
@@ -34,7 +45,7 @@ _RUST_WHERE = re.compile(r"\s*at /\S+\.rs:\d+\.?")
 _BOUND_TO = re.compile(r"bound to ([a-z-]+/[^\s:\]]+:\d+)")
 
 
-def explain_open_error(message: str, settings: ZenohSettings) -> str:
+def explain_open_error(message: str, settings: SessionEndpoints) -> str:
     """One sentence for a failed ``zenoh.open``: the endpoint, what is wrong and the flag that changes it.
 
     Zenoh's own text (with Rust source paths) is reduced to its first clause.

@@ -2,7 +2,7 @@
 
 :mod:`streamid.wire.documents` checks the ``streamid.model-update/1`` envelope without
 depending on the engine; this module turns its ``model`` into a
-:class:`~streamid.engine.Model`, and says which of two updates of one (stream, output)
+:class:`~streamid.model.Model`, and says which of two updates of one (stream, output)
 is the newer (:func:`is_newer`).
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from streamid.engine.model import Model
+from streamid.model.narx import Model
 from streamid.errors import ModelFormatError
 from streamid.wire.documents import Champion, Decision, Origin, parse_model_update_fields
 from streamid.wire.names import printable
@@ -39,7 +39,7 @@ class ModelUpdate:
         Which daemon published it and when that daemon's life began
         (:class:`~streamid.wire.documents.Origin`; None from older daemons).
     model
-        The engine's :class:`~streamid.engine.Model` rebuilt from the JSON.
+        The engine's :class:`~streamid.model.Model` rebuilt from the JSON.
     window, metrics
         The window the model was fitted on and its validation figures.
     warm, generations, identification_s

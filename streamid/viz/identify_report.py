@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine.ensemble import members_of
-from streamid.engine.model import Model
+from streamid.model.ensemble import members_of
+from streamid.model.narx import Model
 from streamid.engine.validation import CorrelationReport, RecordReport, ValidationReport
 from streamid.viz.reports import UpdateReport, VizSettings, first_input_tests
 

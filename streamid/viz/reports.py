@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from streamid.engine.regressors import format_lags
+from streamid.model.regressors import format_lags
 from streamid.engine.validation import TESTS, CorrelationTest
 from streamid.errors import ConfigError
 
@@ -191,7 +191,7 @@ class UpdateReport:
     linear_parts: int = 0  # how many of its networks have a direct linear part a'r + b (CoEAConfig.linear_terms)
     long_linear_order: int = 0  # > 0: its linear part is a dense ARX part of this order (CoEAConfig.long_linear)
     judged_only: bool = False  # a model judged on a record (streamid validate): no identification ran
-    refinement: Mapping[str, Any] | None = None  # the model's metrics.refinement (streamid.engine.refine), if any
+    refinement: Mapping[str, Any] | None = None  # the model's metrics.refinement (streamid.engine.choice.refine), if any
     refreshed_from: int | None = None  # a refresh (streamid.online.refresh): the champion's version it re-solved
 
 

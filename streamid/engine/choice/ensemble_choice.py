@@ -1,0 +1,125 @@
+"""Ensembles of the restarts' networks competing in the final choice (``CoEAConfig.run_ensembles``).
+
+The rule (applied by :func:`~streamid.engine.identification.identify` after the complexity choice)
+--------------------------------------------------------------------------------------------
+The runs' candidates after pruning are ranked by AIC (on the
+estimation free run, :mod:`streamid.engine.choice.complexity`; ties by run order), the admissible
+ones only. The means of the top 2, the top 3 and all of them (each formed once: with 3
+admissible runs "top 3" and "all" are the same) are candidates too, each scored like a
+single network on the estimation record:
+
+* its free run is the mean of its members' free runs, each member simulating on its own
+  past outputs from the measured initial outputs (:mod:`streamid.model.ensemble`); the
+  members' free runs made by the choice are reused (no new simulation) when at hand;
+* the range guard of :mod:`streamid.engine.choice.scores` is applied to that mean, scored from the
+  largest member lag ``L`` (``n - L`` samples);
+* ``p`` is the mean of the members' fitted weights (:func:`~streamid.engine.choice.complexity.parameter_count` says why),
+  and the criterion is the complexity rule's, ``n log(1 - R2_fr) + 2 p`` for AIC.
+
+An ensemble is taken when its criterion is strictly below the single choice's (the lowest
+of the ensembles' when several are). Measured in round 5 of issue 13 (docs/engine-results.md):
+heat exchanger worst seed 0.541 -> 0.597, F-16 accel2 worst -1.61 -> -0.12, Bouc-Wen
+0.9841 / 0.9822 -> 0.9906 / 0.9868, MR damper ten seeds' min 0.9668 -> 0.9746; no system worse.
+The evidence (each ensemble's members, R^2, p, criterion, whether taken) goes to
+``metrics.complexity["ensembles"]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.engine.choice.scores import path_score
+from streamid.engine.choice.complexity import criterion, parameter_count
+from streamid.model.ensemble import MAX_MEMBERS, ensemble_of
+from streamid.model.narx import Model
+
+__all__ = ["ENSEMBLE_SIZES", "choose_ensemble"]
+
+#: The ensembles offered: the mean of the top 2, the top 3 and all admissible runs (0 = all; at most
+#: :data:`~streamid.model.ensemble.MAX_MEMBERS`, the top ones).
+ENSEMBLE_SIZES = (2, 3, 0)
+
+
+def choose_ensemble(
+    models: Sequence[Model],
+    paths: Sequence[NDArray[np.float64] | None],
+    complexity: dict[str, Any],
+    u: NDArray[np.float64],
+    y: NDArray[np.float64],
+    range_margin: float,
+) -> tuple[Model | None, list[int], list[dict[str, Any]]]:
+    """The ensemble taken (None: the single choice stands), its members' runs (best first) and the evidence.
+
+    ``models``: each run's candidate after pruning; ``paths``: each one's estimation free run in output
+    units (None: simulated here once); ``complexity``: the single choice's evidence
+    (:func:`~streamid.engine.choice.complexity.choose`); ``u``, ``y``: the estimation record.
+    """
+    rows = complexity["candidates"]
+    ranked = [int(c["run"]) for c in sorted((c for c in rows if c["criterion"] is not None),
+                                            key=lambda c: (c["criterion"], c["run"]))]
+    if len(ranked) < 2:
+        return None, [], []
+    single = float(rows[int(complexity["chosen_run"])]["criterion"])
+    lo, hi = float(np.min(y)), float(np.max(y))
+    runs: dict[int, NDArray[np.float64] | None] = {}
+    evidence: list[dict[str, Any]] = []
+    best: tuple[float, Model | None, list[int]] = (single, None, [])
+    seen: set[int] = set()
+    for size in ENSEMBLE_SIZES:
+        k = min(len(ranked), MAX_MEMBERS) if size == 0 else size
+        if k > len(ranked) or k in seen:
+            continue
+        seen.add(k)
+        members = ranked[:k]
+        for i in members:
+            if i not in runs:
+                runs[i] = paths[i] if paths[i] is not None else _simulate(models[i], u, y)
+        row: dict[str, Any] = {"name": "all" if size == 0 else f"top{size}", "members": members,
+                               "neurons": [models[i].neurons for i in members], "r2_fr_est": None,
+                               "params": sum(parameter_count(models[i]) for i in members) / k, "criterion": None,
+                               "taken": False}
+        evidence.append(row)
+        got = [runs[i] for i in members]
+        if any(p is None for p in got):
+            continue
+        L = max(models[i].max_lag for i in members)
+        with np.errstate(over="ignore", invalid="ignore"):
+            mean = np.mean([p for p in got if p is not None], axis=0)
+        if not np.all(np.isfinite(mean[L:])):
+            continue
+        score, excursion = path_score(mean, y, L, L, lo, hi, range_margin)
+        if excursion > 0.0:
+            row["excursion_spans"] = excursion
+            continue
+        value = criterion(score, len(y) - L, float(row["params"]))
+        row.update(r2_fr_est=float(score), criterion=float(value))
+        if value < best[0]:
+            best = (value, None, members)
+    if not best[2]:
+        return None, [], evidence
+    members = best[2]
+    taken: dict[str, Any] = {}
+    for row in evidence:
+        row["taken"] = row["members"] == members
+        taken = row if row["taken"] else taken
+    first = models[members[0]]  # the document's config and window: the identification's (as a single network's)
+    ens = ensemble_of([models[i] for i in members], config=first.config, window=first.window)
+    L = ens.max_lag
+    fitness = float(np.mean((ens.predict_osa(u, y)[L:] - y[L:]) ** 2))  # one-step MSE, output units squared
+    choice = {"candidates": len(evidence), "admissible": sum(1 for e in evidence if e["criterion"] is not None),
+              "score": taken["r2_fr_est"], "excursion_spans": 0.0, "range_margin": float(range_margin),
+              "run_ensemble": len(members)}  # the mean's free run on the estimation record, as a single model's
+    return ens.with_metrics(fitness=fitness, free_run_choice=choice, ensemble={
+        k: taken[k] for k in ("name", "members", "neurons", "r2_fr_est", "params", "criterion")}), members, evidence
+
+
+def _simulate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """``model``'s free run over the record (output units), None when not finite."""
+    L = model.max_lag
+    with np.errstate(over="ignore", invalid="ignore"):
+        path = model.simulate(u, y[:L])
+    return path if np.all(np.isfinite(path[L:])) else None

@@ -1,0 +1,139 @@
+"""Free-run simulation kernel shared by :class:`~streamid.model.narx.Model` and the final choice.
+
+Several networks with the same regressors advance together, one numpy call per
+operation and step. A network may carry a direct linear part (``linear``: one
+coefficient per regressor, then a constant), the classical "RBF network with
+linear terms": ``yn(t) = sum_m w_m phi_m(r(t)) + sum_j a_j r_j(t) + b``.
+Without it (``linear=None``) the computation is exactly the RBF-only one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.threads import thread_map
+from streamid.model.regressors import Regressor
+
+__all__ = ["free_run"]
+
+
+def free_run(
+    regressors: tuple[Regressor, ...],
+    centres: NDArray[np.float64],
+    widths: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    un: NDArray[np.float64],
+    yn_init: NDArray[np.float64],
+    linear: NDArray[np.float64] | None = None,
+    threads: int = 1,
+    linear_regressors: tuple[Regressor, ...] | None = None,
+) -> NDArray[np.float64]:
+    """Free-run simulation of several networks with the same regressors at once (normalised units).
+
+    Parameters
+    ----------
+    regressors : tuple of Regressor
+        Shared by all networks; ``L = max lag``.
+    centres : ndarray, shape (C, M, k)
+    widths, weights : ndarray, shape (C, M)
+    un : ndarray, shape (N, n_inputs) or (C, N, n_inputs)
+        Normalised inputs: the same for every network, or one sequence per network.
+    yn_init : ndarray, shape (C, L)
+        Normalised initial outputs (the first ``L`` samples).
+    linear : ndarray, shape (C, k + 1), optional
+        Each network's direct linear part: a coefficient per regressor, then the constant.
+    linear_regressors : tuple of Regressor, optional
+        The linear part's own regressors (a long linear part, :mod:`streamid.engine.choice.longlinear`), shared by all
+        networks; ``linear`` then has shape (C, len(linear_regressors) + 1). None: the network's regressors.
+    threads : int
+        Split the networks into this many groups simulated at once in threads (the compiled loop
+        releases the GIL): for a caller with a second core to spare. Each network's arithmetic is
+        its own, so the result is the same to the bit with any number.
+
+    Returns
+    -------
+    ndarray, shape (C, N)
+        The first ``L`` columns are ``yn_init``; then each network's recursive prediction.
+
+    Notes
+    -----
+    The recursion is inherently sequential: it is one compiled loop over the steps
+    (:func:`~streamid.model.kernels.recursion`), all networks advancing together, which
+    computes each neuron's input and output terms at the step (no whole-record temporaries).
+    """
+    C, M, _ = centres.shape
+    if threads > 1 and C > 1:
+        parts = np.array_split(np.arange(C), min(threads, C))  # none empty: at most C groups
+
+        def part(idx: NDArray[np.intp]) -> NDArray[np.float64]:
+            return free_run(regressors, centres[idx], widths[idx], weights[idx], un if un.ndim == 2 else un[idx],
+                            yn_init[idx], None if linear is None else linear[idx], linear_regressors=linear_regressors)
+
+        return np.concatenate(thread_map(part, parts, threads))
+    if un.ndim == 2:
+        un = un[None]
+    n = un.shape[1]
+    lregs = regressors if linear_regressors is None or linear is None else linear_regressors
+    L = max((r.lag for r in (*regressors, *lregs)), default=0)
+    a = 1.0 / (2.0 * widths**2)  # (C, M)
+    yj = [j for j, r in enumerate(regressors) if r.signal == "y"]
+    uj = [j for j, r in enumerate(regressors) if r.signal == "u"]
+    lags = np.array([regressors[j].lag for j in yj], dtype=np.int64)
+    y = np.empty((n, C))
+    y[:L] = yn_init[:, :L].T
+    lin_u = None if linear is None else _linear_inputs(lregs, linear, un, n)
+    lyj = [j for j, r in enumerate(lregs) if r.signal == "y"]
+    if lags.size == 0 and (linear is None or not lyj):  # no output terms: nothing recursive
+        ndu = _input_exponents(regressors, centres, a, un, n)
+        np.exp(ndu[L:], out=ndu[L:])
+        y[L:] = np.einsum("tcm,cm->tc", ndu[L:].reshape(n - L, C, M), weights)
+        if lin_u is not None:
+            y[L:] += lin_u[L:]
+        return np.ascontiguousarray(y.T)
+    llags = np.array([lregs[j].lag for j in lyj], dtype=np.int64)
+    lin_y = np.zeros((C, llags.size)) if linear is None else np.ascontiguousarray(linear[:, lyj])
+    ulags = np.array([regressors[j].lag for j in uj], dtype=np.int64)
+    uidx = np.array([regressors[j].index for j in uj], dtype=np.int64)
+    cu = np.ascontiguousarray(centres[:, :, uj].transpose(0, 2, 1))  # (C, ku, M): coordinate-major
+    cy = np.ascontiguousarray(centres[:, :, yj].transpose(0, 2, 1))  # (C, ky, M)
+    from streamid.model.kernels import recursion  # numba, loaded on the first free run (not on import)
+
+    recursion(np.ascontiguousarray(un, dtype=np.float64), ulags, uidx, cu, cy, a, lags,
+              np.array(weights, dtype=np.float64, order="C"), llags, lin_y,
+              np.zeros((n, C)) if lin_u is None else lin_u, y, L)
+    return np.ascontiguousarray(y.T)
+
+
+def _input_exponents(
+    regressors: tuple[Regressor, ...], centres: NDArray[np.float64], a: NDArray[np.float64], un: NDArray[np.float64],
+    n: int,
+) -> NDArray[np.float64]:
+    """Minus the scaled squared distances the input regressors contribute, every step at once, time-major (n, C*M)."""
+    C, M, _ = centres.shape
+    du = np.zeros((n, C, M))
+    tmp: NDArray[np.float64] | None = None  # one (n, C, M) temporary for all input terms (fresh ones page-fault)
+    for j, reg in enumerate(regressors):
+        if reg.signal == "u":
+            col = np.zeros((n, un.shape[0]))
+            col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
+            tmp = np.subtract(col[:, :, None], centres[None, :, :, j], out=tmp)
+            np.multiply(tmp, tmp, out=tmp)
+            du += tmp
+    du *= a[None]
+    return np.negative(du, out=du).reshape(n, C * M)
+
+
+def _linear_inputs(
+    regressors: tuple[Regressor, ...], linear: NDArray[np.float64], un: NDArray[np.float64], n: int
+) -> NDArray[np.float64]:
+    """The linear part's input terms and constant of every step, time-major (n, C)."""
+    C = linear.shape[0]
+    out = np.empty((n, C))
+    out[:] = linear[:, -1]
+    for j, reg in enumerate(regressors):
+        if reg.signal == "u":
+            col = np.zeros((n, un.shape[0]))
+            col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
+            out += col * linear[None, :, j]
+    return out
