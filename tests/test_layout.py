@@ -16,9 +16,11 @@ mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly 
                         streamid/logs/mcap_files.py
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
                         streamid.errors, streamid._lazy, streamid.bounded_files (stdlib only: a file
-                        read under a bound, which Model.load and the daemon's state store share) and
-                        streamid.engine.* (so never online, daemon, wire, logs, viz, transport,
-                        commands, bench, zenoh, rerun, mcap)
+                        read under a bound, which Model.load and the daemon's state store share),
+                        streamid.wire.names (stdlib only: the one rule for signal names, which the
+                        model reader, the codec and the export share) and streamid.engine.* (so
+                        never online, daemon, the rest of wire, logs, viz, transport, commands,
+                        bench, zenoh, rerun, mcap)
 sim-is-numerics         streamid/sim/ imports only the stdlib, numpy, scipy, streamid.errors,
                         streamid.sim.* and streamid.engine.*
 wire-stands-alone       streamid/wire/ imports only the stdlib, numpy, streamid.errors and
@@ -216,7 +218,7 @@ RULES: dict[str, Callable[[Import], str | None]] = {
     **{name: _adapter_rule(families, owner) for name, (families, owner) in ADAPTERS.items()},
     "engine-is-numerics": _allow_only(
         "streamid.engine", ("numpy", "scipy", "threadpoolctl", "numba"),
-        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.engine"),
+        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.wire.names", "streamid.engine"),
     ),
     "sim-is-numerics": _allow_only(
         "streamid.sim", ("numpy", "scipy"), ("streamid.errors", "streamid.sim", "streamid.engine")
