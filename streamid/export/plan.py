@@ -125,7 +125,7 @@ def _network(m: Model, output: str) -> Network:
     return Network(
         regressors=m.regressors,
         centres=tuple(_finite(tuple(float(v) for v in row), f"centres[{j}]", output) for j, row in enumerate(m.centres)),
-        two_w2=_finite(tuple(float(v) for v in 2.0 * m.widths**2), "2 widths^2 (the generated code's two_w2)", output),
+        two_w2=_finite(tuple(2.0 * (float(v) * float(v)) for v in m.widths), "2 widths^2 (the generated code's two_w2)", output),
         weights=_finite(tuple(float(v) for v in m.weights), "weights", output),
         linear=lin,
         linear_regressors=lregs if lin is not None else (),
