@@ -190,6 +190,11 @@ class FmuSaver:
         """Delete ``stream``'s versions beyond ``keep`` (``written``, the newest, counts as one), then the oldest
         versions of any stream until the folder's FMUs, with the newest copy of ``written`` (``grows`` bytes more),
         fit ``max_bytes``; False if they cannot (only newest FMUs left)."""
+        versions = self._versions(None)
+        kept = written.stat().st_size if self.bounds.keep > 0 else 0
+        floor = self._total_bytes() - sum(p.stat().st_size for _, p in versions) + kept + grows
+        if floor > self.bounds.max_bytes:  # even with every other version deleted: delete none
+            return False
         mine = [p for _, p in self._versions(stream) if p != written]
         for p in mine[: max(0, len(mine) - max(0, self.bounds.keep - 1))]:
             self._delete(p)
