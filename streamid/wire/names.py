@@ -136,8 +136,8 @@ def check_signal_names(inputs: Sequence[object], outputs: Sequence[object], wher
     for field, v in fields:
         name = str(v)
         if name in seen:
-            raise error(f"{where} {field} '{printable(name, 120)}' is also {seen[name]}: a model's "
-                                   "signal names must be distinct (they are the FMU's variable names)")
+            raise error(f"{where} {field} '{printable(name, 120)}' is also {seen[name]}: a model's signal names must "
+                        "be distinct (they are the FMU's variable names)")
         seen[name] = field
     for field, v in fields[len(inputs):]:
         for extra in added_names(str(v)):
