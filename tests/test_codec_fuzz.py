@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from streamid.wire import codec
+from streamid.errors import ModelFormatError
 from streamid.wire.codec import CodecError, SampleBatch, decode, encode
+from streamid.wire.names import check_signal_names, name_problem
 
 FUZZ = settings(max_examples=400, deadline=None)
 
 names = st.text(
     alphabet=st.characters(min_codepoint=32, blacklist_categories=("Cs", "Cc", "Cf", "Zl", "Zp", "Co")),
     min_size=1, max_size=12,
-)
+).filter(lambda s: name_problem(s) is None)  # the one rule for names (noncharacters such as U+FFFE refused too)
 streams = st.from_regex(r"[A-Za-z0-9_.\-]{1,20}", fullmatch=True).filter(lambda s: s not in (".", ".."))
 
 
@@ -25,6 +27,10 @@ def batches(draw: st.DrawFn) -> SampleBatch:
     floats = hnp.arrays(np.float64, n, elements=st.floats(allow_nan=True, allow_infinity=True))
     ins = draw(st.dictionaries(names, floats, max_size=3))
     outs = draw(st.dictionaries(names, floats, min_size=0 if ins else 1, max_size=3))
+    try:  # names distinct across roles, none an added name (initial_<output>, ...): else refused, as tested below
+        check_signal_names(list(ins), list(outs))
+    except ModelFormatError:
+        assume(False)
     seq = draw(st.integers(0, 2**64 - 1))
     if draw(st.booleans()):
         steps = draw(hnp.arrays(np.int64, n - 1, elements=st.integers(1, 10**9)))

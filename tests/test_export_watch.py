@@ -1,5 +1,5 @@
 """``streamid watch --save-fmu DIR`` with a real daemon (a subprocess on loopback Zenoh) and the MR damper log
-replayed onto it: each newly served champion is written as ``<stream>-v<version>.fmu``, the newest also as
+replayed onto it: each newly served champion is written as ``<stream>+v<version>.fmu``, the newest also as
 ``<stream>.fmu``; fmpy (a well-kept FMI library, used only by the tests) finds no problem in them and runs
 the newest as the model the watch received."""
 
@@ -68,9 +68,10 @@ def test_watch_saves_each_served_champion_as_an_fmu(tmp_path: Path) -> None:
     versions = [d["version"] for d in docs]  # --count 2 stops it: a few more may be delivered while it closes
     assert len(versions) >= 2 and versions == sorted(versions), versions
     files = sorted(p.name for p in out.iterdir())
-    assert files == sorted([*(f"mr_damper-v{v}.fmu" for v in versions), "mr_damper.fmu"]), (files, werr)
+    kept = versions[-3:]  # --keep 3 (the default): the older versions deleted
+    assert files == sorted([*(f"mr_damper+v{v}.fmu" for v in kept), "mr_damper.fmu"]), (files, werr)
     assert f"mr_damper v{versions[-1]} saved as" in werr
-    newest = out / f"mr_damper-v{versions[-1]}.fmu"
+    newest = out / f"mr_damper+v{versions[-1]}.fmu"
     assert (out / "mr_damper.fmu").read_bytes() == newest.read_bytes()  # the newest, whole
     for f in out.iterdir():
         assert validate_fmu(str(f)) == [], f
@@ -99,7 +100,7 @@ def test_the_saver_puts_every_output_of_a_stream_in_one_fmu(tmp_path: Path) -> N
     from fmpy.model_description import read_model_description
 
     from export_models import kinds, second_output
-    from streamid.commands.watch import FmuSaver
+    from streamid.export.saver import FmuSaver
     from streamid.transport.updates import parse_model_update
     from streamid.wire.documents import encode_json, model_update_message
 
@@ -113,12 +114,12 @@ def test_the_saver_puts_every_output_of_a_stream_in_one_fmu(tmp_path: Path) -> N
     saver.offer(update(kinds()["ensemble"], 1))
     saver.offer(update(second_output(), 2))
     saver.save_pending()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig-v1.fmu", "rig-v2.fmu", "rig.fmu"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig+v1.fmu", "rig+v2.fmu", "rig.fmu"]
     assert saver.saved == 2
-    assert (tmp_path / "rig.fmu").read_bytes() == (tmp_path / "rig-v2.fmu").read_bytes()
+    assert (tmp_path / "rig.fmu").read_bytes() == (tmp_path / "rig+v2.fmu").read_bytes()
     outputs = {1: ["pos_mm"], 2: ["pos_mm", "temp_C"]}
     for v, names in outputs.items():
-        md = read_model_description(str(tmp_path / f"rig-v{v}.fmu"))
+        md = read_model_description(str(tmp_path / f"rig+v{v}.fmu"))
         assert [x.name for x in md.modelVariables if x.causality == "output"] == names
         assert md.coSimulation.modelIdentifier == "rig"  # the same in every version: a rig's reference holds
-        assert validate_fmu(str(tmp_path / f"rig-v{v}.fmu")) == []
+        assert validate_fmu(str(tmp_path / f"rig+v{v}.fmu")) == []

@@ -15,8 +15,10 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
 model-stands-alone      streamid/model/ (the identified model) imports only the stdlib, numpy, numba,
-                        streamid.errors, streamid._lazy, streamid.bounded_files, streamid.threads and
-                        streamid.model.* (never the engine, online, daemon, transport, ...)
+                        streamid.errors, streamid._lazy, streamid.bounded_files, streamid.threads,
+                        streamid.wire.names (stdlib only: the one rule for signal names, which the
+                        model reader, the codec and the export share) and streamid.model.* (never
+                        the engine, online, daemon, transport, ...)
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
                         streamid.errors, streamid._lazy, streamid.threads, streamid.model.* and
                         streamid.engine.* (so never online, daemon, wire, logs, viz, transport,
@@ -222,7 +224,8 @@ RULES: dict[str, Callable[[Import], str | None]] = {
     **{name: _adapter_rule(families, owner) for name, (families, owner) in ADAPTERS.items()},
     "model-stands-alone": _allow_only(
         "streamid.model", ("numpy", "numba"),
-        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.threads", "streamid.model"),
+        ("streamid.errors", "streamid._lazy", "streamid.bounded_files", "streamid.threads", "streamid.wire.names",
+         "streamid.model"),
     ),
     "engine-is-numerics": _allow_only(
         "streamid.engine", ("numpy", "scipy", "threadpoolctl", "numba"),

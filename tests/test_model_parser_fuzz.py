@@ -315,10 +315,13 @@ def test_watch_lines_say_why_and_escape_what_came_from_the_network() -> None:
     assert decision_text(rej) == "rejected: not better than v2 (FR R2 0.9370 on the same data): +0.013, margin 0.01"
     assert format_update(rej).startswith("bench1 challenger rejected (serving v12) ")
     doc = _doc(4, model=_model("force_N", inputs=("v\u202e",)).to_dict())
+    with pytest.raises(ModelFormatError, match=r"'inputs'\[0\] 'v\\u202e' holds U\+202E at position 1"):
+        parse_model_update(encode_json(doc))  # a name breaking the one rule for names (streamid.wire.names)
+    doc = _doc(4, model=_model("force_N", inputs=("v",)).to_dict())
     doc["decision"] = {"accepted": True, "code": "odd", "reason": "line\nbreak \u202eevil", "margin": None}
     doc["origin"] = {"daemon": "d1", "epoch_ns": 5}
     line = format_update(parse_model_update(encode_json(doc)))
-    assert "v\\u202e(t-" in line and "accepted (odd): line\\x0abreak \\u202eevil" in line
+    assert "v(t-" in line and "accepted (odd): line\\x0abreak \\u202eevil" in line
     assert unsafe_char(line) is None and "\n" not in line
     # a model with a long linear part (online, where its network explains less than 95 %) says so
     from streamid.engine.choice.longlinear import dense_regressors

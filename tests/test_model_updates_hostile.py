@@ -193,13 +193,13 @@ def test_watch_shows_each_output_with_its_decision_skips_the_malformed_and_escap
         daemon.queryable("streamid/w/model", lambda _k: _payload("w", 13, "y1", code="better", champion=12))
         daemon.queryable("streamid/w/model", lambda _k: _payload("w", 12, "y2", code="first", inputs=("v\u202e",)))
         daemon.queryable("streamid/w/model", lambda _k: _overflowing("w"))
-        watch = subprocess.Popen([*STREAMID, "watch", "--connect", ep, "--stream", "w", "--rejected", "--count", "3",
+        watch = subprocess.Popen([*STREAMID, "watch", "--connect", ep, "--stream", "w", "--rejected", "--count", "2",
                                   "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             lines: list[str] = []
             reader = threading.Thread(target=lambda: lines.extend(iter(watch.stdout.readline, "")), daemon=True)
             reader.start()
-            _wait(lambda: len(lines) >= 2, "the two current models")
+            _wait(lambda: len(lines) >= 1, "the current model of y1")
             rej = daemon.publisher("streamid/w/rejected")
             assert rej.wait_for_subscribers(DEADLINE_S)
             rej.put(_payload("w", 13, "y1", accepted=False, code="validation", reason="R2 OSA 0.2 < 0.5 \u202e!"))
@@ -212,14 +212,15 @@ def test_watch_shows_each_output_with_its_decision_skips_the_malformed_and_escap
                 watch.wait()
     out = "".join(lines)
     assert "Traceback" not in err and "OverflowError" not in err, err
-    assert err.count("(malformed)") == 1 and "1e400" in err and "skipped 1 invalid model updates (malformed: 1)" in err
-    assert len(lines) == 3, out
+    # an input name holding a bidi override breaks the one rule for names (streamid.wire.names): skipped, said escaped
+    # (the first of the two is said, the next within the warning interval only counted)
+    assert err.count("(malformed)") == 1 and "skipped 2 invalid model updates (malformed: 2)" in err, err
+    assert "1e400" in err or "'inputs'[0] 'v\\u202e' holds U+202E at position 1" in err, err
+    assert len(lines) == 2, out
     y1 = next(ln for ln in lines if " y1(t) " in ln and ln.startswith("w v13"))
     assert y1.rstrip().endswith("accepted: better than v12 (FR R2 0.9370 on the same data) by 0.013"), y1
-    y2 = next(ln for ln in lines if ln.startswith("w v12 warm G=10 y2(t) = F["))
-    assert "v\\u202e(t-1)" in y2 and y2.rstrip().endswith("; accepted: first model"), y2
-    assert lines[2].startswith("w challenger rejected (serving v13) warm G=10 y1(t) = F[")
-    assert lines[2].rstrip().endswith("; rejected (validation): R2 OSA 0.2 < 0.5 \\u202e!"), lines[2]
+    assert lines[1].startswith("w challenger rejected (serving v13) warm G=10 y1(t) = F[")
+    assert lines[1].rstrip().endswith("; rejected (validation): R2 OSA 0.2 < 0.5 \\u202e!"), lines[1]
     assert unsafe_char(out.replace("\n", "")) is None and "\u202e" not in out + err
 
 

@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from streamid.model.narx import Model
     from streamid.errors import ConfigError
     from streamid.export import c_identifier, plan_of, write_c, write_fmu
+    from streamid.wire.names import printable
 
     if not args.fmu and not args.c_dir:
         raise ConfigError("say what to write: --fmu OUT.fmu (an FMI 2.0 co-simulation FMU) and/or --c DIR (C99 code)")
@@ -73,9 +74,9 @@ def run(args: argparse.Namespace) -> int:
     if args.fmu:
         path = write_fmu(models, args.fmu, name=fmu_name, period_s=args.period, sources_only=args.sources_only)
         what = "sources only, no binary" if args.sources_only else "with a binary for this platform"
-        print(f"wrote {path} (FMI 2.0 co-simulation, model identifier {fmu_name}, "
-              f"outputs {', '.join(m.output_name for m in models)}; {what})")
+        print(printable(f"wrote {path} (FMI 2.0 co-simulation, model identifier {fmu_name}, "
+                        f"outputs {', '.join(m.output_name for m in models)}; {what})"))  # names escaped
     if args.c_dir:
         h, c = write_c(models, args.c_dir, name=c_name, period_s=args.period)
-        print(f"wrote {h} and {c}")
+        print(printable(f"wrote {h} and {c}"))
     return 0

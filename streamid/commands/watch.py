@@ -9,9 +9,11 @@ seconds.  From the streams' status it also says when a stream becomes degraded o
 an output's served model no longer fits the incoming data (a drift: the next identification then starts from the
 change); with ``--json`` these are JSON lines too (``"format": "streamid.status-event/1"``,
 :mod:`streamid.wire.status_events`).  With ``--save-fmu DIR`` each newly served champion is also written as an
-FMI 2.0 co-simulation FMU (``streamid export``'s), ``DIR/<stream>-v<version>.fmu``, and the newest as
-``DIR/<stream>.fmu``, each replaced whole, for a simulation rig to pick up.  Stops on Ctrl-C,
-after ``--count`` updates or after ``--duration``.  Names and reasons that came
+FMI 2.0 co-simulation FMU (``streamid export``'s), ``DIR/<stream>+v<version>.fmu``, and the newest as
+``DIR/<stream>.fmu``, each replaced whole, for a simulation rig to pick up; within bounds: ``--keep`` versions a
+stream, ``--max-bytes`` in the folder, ``--max-pending`` models waiting (the oldest dropped, said), one compile at
+a time with a time budget from the model's size (:mod:`streamid.export.saver`).  Stops on Ctrl-C, SIGTERM,
+after ``--count`` updates or after ``--duration`` (within a second, a compile under way killed).  Names and reasons that came
 from the network are shown escaped (control, format and bidi characters as \\uXXXX).
 """
 
@@ -53,9 +55,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--json", action="store_true",
                    help="print each update, and each status event (drift, degraded, healthy), as one JSON line")
     p.add_argument("--save-fmu", metavar="DIR",
-                   help="write each newly served champion as DIR/<stream>-v<version>.fmu (an FMI 2.0 co-simulation "
+                   help="write each newly served champion as DIR/<stream>+v<version>.fmu (an FMI 2.0 co-simulation "
                         "FMU of the stream's current model of every output, streamid export's) and the newest also as "
                         "DIR/<stream>.fmu, each file replaced whole, for a simulation rig to pick up")
+    p.add_argument("--keep", type=int, default=3, metavar="N",
+                   help="--save-fmu: versioned FMUs kept per stream, the oldest deleted (default 3; 0: only the newest)")
+    p.add_argument("--max-bytes", type=int, default=256 * 2**20, metavar="B",
+                   help="--save-fmu: bytes the folder's FMUs may hold, the oldest versions deleted first (default 256 MiB)")
+    p.add_argument("--max-pending", type=int, default=4, metavar="N",
+                   help="--save-fmu: models waiting to be compiled; beyond, the oldest is dropped and said (default 4)")
     p.set_defaults(func=run)
 
 
@@ -149,8 +157,21 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration must be a number of seconds > 0; got {args.duration}")
     if not args.every >= 0:
         raise ConfigError(f"--every must be a number of seconds >= 0; got {args.every}")
-    saver = FmuSaver(args.save_fmu) if args.save_fmu else None
-    stop = threading.Event()
+    stop = threading.Event()  # the watch ends (a signal, --duration, --count)
+    halt = threading.Event()  # and ends now: a signal or --duration (no saving of what is still pending)
+    end = None if args.duration is None else time.monotonic() + args.duration
+
+    def halted() -> bool:
+        if end is not None and time.monotonic() >= end:
+            halt.set()
+        return halt.is_set()
+
+    saver = None
+    if args.save_fmu:
+        from streamid.export.saver import FmuSaver, SaveBounds
+
+        saver = FmuSaver(args.save_fmu, SaveBounds(keep=args.keep, max_bytes=args.max_bytes,
+                                                   max_pending=args.max_pending), halted=halted)
     seen = [0]
     origins: dict[str, Any] = {}
     out_lock = threading.Lock()
@@ -178,8 +199,12 @@ def run(args: argparse.Namespace) -> int:
     where = ", ".join(settings.connect) or ", ".join(f"listening on {e}" for e in settings.listen) or "the --zenoh-config endpoints"
     timed_out = False
     skipped: dict[str, int] = {}
-    end = None if args.duration is None else time.monotonic() + args.duration
-    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def on_signal(*_: object) -> None:
+        halt.set()
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         bus = _open_bus(settings, stop, where, args.duration)
         if bus is None:  # --duration (or a signal) ended the wait for the endpoint
@@ -209,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
                                     emit(format_update(up))
                     skipped = {k: v for k, v in sub.skipped.items() if v}
                 if saver is not None:
-                    saver.save_pending()  # the updates of the last moments (--count) are written too
+                    saver.save_pending()  # the updates of the last moments (--count) too, unless halted
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -218,70 +243,14 @@ def run(args: argparse.Namespace) -> int:
         if counts:
             print(f"streamid watch: skipped {sum(counts.values())} invalid {what} ("
                   + ", ".join(f"{k}: {v}" for k, v in counts.items()) + ")", file=sys.stderr, flush=True)
+    if saver is not None and (saver.dropped or saver.failed or saver.pending):
+        print(f"streamid watch: --save-fmu saved {saver.saved} FMU(s); {saver.dropped} pending model(s) dropped for "
+              f"newer ones, {saver.failed} not saved, {saver.pending} still pending when stopped", file=sys.stderr,
+              flush=True)
     if timed_out and seen[0] == 0:
         print(f"streamid watch: no model received from {where} in {args.duration:g} s", file=sys.stderr, flush=True)
         return 1
     return 0
-
-
-class FmuSaver:
-    """``--save-fmu DIR``: each newly served champion as ``<stream>-v<version>.fmu`` and ``<stream>.fmu``.
-
-    An FMU holds the stream's current model of every output (one FMU output each; model identifier: the
-    stream's name, the same for every version, so a rig's reference to it stays valid). The updates come on
-    the subscriber's thread (:meth:`offer`); the compiling is done on the watch's own (:meth:`save_pending`).
-    A model that cannot be exported is said on standard error, once per version, and the watch goes on.
-    """
-
-    def __init__(self, directory: str) -> None:
-        from pathlib import Path
-
-        from streamid.export.compiler import find_compiler
-
-        self.dir = Path(directory)
-        if not self.dir.is_dir():
-            raise ConfigError(f"--save-fmu needs an existing folder; got {directory!r}")
-        find_compiler()  # no compiler: say what to install now, not at the first model
-        self._lock = threading.Lock()
-        self._current: dict[str, dict[str, Any]] = {}  # stream -> output -> newest accepted update
-        self._pending: list[tuple[Any, list[Any]]] = []  # (the update, the stream's models then), in order
-        self.saved = 0
-
-    def offer(self, up: Any) -> None:
-        with self._lock:
-            outputs = self._current.setdefault(up.stream, {})
-            outputs[up.output] = up
-            self._pending.append((up, [o.model for _, o in sorted(outputs.items())]))
-
-    def save_pending(self) -> None:
-        with self._lock:
-            todo, self._pending = self._pending, []
-        for up, models in todo:
-            self._save(up, models)
-
-    def _save(self, up: Any, models: list[Any]) -> None:
-        import os
-        import shutil
-
-        from streamid.errors import StreamidError
-        from streamid.export import c_identifier, write_fmu
-
-        period = up.window.get("period_ns")
-        period_s = period / 1e9 if isinstance(period, int) and not isinstance(period, bool) and period > 0 else None
-        path = self.dir / f"{up.stream}-v{up.version}.fmu"
-        try:
-            write_fmu(models, path, name=c_identifier(up.stream), period_s=period_s)
-            newest = self.dir / f"{up.stream}.fmu"
-            tmp = self.dir / f".{up.stream}.fmu.{os.getpid()}.tmp"
-            shutil.copyfile(path, tmp)
-            os.replace(tmp, newest)
-        except (StreamidError, OSError) as exc:
-            print(printable(f"streamid watch: {up.stream} v{up.version} not saved as an FMU: {exc}", 1000),
-                  file=sys.stderr, flush=True)
-            return
-        self.saved += 1
-        print(printable(f"streamid watch: {up.stream} v{up.version} saved as {path} and {newest}", 1000),
-              file=sys.stderr, flush=True)
 
 
 def _open_bus(settings: Any, stop: threading.Event, where: str, duration_s: float | None) -> Any:

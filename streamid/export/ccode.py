@@ -8,10 +8,12 @@ the results equal :meth:`Model.simulate <streamid.model.narx.Model.simulate>` to
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from streamid._version import __version__
 from streamid.model.regressors import Regressor
+from streamid.errors import ModelFormatError
 from streamid.export.plan import CONVENTION, ExportPlan, Network, Output
 
 __all__ = ["CSources", "c_sources", "comment_text"]
@@ -28,13 +30,23 @@ class CSources:
 
 
 def comment_text(text: str) -> str:
-    """``text`` safe inside a C block comment (printable ASCII, no comment end)."""
+    """``text`` safe inside a C block comment (printable ASCII, no comment end, no trigraph: ``??/`` is a
+    backslash in C99, and one at a line's end would splice lines and warn under -Wall)."""
     safe = "".join(c if 32 <= ord(c) < 127 else "?" for c in text)
-    return safe.replace("*/", "* /").replace("/*", "/ *")
+    safe = safe.replace("*/", "* /").replace("/*", "/ *")
+    while "??" in safe:
+        safe = safe.replace("??", "?_?")
+    return safe
 
 
 def _num(v: float) -> str:
-    return repr(float(v))
+    """``v`` as C spells it (the shortest text that reads back to the same double); a number C cannot spell
+    (inf, nan) is refused: the plan checks every number first (:func:`streamid.export.plan.plan_of`), this is
+    the last guard, before any file is written."""
+    x = float(v)
+    if not math.isfinite(x):
+        raise ModelFormatError(f"the generated C would hold {x!r}, which C cannot spell: the model cannot be exported")
+    return repr(x)
 
 
 def _array(values: tuple[float, ...] | list[float]) -> str:

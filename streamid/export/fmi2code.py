@@ -218,9 +218,10 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint, fm
     char msg[256];
     (void)noSetFMUStatePriorToCurrentPoint;
     if (c->stage != ST_STEP) return fail(c, "fmi2DoStep: only after fmi2ExitInitializationMode");
-    if (!(n >= 0.5) || fabs(n - floor(n + 0.5)) > 1e-6 * (n > 1.0 ? n : 1.0)) {
-        snprintf(msg, sizeof msg, "fmi2DoStep: the communication step %.17g s must be a whole multiple (>= 1) of "
-                 "the model's sample period %.17g s", communicationStepSize, PERIOD);
+    if (!isfinite(communicationStepSize) || !isfinite(currentCommunicationPoint) || !(n >= 0.5) || !(n < 9007199254740992.0)
+        || fabs(n - floor(n + 0.5)) > 1e-6 * (n > 1.0 ? n : 1.0)) {
+        snprintf(msg, sizeof msg, "fmi2DoStep: the communication step %.17g s must be a finite whole multiple (>= 1, "
+                 "< 2^53) of the model's sample period %.17g s, from a finite time", communicationStepSize, PERIOD);
         return fail(c, msg);
     }
     if (fabs(currentCommunicationPoint - c->time) > 1e-6 * PERIOD) {

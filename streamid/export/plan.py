@@ -23,6 +23,7 @@ from streamid.model.ensemble import members_of
 from streamid.model.narx import Model
 from streamid.model.regressors import Regressor
 from streamid.errors import ConfigError, ModelFormatError
+from streamid.wire.names import check_signal_names, printable
 
 __all__ = ["CONVENTION", "ExportPlan", "Network", "Output", "c_identifier", "model_period_s", "plan_of"]
 
@@ -72,8 +73,8 @@ class Output:
 
     @property
     def middle(self) -> float:
-        """The middle of the output's range: the default initial value."""
-        return 0.5 * (self.y_low + self.y_high)
+        """The middle of the output's range: the default initial value (halves first: never overflows)."""
+        return 0.5 * self.y_low + 0.5 * self.y_high
 
 
 @dataclass(frozen=True)
@@ -109,18 +110,33 @@ def model_period_s(model: Model) -> float | None:
     return None
 
 
-def _network(m: Model) -> Network:
-    lin = None if m.linear is None else tuple(float(v) for v in m.linear)
+def _finite(values: tuple[float, ...], what: str, output: str) -> tuple[float, ...]:
+    """``values``, refused (ModelFormatError naming the output, the field and the index) if one is not finite."""
+    for i, v in enumerate(values):
+        if not math.isfinite(v):
+            raise ModelFormatError(f"model of '{printable(output, 120)}': {what}[{i}] is {v!r}, which C cannot "
+                                   "spell (finite float64 numbers only, |x| < 1.8e308): the model cannot be exported")
+    return values
+
+
+def _network(m: Model, output: str) -> Network:
+    lin = None if m.linear is None else _finite(tuple(float(v) for v in m.linear), "linear", output)
     lregs = m.regressors if m.linear_regressors is None else m.linear_regressors
     return Network(
         regressors=m.regressors,
-        centres=tuple(tuple(float(v) for v in row) for row in m.centres),
-        two_w2=tuple(float(v) for v in 2.0 * m.widths**2),
-        weights=tuple(float(v) for v in m.weights),
+        centres=tuple(_finite(tuple(float(v) for v in row), f"centres[{j}]", output) for j, row in enumerate(m.centres)),
+        two_w2=_finite(tuple(2.0 * (float(v) * float(v)) for v in m.widths), "2 widths^2 (the generated code's two_w2)", output),
+        weights=_finite(tuple(float(v) for v in m.weights), "weights", output),
         linear=lin,
         linear_regressors=lregs if lin is not None else (),
         max_lag=m.max_lag,
     )
+
+
+def _spellable(o: Output) -> None:
+    """Refuse an output whose derived constants (range, middle, input middles) overflow to infinity."""
+    _finite((o.y_low, o.y_high, o.middle, o.y_high - o.y_low), "y_low, y_high, middle, span", o.name)
+    _finite(tuple(0.5 * lo + 0.5 * hi for lo, hi in zip(o.u_low, o.u_high)), "input middles", o.name)
 
 
 def plan_of(models: Sequence[Model], name: str, period_s: float | None = None) -> ExportPlan:
@@ -143,29 +159,31 @@ def plan_of(models: Sequence[Model], name: str, period_s: float | None = None) -
     outputs: list[Output] = []
     for m in models:
         if tuple(m.input_names) != inputs:
-            raise ConfigError(f"every model of an export must take the same inputs in the same order: "
-                              f"{m.output_name!r} takes {list(m.input_names)}, {models[0].output_name!r} {list(inputs)}")
+            raise ConfigError(printable(f"every model of an export must take the same inputs in the same order: "
+                                        f"{m.output_name!r} takes {list(m.input_names)}, {models[0].output_name!r} "
+                                        f"{list(inputs)}", 600))
         if any(o.name == m.output_name for o in outputs):
-            raise ConfigError(f"two models of output {m.output_name!r}: give one model file per output")
-        if m.output_name in inputs or f"initial_{m.output_name}" in inputs:
-            raise ConfigError(f"output {m.output_name!r} (or its parameter initial_{m.output_name}) is also an input's "
-                              "name: the FMU's variable names must be distinct")
+            raise ConfigError(f"two models of output '{printable(m.output_name, 120)}': give one model file per output")
         nm = m.normalisation
         spans = [nm.y_high - nm.y_low, *(h - lo for lo, h in zip(nm.u_low, nm.u_high))]
         if not all(math.isfinite(s) and s > 0 for s in spans):
-            raise ModelFormatError(f"model of {m.output_name!r}: its normalisation must have finite ranges high > low; "
-                                   f"got {nm.to_dict()}")
-        nets = tuple(_network(member) for member in members_of(m))
+            raise ModelFormatError(f"model of '{printable(m.output_name, 120)}': its normalisation must have finite "
+                                   f"ranges high > low; got {nm.to_dict()}")
+        nets = tuple(_network(member, m.output_name) for member in members_of(m))
         direct = sorted({r.index for member in members_of(m)
                          for r in (*member.regressors, *(member.linear_regressors or ())) if r.signal == "u" and r.lag == 0})
         outputs.append(Output(name=m.output_name, y_low=float(nm.y_low), y_high=float(nm.y_high),
                               u_low=tuple(float(v) for v in nm.u_low), u_high=tuple(float(v) for v in nm.u_high),
                               networks=nets, max_lag=m.max_lag, direct_inputs=tuple(direct)))
+        _spellable(outputs[-1])
+    # the one rule for names (streamid.wire.names) over the whole export: every output's name distinct from every
+    # input's and every other output's, and from the names streamid adds for each (initial_<output>, ...)
+    check_signal_names(inputs, [o.name for o in outputs], "export")
     if period_s is None:
         periods = {model_period_s(m) for m in models}
         if None in periods:
             bad = next(m.output_name for m in models if model_period_s(m) is None)
-            raise ConfigError(f"the model of {bad!r} records no sample period (its window has no period_ns): "
+            raise ConfigError(f"the model of '{printable(bad, 120)}' records no sample period (its window has no period_ns): "
                               "give it with --period SECONDS")
         if len(periods) > 1:
             raise ConfigError(f"the models were identified at different sample periods {sorted(p or 0 for p in periods)} s: "

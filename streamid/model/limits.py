@@ -31,6 +31,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from streamid.errors import ModelFormatError
+from streamid.wire.names import check_model_names
 
 __all__ = ["MAX_DEPTH", "MAX_INPUTS", "MAX_LAG", "MAX_MODEL_BYTES", "MAX_NEURONS", "MAX_PARAMETERS", "MAX_REGRESSORS",
            "MIN_SPAN", "MIN_WIDTH", "OSA_BLOCK_BYTES", "check_model_document", "json_depth", "osa_block_rows",
@@ -123,6 +124,7 @@ def check_model_document(d: Any) -> None:
         _count(norm, "u_low", MAX_INPUTS, "'normalisation'.", "inputs")
         _count(norm, "u_high", MAX_INPUTS, "'normalisation'.", "inputs")
     _count(d, "inputs", MAX_INPUTS, "", "input names")
+    check_model_names(d)  # the one rule for names (streamid.wire.names), on every path a model takes
     if d.get("format") in _ENSEMBLES:
         members = d.get("members")
         if not isinstance(members, list):

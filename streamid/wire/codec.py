@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.errors import CodecError
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name, samples_key, u_key, y_key
-from streamid.wire.names import MAX_NAME_BYTES, UNSAFE_RULE, printable, unsafe_char
+from streamid.wire.names import MAX_NAME_BYTES, NAME_RULE, check_signal_names, name_problem, printable
 from streamid.wire.protobuf import U64_MASK, fields, len_field, packed, signed, utf8, varint
 
 __all__ = [
@@ -104,23 +104,11 @@ _I64_MAX = (1 << 63) - 1
 # the batch
 # ---------------------------------------------------------------------------
 def _check_name(name: object, role: str) -> str:
-    if not isinstance(name, str):
-        raise CodecError(f"{role} channel name must be a str; got {type(name).__name__} {name!r}")
-    try:
-        raw = name.encode("utf-8")
-    except UnicodeEncodeError as exc:
-        raise CodecError(f"{role} channel name must be valid UTF-8 text; got {name!r}") from exc
-    if not raw or len(raw) > MAX_NAME_BYTES:
-        raise CodecError(
-            f"{role} channel name must be 1 to {MAX_NAME_BYTES} UTF-8 bytes with {UNSAFE_RULE}; "
-            f"got {len(raw)} bytes: '{printable(name, 80)}'"
-        )
-    bad = unsafe_char(name)
-    if bad is not None:
-        raise CodecError(
-            f"{role} channel name '{printable(name, 300)}' holds U+{ord(bad[1]):04X} at position {bad[0]}: "
-            f"channel names are 1 to {MAX_NAME_BYTES} UTF-8 bytes with {UNSAFE_RULE}"
-        )
+    problem = name_problem(name)
+    if problem is not None:
+        shown = f"'{printable(name, 300)}' " if isinstance(name, str) else ""
+        raise CodecError(f"{role} channel name {shown}{problem}: channel names are {NAME_RULE}")
+    assert isinstance(name, str)
     return name
 
 
@@ -213,6 +201,8 @@ class SampleBatch:
             chans[role] = out
         if n is None:
             raise CodecError("a batch must carry at least one input or output channel; got none")
+        # the one rule for names: a stream's models (and its FMU) hold these channels' names
+        check_signal_names(list(chans["input"]), list(chans["output"]), "sample batch channel", CodecError)
         if n == 0:
             raise CodecError("a batch must carry at least one sample; got 0 samples")
         object.__setattr__(self, "inputs", chans["input"])
