@@ -14,6 +14,7 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
                         streamid/viz/rerun_view.py
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
+pyarrow-adapter         ``pyarrow`` (and ``pyarrow.*``) by exactly one module: streamid/logs/arrow_tables.py
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
                         streamid.errors, streamid._lazy, streamid.bounded_files (stdlib only: a file
                         read under a bound, which Model.load and the daemon's state store share) and
@@ -56,11 +57,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SCANNED_PACKAGES = ("streamid", "recorders", "replay", "benchmarks")
 MAX_LINES = 550
 
-#: The three third-party libraries that each have a single adapter module.
+#: The third-party libraries that each have a single adapter module.
 ADAPTERS = {
     "zenoh-adapter": (("zenoh",), "streamid.transport.zenoh_bus"),
     "rerun-adapter": (("rerun", "rerun_bindings"), "streamid.viz.rerun_view"),
     "mcap-adapter": (("mcap", "mcap_protobuf"), "streamid.logs.mcap_files"),
+    "pyarrow-adapter": (("pyarrow",), "streamid.logs.arrow_tables"),
 }
 
 
