@@ -17,8 +17,8 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import Any, BinaryIO
 
 import numpy as np
-import pyarrow as pa  # type: ignore[import-untyped]
-import pyarrow.csv as pacsv  # type: ignore[import-untyped]
+import pyarrow as pa
+import pyarrow.csv as pacsv
 from numpy.typing import NDArray
 
 from streamid.errors import DataError
@@ -139,7 +139,7 @@ def read_columnar(path: str, kind: str, keep: Callable[[str], bool] | None = Non
             schema, rows = pf.schema_arrow, int(pf.metadata.num_rows)
 
             def batches(cols: list[str]) -> Iterable[Any]:
-                return pf.iter_batches(batch_size=1 << 16, columns=cols)  # type: ignore[no-any-return]
+                return pf.iter_batches(batch_size=1 << 16, columns=cols)
         else:
             try:
                 ipc = pa.ipc.open_file(pa.OSFile(path))

@@ -64,7 +64,7 @@ class Table:
 
     def column(self, name: str) -> NDArray[np.float64]:
         """One column; :class:`DataError` naming the available ones if unknown."""
-        if name not in self.columns:
+        if name not in self.columns and name not in self.unreadable:
             raise DataError(
                 f"unknown column {name!r} in {self.path}; available columns: "
                 f"{sorted(self.meta.get('columns', self.columns))}"
@@ -125,7 +125,7 @@ def _read_csv(path: Path, delimiter: str | None = None, columns: Sequence[str] |
     if clock is not None:
         how["clock"] = clock[0]
         t_ns = clock[1]
-        period_ns = int(np.median(np.diff(t_ns)))
+        period_ns = int(np.median(np.diff(t_ns), overwrite_input=True))
     return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta={"lines": lines, **how}, unreadable=unreadable)
 
 
@@ -142,7 +142,7 @@ def _read_columnar(path: Path, kind: str, columns: Sequence[str] | None, progres
     t_ns = period_ns = None
     if clock is not None:
         meta["clock"], t_ns = clock
-        period_ns = int(np.median(np.diff(t_ns)))
+        period_ns = int(np.median(np.diff(t_ns), overwrite_input=True))
     return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta=meta, unreadable=unreadable)
 
 
