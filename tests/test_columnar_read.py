@@ -133,3 +133,17 @@ def test_the_5m_row_csv_takes_under_twice_its_float64_columns(tmp_path: Path) ->
     got = measure_read(path, ["u", "y"])
     assert got["rows"] == 5_000_000 and got["numeric_mib"] == pytest.approx(5_000_000 * 2 * 8 / 2**20)
     assert got["rss_over_start_mib"] < 2 * got["numeric_mib"], got
+
+
+def test_identify_shows_the_reading_stage_and_is_quiet_under_never(tmp_path: Path) -> None:
+    """`--progress always` draws a "read" bar (rows read) before the identification's; `never` draws nothing."""
+    path = _csv(tmp_path / "d.csv", _signals(400))
+    quick = ["--neurons", "4", "--generations", "4", "--max-lag", "2", "--workers", "1", "--json"]
+    shown = subprocess.run([*STREAMID, "identify", str(path), "--input", "u", "--output", "y", *quick,
+                            "--progress", "always"], capture_output=True, timeout=120)
+    err = shown.stderr.decode()
+    assert shown.returncode == 0, err
+    assert "\rread [##############################] 100.0% 400 rows" in err and err.index("\rread") < err.index("\ridentify")
+    quiet = subprocess.run([*STREAMID, "identify", str(path), "--input", "u", "--output", "y", *quick,
+                            "--progress", "never"], capture_output=True, timeout=120)
+    assert quiet.returncode == 0 and "\r" not in quiet.stderr.decode(), quiet.stderr
