@@ -25,21 +25,20 @@ import numpy as np
 __all__ = ["write_signals_csv", "write_digits_csv", "write_parquet", "measure_read", "bench"]
 
 
+def _signal_blocks(rows: int, seed: int) -> Iterator[dict[str, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    for start in range(0, rows, 1_000_000):
+        n = min(1_000_000, rows - start)
+        u = rng.uniform(-1, 1, n)
+        yield {"time_s": (start + np.arange(n)) * 1e-3, "u": u, "y": np.cumsum(u) * 1e-3}
+
+
 def write_signals_csv(path: Path, rows: int, seed: int = 0) -> int:
     """``time_s,u,y`` (1 kHz clock, uniform input, a random walk), shortest round-trip floats; its bytes."""
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
+    from streamid.logs.arrow_tables import write_float_columns
 
-    rng = np.random.default_rng(seed)
-    with open(path, "wb") as fh:
-        fh.write(b"time_s,u,y\n")
-        block = 1_000_000
-        for start in range(0, rows, block):
-            n = min(block, rows - start)
-            t = (start + np.arange(n)) * 1e-3
-            u = rng.uniform(-1, 1, n)
-            pacsv.write_csv(pa.table({"time_s": t, "u": u, "y": np.cumsum(u) * 1e-3}), fh,
-                            pacsv.WriteOptions(include_header=False))
+    path.write_bytes(b"time_s,u,y\n")
+    write_float_columns(str(path), _signal_blocks(rows, seed), "csv")
     return path.stat().st_size
 
 
@@ -55,40 +54,33 @@ def write_digits_csv(path: Path, rows: int = 5_000_000, seed: int = 0) -> int:
 
 def write_parquet(path: Path, rows: int, seed: int = 0) -> int:
     """``time_s,u,y`` float64 as Parquet (row groups of 1,000,000); its bytes."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    from streamid.logs.arrow_tables import write_float_columns
 
-    rng = np.random.default_rng(seed)
-    schema = pa.schema([("time_s", pa.float64()), ("u", pa.float64()), ("y", pa.float64())])
-    with pq.ParquetWriter(path, schema) as w:
-        for start in range(0, rows, 1_000_000):
-            n = min(1_000_000, rows - start)
-            u = rng.uniform(-1, 1, n)
-            w.write_table(pa.table({"time_s": (start + np.arange(n)) * 1e-3, "u": u, "y": np.cumsum(u) * 1e-3},
-                                   schema=schema))
+    write_float_columns(str(path), _signal_blocks(rows, seed), "parquet")
     return path.stat().st_size
 
 
-def _rss_mib() -> float:
+def _status_mib(field: str) -> float:
     with open("/proc/self/status") as fh:
         for line in fh:
-            if line.startswith("VmRSS:"):
+            if line.startswith(field + ":"):
                 return int(line.split()[1]) / 1024
     return float("nan")
 
 
 def _measure_here(path: str, columns: list[str]) -> dict[str, Any]:
-    import resource
     import time
 
     import streamid.logs.arrow_tables  # noqa: F401 - imported before the baseline: the read's cost only
     from streamid.logs.datafile import load_table
 
-    base = _rss_mib()
+    base = _status_mib("VmRSS")
     t0 = time.perf_counter()
     table = load_table(path, columns=columns)
     wall = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    # VmHWM: this process's own peak. Not ru_maxrss: on Linux it starts from the parent's RSS at the fork
+    # (kept across exec), so under pytest or `streamid bench` it read ~230 MiB for a 134 MiB peak.
+    peak = _status_mib("VmHWM")
     numeric = sum(v.nbytes for v in table.columns.values()) / 2**20
     return {"wall_s": wall, "mb_per_s": Path(path).stat().st_size / 1e6 / wall, "rss_over_start_mib": peak - base,
             "numeric_mib": numeric, "ratio": (peak - base) / numeric, "rows": len(table),

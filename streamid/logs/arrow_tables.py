@@ -23,12 +23,10 @@ from numpy.typing import NDArray
 
 from streamid.errors import DataError
 
-__all__ = ["BLOCK_BYTES", "Refused", "stream_csv", "read_columnar", "COLUMNAR_KINDS"]
+__all__ = ["BLOCK_BYTES", "Refused", "stream_csv", "read_columnar", "write_float_columns"]
 
 #: Bytes of CSV text parsed at a time; a row must fit in one (csv_table.MAX_LINE_CHARS is the same 1 MiB).
 BLOCK_BYTES = 1 << 20
-#: File extensions read as Parquet or Arrow IPC (Feather v2 is the IPC file format).
-COLUMNAR_KINDS = {"parquet": "parquet", "pq": "parquet", "feather": "ipc", "arrow": "ipc", "ipc": "ipc"}
 
 Progress = Callable[[float, float], Any]
 
@@ -174,3 +172,24 @@ def read_columnar(path: str, kind: str, keep: Callable[[str], bool] | None = Non
         what = "Parquet" if kind == "parquet" else "Arrow IPC (Feather)"
         text = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
         raise DataError(f"{path}: not a readable {what} file: {text} (a cut or damaged file is not read)") from None
+
+
+def write_float_columns(path: str, blocks: Iterable[dict[str, NDArray[np.float64]]], kind: str) -> None:
+    """Write float64 column blocks as a CSV without header rows (``kind="csv"``, appended) or one Parquet file
+    (``"parquet"``, a row group a block): the test and benchmark files of the readers above."""
+    if kind == "csv":
+        with open(path, "ab") as fh:
+            for b in blocks:
+                pacsv.write_csv(pa.table(b), fh, pacsv.WriteOptions(include_header=False))
+        return
+    import pyarrow.parquet as pq
+
+    writer = None
+    try:
+        for b in blocks:
+            t = pa.table(b)
+            writer = writer or pq.ParquetWriter(path, t.schema)
+            writer.write_table(t)
+    finally:
+        if writer is not None:
+            writer.close()
