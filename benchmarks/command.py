@@ -28,6 +28,7 @@ BUILTIN_PROVIDERS: dict[str, str] = {
     "online": "benchmarks.online_cases:bench",
     "suite": "benchmarks.suite:bench",
     "capacity": "benchmarks.capacity:bench",
+    "reading": "benchmarks.reading:bench",
 }
 
 #: Sections that take many minutes: run only when named (``--only``; ``--suite`` for the suite).

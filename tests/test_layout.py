@@ -14,6 +14,7 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
                         streamid/viz/rerun_view.py
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
+pyarrow-adapter         ``pyarrow`` (and ``pyarrow.*``) by exactly one module: streamid/logs/arrow_tables.py
 model-stands-alone      streamid/model/ (the identified model) imports only the stdlib, numpy, numba,
                         streamid.errors, streamid._lazy, streamid.bounded_files, streamid.threads,
                         streamid.wire.names (stdlib only: the one rule for signal names, which the
@@ -63,11 +64,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SCANNED_PACKAGES = ("streamid", "recorders", "replay", "benchmarks")
 MAX_LINES = 550
 
-#: The three third-party libraries that each have a single adapter module.
+#: The third-party libraries that each have a single adapter module.
 ADAPTERS = {
     "zenoh-adapter": (("zenoh",), "streamid.transport.zenoh_bus"),
     "rerun-adapter": (("rerun", "rerun_bindings"), "streamid.viz.rerun_view"),
     "mcap-adapter": (("mcap", "mcap_protobuf"), "streamid.logs.mcap_files"),
+    "pyarrow-adapter": (("pyarrow",), "streamid.logs.arrow_tables"),
 }
 
 

@@ -11,6 +11,7 @@ import math
 import os
 import time
 from pathlib import Path
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TextIO
 
 from streamid.errors import ConfigError, DataError
@@ -106,15 +107,15 @@ def _columns(args: argparse.Namespace, path: Path, delimiter: str | None) -> tup
     return (list(args.input) if args.input else list(ins)), (args.output or outs[0])
 
 
-def load(args: argparse.Namespace) -> Dataset:
+def load(args: argparse.Namespace, progress: Callable[[float, float], Any] | None = None) -> Dataset:
     """The data of the command line: a file or a bundled log, the columns, delimiter, missing values, split
-    (or ``--validate``'s second file)."""
+    (or ``--validate``'s second file); ``progress(rows_read, rows_at_most)`` while a file is read."""
     how = reading(args)
     path = data_file(args.data)
     inputs, output = _columns(args, path, how["delimiter"])
     validation = data_file(args.validate) if getattr(args, "validate", None) else None
     return load_dataset(path, inputs, output, est=args.est, est_fraction=args.est_fraction, stream=args.stream,
-                        validation=validation, **how)
+                        validation=validation, progress=progress, **how)
 
 
 def read_text(info: dict[str, Any], period_ns: int | None, rows: int) -> str:
@@ -221,5 +222,6 @@ def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, gene
 
 def data_help() -> str:
     """The DATA argument's help (names the bundled logs)."""
-    return ("CSV/.tsv (header row), MATLAB .mat or streamid .mcap log, or the name of a bundled log "
+    return ("CSV/.tsv (header row), Parquet, Arrow IPC/Feather (.feather/.arrow/.ipc), MATLAB .mat or streamid .mcap "
+            "log, or the name of a bundled log "
             f"({', '.join(bundled_logs())})")

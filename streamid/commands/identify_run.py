@@ -292,7 +292,11 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
     in_process = (args.runs == 1 and (cfg.restarts == 1 or restart_workers <= 1)) or args.workers <= 1
     helper = EvalHelper(wait=False) if (args.workers >= 2 and in_process and EvalHelper.supported()) else None
     try:
-        ds = load(args)
+        reading_bar = Bar(sys.stderr, show, "read", delay_s=1.0 if args.progress == "auto" else 0.0)
+        try:  # the first stage of a long record's progress: its rows read
+            ds = load(args, lambda done, total: reading_bar.update(done, total, f"{int(done):,} rows"))
+        finally:
+            reading_bar.close()
         for note in ds.notes:
             print(f"streamid identify: warning: {note}", file=sys.stderr, flush=True)
         bar = Bar(sys.stderr, show, "identify", delay_s=1.0 if args.progress == "auto" else 0.0)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,10 +28,18 @@ from streamid.logs.csv_table import time_unit_ns
 __all__ = ["MISSING_POLICIES", "Cleaned", "check_columns", "handle_missing", "row_label"]
 
 MISSING_POLICIES = ("error", "drop", "fill")
+
+
+class Lines(Protocol):
+    """The file line of row ``i`` (``lines[i]``): an array, or :class:`streamid.logs.csv_table.RowLines`."""
+
+    def __getitem__(self, i: int, /) -> Any: ...
+
+
 _SHOW = 5  # rows named in a message
 
 
-def row_label(i: int, lines: NDArray[np.int64] | None) -> str:
+def row_label(i: int, lines: Lines | None) -> str:
     """Where row ``i`` (0-based) is in the file: ``line N`` of a text file, else ``sample N`` (1-based)."""
     return f"line {int(lines[i])}" if lines is not None else f"sample {i + 1}"
 
@@ -128,7 +137,7 @@ def _runs(idx: NDArray[np.int64]) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, ends)]
 
 
-def _span(a: int, b: int, lines: NDArray[np.int64] | None) -> str:
+def _span(a: int, b: int, lines: Lines | None) -> str:
     return row_label(a, lines) if a == b else f"{row_label(a, lines)}-{int(lines[b]) if lines is not None else b + 1}"
 
 
@@ -136,7 +145,7 @@ def handle_missing(
     where: str,
     columns: dict[str, NDArray[np.float64]],
     policy: str,
-    lines: NDArray[np.int64] | None = None,
+    lines: Lines | None = None,
 ) -> Cleaned:
     """Apply the missing-value ``policy`` (``"error"``, ``"drop"``, ``"fill"``) to the used ``columns``.
 

@@ -17,6 +17,12 @@ Formats
   ``N x k`` gives columns ``X[0] .. X[k-1]``. MATLAB v7.3 (HDF5) files are not supported.
 * ``.mcap``: a streamid log (see :mod:`streamid.logs.mcap_files`); columns are the
   stream's input and output channel names.
+* ``.parquet`` (``.pq``) and Arrow IPC / Feather v2 (``.feather``, ``.arrow``, ``.ipc``): every numeric column
+  (integer, float, boolean, decimal; nulls are missing values), a time-like name giving the clock as in a
+  CSV: :mod:`streamid.logs.arrow_tables`.
+
+CSV, Parquet and Arrow files are read by Apache Arrow (pyarrow), only the columns named (and the time-like
+ones) when the caller names them, straight into float64 arrays.
 
 The chosen columns are checked (an input equal to the output, a time column as an
 input...) and missing values handled as :mod:`streamid.logs.columns` says.
@@ -27,6 +33,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -57,9 +64,10 @@ class Table:
 
     def column(self, name: str) -> NDArray[np.float64]:
         """One column; :class:`DataError` naming the available ones if unknown."""
-        if name not in self.columns:
+        if name not in self.columns and name not in self.unreadable:
             raise DataError(
-                f"unknown column {name!r} in {self.path}; available columns: {sorted(self.columns)}"
+                f"unknown column {name!r} in {self.path}; available columns: "
+                f"{sorted(self.meta.get('columns', self.columns))}"
             )
         if name in self.unreadable:
             raise DataError(self.unreadable[name])
@@ -103,8 +111,12 @@ class Dataset:
         return w
 
 
-def _read_csv(path: Path, delimiter: str | None = None) -> Table:
-    cols, lines, how, unreadable = read_delimited(path, delimiter)
+Progress = Callable[[float, float], Any]
+
+
+def _read_csv(path: Path, delimiter: str | None = None, columns: Sequence[str] | None = None,
+              progress: Progress | None = None) -> Table:
+    cols, lines, how, unreadable = read_delimited(path, delimiter, columns, progress)
     for name, why in unreadable.items():
         if time_unit_ns(name) is not None:  # a clock column, used whenever it is one: its fault stops the file
             raise DataError(why)
@@ -113,8 +125,25 @@ def _read_csv(path: Path, delimiter: str | None = None) -> Table:
     if clock is not None:
         how["clock"] = clock[0]
         t_ns = clock[1]
-        period_ns = int(np.median(np.diff(t_ns)))
+        period_ns = int(np.median(np.diff(t_ns), overwrite_input=True))
     return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta={"lines": lines, **how}, unreadable=unreadable)
+
+
+def _read_columnar(path: Path, kind: str, columns: Sequence[str] | None, progress: Progress | None) -> Table:
+    from streamid.logs.arrow_tables import read_columnar
+
+    asked = None if columns is None else set(columns)
+    cols, times, names, unreadable = read_columnar(
+        str(path), kind, None if asked is None else (lambda c: c in asked or time_unit_ns(c) is not None), progress)
+    clock = clock_of(cols)
+    if clock is None:  # a timestamp or duration column, strictly increasing
+        clock = next(((c, t) for c, t in times.items() if t.size > 1 and np.all(t[1:] > t[:-1])), None)
+    meta: dict[str, Any] = {"columns": names, "format": kind}
+    t_ns = period_ns = None
+    if clock is not None:
+        meta["clock"], t_ns = clock
+        period_ns = int(np.median(np.diff(t_ns), overwrite_input=True))
+    return Table(str(path), cols, t_ns=t_ns, period_ns=period_ns, meta=meta, unreadable=unreadable)
 
 
 def _read_mat(path: Path) -> Table:
@@ -161,21 +190,31 @@ def _read_mcap(path: Path, stream: str | None) -> Table:
     return Table(str(path), cols, t_ns=np.asarray(arr.t_ns, dtype=np.int64), period_ns=int(arr.period_ns), meta=meta)
 
 
+#: Extensions read by Apache Arrow's Parquet and IPC readers (Feather v2 is the IPC file format).
+COLUMNAR_KINDS = {"parquet": "parquet", "pq": "parquet", "feather": "ipc", "arrow": "ipc", "ipc": "ipc"}
+
+
 def load_table(
-    path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None, delimiter: str | None = None
+    path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None, delimiter: str | None = None,
+    columns: Sequence[str] | None = None, progress: Progress | None = None,
 ) -> Table:
     """Read a data file's numeric columns.
 
     Parameters
     ----------
     path : path-like
-        ``.csv``, ``.mat`` or ``.mcap`` file.
+        ``.csv``, ``.parquet``, ``.feather``/``.arrow``/``.ipc``, ``.mat`` or ``.mcap`` file.
     stream : str, optional
         Stream of an MCAP log holding several.
-    fmt : {"csv", "mat", "mcap"}, optional
+    fmt : {"csv", "parquet", "feather", "mat", "mcap"}, optional
         Format, if the extension does not tell.
     delimiter : str, optional
         CSV delimiter (``,`` ``;`` ``\\t`` ``|`` or ``" "`` for whitespace); default detected.
+    columns : optional
+        Of a CSV, Parquet or Arrow file, read only these columns (and the time-like ones, for the clock);
+        ``meta["columns"]`` names every column. Default: every column.
+    progress : optional
+        Called as ``progress(rows_read, rows_at_most)`` while a CSV, Parquet or Arrow file is read.
 
     Raises
     ------
@@ -189,12 +228,15 @@ def load_table(
         raise DataError(f"data file {str(path)!r} does not exist (or is not a file)")
     kind = (fmt or p.suffix.lstrip(".")).lower()
     if kind in ("csv", "tsv"):
-        return _read_csv(p, delimiter)
+        return _read_csv(p, delimiter, columns, progress)
+    if kind in COLUMNAR_KINDS:
+        return _read_columnar(p, COLUMNAR_KINDS[kind], columns, progress)
     if kind == "mat":
         return _read_mat(p)
     if kind == "mcap":
         return _read_mcap(p, stream)
-    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv/.tsv (header row), .mat, .mcap")
+    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv/.tsv (header row), "
+                    ".parquet, .feather/.arrow/.ipc, .mat, .mcap")
 
 
 def split_index(n: int, est: int | None = None, est_fraction: float | None = None) -> int:
@@ -238,14 +280,16 @@ def load_record(
     delimiter: str | None = None,
     missing: str = "error",
     allow_time_input: bool = False,
+    progress: Progress | None = None,
 ) -> Record:
-    """Load the named columns of one file and check them, handling missing values (see :func:`load_dataset`)."""
+    """Load the named columns of one file and check them, handling missing values (see :func:`load_dataset`);
+    ``progress(rows_read, rows_at_most)`` as a CSV, Parquet or Arrow file is read."""
     if not inputs:
         raise DataError("at least one input column is needed (--input COL)")
     if missing not in MISSING_POLICIES:
         raise DataError(f"missing must be one of {MISSING_POLICIES}; got {missing!r}")
-    table = load_table(path, stream=stream, delimiter=delimiter)
     names = list(dict.fromkeys([*inputs, output]))
+    table = load_table(path, stream=stream, delimiter=delimiter, columns=names, progress=progress)
     cols = {c: table.column(c) for c in names}
     lengths = {c: len(a) for c, a in cols.items()}
     if len(set(lengths.values())) != 1:
@@ -310,6 +354,7 @@ def load_dataset(
     missing: str = "error",
     allow_time_input: bool = False,
     validation: str | os.PathLike[str] | None = None,
+    progress: Progress | None = None,
 ) -> Dataset:
     """Load the named columns, check them, handle missing values, and split them (estimation first).
 
@@ -338,6 +383,8 @@ def load_dataset(
         estimation data and this file the validation data, read with the same settings
         (``est``/``est_fraction`` must not be given).  Its times are drawn after the estimation
         data's; the two files must have one sample period.
+    progress : optional
+        Called as ``progress(rows_read, rows_at_most)`` while each file is read.
 
     Raises
     ------
@@ -351,7 +398,7 @@ def load_dataset(
                         "the data file is estimation data; give one or the other (--validate, or --est/--est-fraction)")
     def read(file: str | os.PathLike[str]) -> Record:
         return load_record(file, inputs, output, stream=stream, delimiter=delimiter, missing=missing,
-                           allow_time_input=allow_time_input)
+                           allow_time_input=allow_time_input, progress=progress)
 
     rec = read(path)
     if validation is None:
