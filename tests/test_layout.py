@@ -14,6 +14,9 @@ rerun-adapter           ``rerun`` (and ``rerun.*``, ``rerun_bindings``) by exact
                         streamid/viz/rerun_view.py
 mcap-adapter            ``mcap`` (and ``mcap.*``, ``mcap_protobuf``) by exactly one module:
                         streamid/logs/mcap_files.py
+asammdf-adapter         ``asammdf`` by exactly one module: streamid/logs/mdf_file.py (MDF files)
+rosbags-adapter         ``rosbags`` by exactly one module: streamid/logs/ros2_bag.py (ROS 2 bags, CDR)
+h5py-adapter            ``h5py`` by exactly one module: streamid/logs/mat73_file.py (MATLAB v7.3)
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
                         streamid.errors, streamid._lazy, streamid.bounded_files (stdlib only: a file
                         read under a bound, which Model.load and the daemon's state store share) and
@@ -56,11 +59,14 @@ ROOT = Path(__file__).resolve().parents[1]
 SCANNED_PACKAGES = ("streamid", "recorders", "replay", "benchmarks")
 MAX_LINES = 550
 
-#: The three third-party libraries that each have a single adapter module.
+#: The third-party libraries that each have a single adapter module.
 ADAPTERS = {
     "zenoh-adapter": (("zenoh",), "streamid.transport.zenoh_bus"),
     "rerun-adapter": (("rerun", "rerun_bindings"), "streamid.viz.rerun_view"),
     "mcap-adapter": (("mcap", "mcap_protobuf"), "streamid.logs.mcap_files"),
+    "asammdf-adapter": (("asammdf",), "streamid.logs.mdf_file"),
+    "rosbags-adapter": (("rosbags",), "streamid.logs.ros2_bag"),
+    "h5py-adapter": (("h5py",), "streamid.logs.mat73_file"),
 }
 
 
@@ -325,3 +331,6 @@ def test_rules_flag_what_they_must() -> None:
     assert broken("recorders.cli", "replay.player") == {"recorders-not-replay"}
     assert broken("recorders.recorder", "mcap.writer") == {"mcap-adapter"}
     assert broken("streamid.transport.zenoh_bus", "zenoh") == set()
+    assert broken("streamid.daemon.ros2", "rosbags.typesys") == {"rosbags-adapter"}
+    assert broken("streamid.logs.datafile", "asammdf") == {"asammdf-adapter"}
+    assert broken("streamid.logs.ros2_bag", "rosbags.highlevel") == set()

@@ -1,4 +1,4 @@
-"""Load identification data from CSV (header row), MATLAB ``.mat`` or streamid MCAP logs.
+"""Load identification data from CSV (header row), MATLAB ``.mat``, streamid MCAP logs, MDF files or ROS 2 bags.
 
 :func:`load_table` reads every numeric column of a file into ``{name: array}``;
 :func:`load_record` picks the input and output columns by name and checks them;
@@ -14,9 +14,13 @@ Formats
   gives the samples' times: :mod:`streamid.logs.csv_table`.
 * ``.mat`` (MATLAB v4-v7.2, read with :func:`scipy.io.loadmat`): every numeric
   vector variable is a column (``N x 1`` or ``1 x N``); a matrix ``X`` of shape
-  ``N x k`` gives columns ``X[0] .. X[k-1]``. MATLAB v7.3 (HDF5) files are not supported.
+  ``N x k`` gives columns ``X[0] .. X[k-1]``; MATLAB v7.3 (HDF5) files: :mod:`streamid.logs.mat73_file`.
 * ``.mcap``: a streamid log (see :mod:`streamid.logs.mcap_files`); columns are the
   stream's input and output channel names.
+* ``.mf4``/``.mdf`` (ASAM MDF: :mod:`streamid.logs.mdf_file`) and ROS 2 bags (a bag directory, its ``.db3``, or an
+  ``.mcap`` whose profile is ``ros2``: :mod:`streamid.logs.ros2_bag`): signals recorded at their own times, read
+  by name (``signals``: the inputs, then the output) and put on the output's own timestamps
+  (:mod:`streamid.logs.timed`).
 
 The chosen columns are checked (an input equal to the output, a time column as an
 input...) and missing values handled as :mod:`streamid.logs.columns` says.
@@ -26,6 +30,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -123,7 +128,9 @@ def _read_mat(path: Path) -> Table:
     try:
         data = loadmat(str(path), squeeze_me=False)
     except NotImplementedError:
-        raise DataError(f"{path}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 or export CSV") from None
+        from streamid.logs.mat73_file import read_mat73_table
+
+        return read_mat73_table(path)
     except (MemoryError, RecursionError):
         raise DataError(f"{path}: not a readable MATLAB .mat file (its headers ask for more memory than there is: "
                         "damaged?)") from None
@@ -162,7 +169,8 @@ def _read_mcap(path: Path, stream: str | None) -> Table:
 
 
 def load_table(
-    path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None, delimiter: str | None = None
+    path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None, delimiter: str | None = None,
+    signals: Sequence[str] | None = None,
 ) -> Table:
     """Read a data file's numeric columns.
 
@@ -176,6 +184,9 @@ def load_table(
         Format, if the extension does not tell.
     delimiter : str, optional
         CSV delimiter (``,`` ``;`` ``\\t`` ``|`` or ``" "`` for whitespace); default detected.
+    signals : sequence of str, optional
+        The signals of an MDF file or ROS 2 bag to read (the inputs, then the output, whose timestamps are the
+        grid); the other formats read every column and ignore it.
 
     Raises
     ------
@@ -185,16 +196,29 @@ def load_table(
         An MCAP log that cannot be read.
     """
     p = Path(path)
-    if not p.is_file():
-        raise DataError(f"data file {str(path)!r} does not exist (or is not a file)")
+    if not p.is_file() and not (p / "metadata.yaml").is_file():
+        raise DataError(f"data file {str(path)!r} does not exist (or is not a file, nor a ROS 2 bag directory)")
     kind = (fmt or p.suffix.lstrip(".")).lower()
+    if kind in ("mf4", "mdf"):
+        from streamid.logs.mdf_file import read_mdf_table
+        return read_mdf_table(p, signals)
+    if kind == "db3" or p.is_dir() or (kind == "mcap" and _is_ros2_mcap(p)):
+        from streamid.logs.ros2_bag import read_bag_table
+        return read_bag_table(p, signals)
     if kind in ("csv", "tsv"):
         return _read_csv(p, delimiter)
     if kind == "mat":
         return _read_mat(p)
     if kind == "mcap":
         return _read_mcap(p, stream)
-    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv/.tsv (header row), .mat, .mcap")
+    raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv/.tsv (header row), .mat, .mcap, "
+                    ".mf4/.mdf, a ROS 2 bag (directory, .mcap or .db3)")
+
+
+def _is_ros2_mcap(p: Path) -> bool:
+    from streamid.logs.ros2_bag import is_ros2_mcap
+
+    return is_ros2_mcap(p)
 
 
 def split_index(n: int, est: int | None = None, est_fraction: float | None = None) -> int:
@@ -244,13 +268,14 @@ def load_record(
         raise DataError("at least one input column is needed (--input COL)")
     if missing not in MISSING_POLICIES:
         raise DataError(f"missing must be one of {MISSING_POLICIES}; got {missing!r}")
-    table = load_table(path, stream=stream, delimiter=delimiter)
+    table = load_table(path, stream=stream, delimiter=delimiter, signals=[*inputs, output])
     names = list(dict.fromkeys([*inputs, output]))
     cols = {c: table.column(c) for c in names}
     lengths = {c: len(a) for c, a in cols.items()}
     if len(set(lengths.values())) != 1:
         raise DataError(f"{path}: the columns have different lengths {lengths}; all must be equal")
-    notes = check_columns(str(path), list(inputs), output, cols, allow_time_input=allow_time_input)
+    notes = list(table.meta.get("notes", ())) + check_columns(str(path), list(inputs), output, cols,
+                                                              allow_time_input=allow_time_input)
     lines = table.meta.get("lines")
     clean = handle_missing(str(path), cols, missing, lines)
     notes += clean.notes
