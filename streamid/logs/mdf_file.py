@@ -11,8 +11,10 @@ it, to integer ns), and the channels are put on the output's own timestamps by :
 
 from __future__ import annotations
 
+import gc
 import re
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,11 +39,30 @@ def _open(path: Path) -> Any:
         magic = fh.read(8)
     if magic not in (b"MDF     ", b"UnFinMF "):  # checked first: asammdf's own refusal leaves a traceback on stderr
         raise DataError(f"{path}: not an ASAM MDF file (it starts with {magic!r}, an MDF file with b'MDF     ')")
+    why = ""
+    hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_asammdf(hook)
     try:
-        return asammdf.MDF(str(path))
-    except Exception as exc:  # noqa: BLE001 - asammdf raises many kinds on a damaged file: each is the file's fault
-        raise DataError(f"{path}: not a readable MDF file ({type(exc).__name__}: {str(exc)[:200]}); "
-                        "a cut or damaged file is not read") from None
+        try:
+            return asammdf.MDF(str(path))
+        except Exception as exc:  # noqa: BLE001 - asammdf raises many kinds on a damaged file: the file's fault
+            why = f"{type(exc).__name__}: {str(exc)[:200]}"
+        gc.collect()  # the half-built reader's __del__ fails (asammdf 8.x) while its error is still quieted
+    finally:
+        sys.unraisablehook = hook
+    raise DataError(f"{path}: not a readable MDF file ({why}); a cut or damaged file is not read")
+
+
+def _quiet_asammdf(hook: Callable[[Any], object]) -> Callable[[Any], object]:
+    """An unraisable-exception hook that drops the errors of asammdf's own ``__del__`` (a reader it failed to
+    build cannot close: a traceback on stderr for a file already refused in one line) and passes the rest on."""
+
+    def quiet(u: Any) -> object:
+        if str(getattr(u.object, "__module__", "") or "").startswith("asammdf"):
+            return None
+        return hook(u)
+
+    return quiet
 
 
 def _names(mdf: Any) -> dict[str, list[int]]:
