@@ -69,7 +69,7 @@ class Bar:
             self.stream.flush()
 
 
-def add_reading_flags(p: argparse.ArgumentParser) -> None:
+def add_reading_flags(p: argparse._ActionsContainer) -> None:
     """How a data file is read, the same for every command that reads one (identify, validate): ``--delimiter``,
     ``--fill``/``--drop`` (missing values) and ``--allow-time-input``; :func:`reading` turns them into settings."""
     p.add_argument("--delimiter", metavar="D", help="CSV delimiter: , ; tab | whitespace (default: detected)")

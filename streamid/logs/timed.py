@@ -136,8 +136,8 @@ def on_output_grid(where: str, inputs: Sequence[Signal], output: Signal, meta: d
         columns[s.name] = held_at(s.t_ns, s.values, t)
         p = s.period_ns()
         if 0 < p < period // 2:
-            notes.append(f"the input {s.name} ({rate_text(p)}) is faster than the output {output.name} "
-                         f"({rate_text(period)}): its latest sample at each output time is used, not an average "
+            notes.append(f"the input {s.name} ({1e9 / p:.6g} Hz) is faster than the output {output.name} "
+                         f"({1e9 / period:.6g} Hz): its latest sample at each output time is used, not an average "
                          "(low-pass it first if it carries content above half the output's rate)")
     columns[output.name] = np.asarray(output.values[keep], dtype=np.float64)
     if cut:
