@@ -201,3 +201,25 @@ def test_record_convert_then_replay_a_bag_and_an_mf4(files: dict[str, Path], tmp
     got = read_log_arrays(rec_path)
     np.testing.assert_allclose(got.outputs["speed_rpm"], 1000 * Y)
     assert "streamid replay: " in play.stderr and "as stream 'bench'" in play.stderr
+
+
+def test_cdr_payloads_serialised_by_rosbags_decode_and_garbage_is_one_error() -> None:
+    from rosbags.typesys import Stores, get_typestore
+
+    from streamid.logs.ros2_bag import CdrDecoder
+    from streamid.logs.ros2_fields import parse_signal
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    raw = ts.serialize_cdr(T["geometry_msgs/msg/Twist"](T["geometry_msgs/msg/Vector3"](0.25, 0.0, 0.0),
+                                                        T["geometry_msgs/msg/Vector3"](0.0, 0.0, -1.5)),
+                           "geometry_msgs/msg/Twist")
+    dec = CdrDecoder({"lab_msgs/msg/Command": "float64 level"})
+    assert dec.knows("geometry_msgs/msg/Twist") and dec.knows("lab_msgs/msg/Command") and not dec.knows("x/msg/Y")
+    msg = dec.decode(bytes(raw), "geometry_msgs/msg/Twist")
+    assert parse_signal("/cmd_vel:linear.x").value(msg) == 0.25
+    assert parse_signal("/cmd_vel:angular.z").value(msg) == -1.5
+    with pytest.raises(DataError, match=r"a payload of 3 bytes is not geometry_msgs/msg/Twist in CDR"):
+        dec.decode(b"\x00\x01\x00", "geometry_msgs/msg/Twist")
+    with pytest.raises(DataError, match=r"the message definition of bad/msg/X does not parse"):
+        CdrDecoder({"bad/msg/X": "float64 [[[ nonsense"})

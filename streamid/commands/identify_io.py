@@ -221,5 +221,7 @@ def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, gene
 
 def data_help() -> str:
     """The DATA argument's help (names the bundled logs)."""
-    return ("CSV/.tsv (header row), MATLAB .mat or streamid .mcap log, or the name of a bundled log "
+    return ("CSV/.tsv (header row), MATLAB .mat (v7.3 too), streamid .mcap log, ASAM MDF .mf4/.mdf (channels by name, "
+            "NAME@GROUP where a name repeats), a ROS 2 bag (directory, .mcap or .db3; signals /topic:field.path[i]), "
+            "or the name of a bundled log "
             f"({', '.join(bundled_logs())})")
