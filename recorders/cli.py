@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import threading
 
 from streamid.errors import ConfigError
@@ -25,7 +26,23 @@ def register_record(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
             "(streamid replay --partial)."
         ),
     )
-    p.add_argument("output", help="MCAP file to write")
+    p.add_argument("output", help="MCAP file to write; or the word convert (see below)")
+    p.add_argument("convert_files", nargs="*", metavar="DATA OUT.mcap", help=argparse.SUPPRESS)
+    conv = p.add_argument_group(
+        "streamid record convert DATA OUT.mcap --input SIGNAL --output SIGNAL",
+        "write a data file's signals as a streamid log instead of recording: an MF4/MDF file (channels by name, "
+        "NAME@GROUP where a name repeats), a ROS 2 bag (directory, .mcap or .db3; /topic:field), a MATLAB .mat or "
+        "a CSV; signals at their own rates are put on the output's own timestamps, the inputs zero-order held "
+        "(README, 'Your lab's logs')")
+    conv.add_argument("--input", action="append", dest="signal_inputs", metavar="SIGNAL",
+                      help="an input signal (repeatable)")
+    conv.add_argument("--output", dest="signal_output", metavar="SIGNAL", help="the output signal")
+    conv.add_argument("--stream", default=None, help="stream name of the log (default: from DATA's file name)")
+    conv.add_argument("--period-ms", type=float, default=None, metavar="MS",
+                      help="sample period of a file without a clock (a .mat, a CSV without a time column)")
+    from streamid.commands.identify_io import add_reading_flags
+
+    add_reading_flags(conv)
     p.add_argument("--key", action="append", dest="keys", metavar="KEYEXPR",
                    help="Zenoh key expression to record (repeatable; default streamid/**)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
@@ -39,9 +56,41 @@ def register_record(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.set_defaults(func=run_record)
 
 
+def run_convert(args: argparse.Namespace) -> int:
+    """``streamid record convert DATA OUT.mcap --input SIGNAL --output SIGNAL``."""
+    from streamid.commands.identify_io import reading
+    from streamid.logs.as_log import convert_to_log
+    from streamid.logs.bundled import data_file
+
+    if len(args.convert_files) != 2 or not args.signal_inputs or not args.signal_output:
+        raise ConfigError("streamid record convert takes DATA OUT.mcap --input SIGNAL (once per input) --output "
+                          f"SIGNAL; got files {args.convert_files}, inputs {args.signal_inputs}, output "
+                          f"{args.signal_output!r}")
+    data, out = args.convert_files
+    if not out.endswith(".mcap"):
+        raise ConfigError(f"the log to write must end in .mcap; got {out!r}")
+    if args.period_ms is not None and not args.period_ms > 0:
+        raise ConfigError(f"--period-ms must be > 0; got {args.period_ms}")
+    done = convert_to_log(data_file(data), out, args.signal_inputs, args.signal_output, stream=args.stream,
+                          period_ns=None if args.period_ms is None else int(round(args.period_ms * 1e6)),
+                          reading=reading(args))
+    for note in done.record.notes:
+        print(f"streamid record convert: warning: {note}", file=sys.stderr, flush=True)
+    print(f"converted {data}: {done.samples} samples of {', '.join(args.signal_inputs)} -> {args.signal_output} "
+          f"(period {done.period_ns / 1e6:.6g} ms) as stream {done.stream!r}, {done.messages} messages -> {out}",
+          flush=True)
+    return 0
+
+
 def run_record(args: argparse.Namespace) -> int:
     from recorders.recorder import RecorderConfig, record
 
+    if args.output == "convert":
+        return run_convert(args)
+    if args.convert_files or args.signal_inputs or args.signal_output or args.period_ms is not None:
+        raise ConfigError("DATA OUT.mcap, --input, --output and --period-ms belong to streamid record convert DATA "
+                          f"OUT.mcap ...; streamid record takes one OUTPUT file (got {args.output!r} "
+                          f"{' '.join(args.convert_files)})")
     if args.max_messages is not None and args.max_messages < 1:
         raise ConfigError(f"--max-messages must be >= 1; got {args.max_messages}")
     config = RecorderConfig(

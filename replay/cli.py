@@ -3,15 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import sys
+import tempfile
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from streamid.errors import ConfigError, LogError
 from streamid.logs import bundled_log, bundled_logs
 from streamid.transport import DEFAULT_ENDPOINT
 from streamid.commands.zenoh_flags import add_connection_flags, settings_from_args
 from streamid.commands.os_signals import stop_on_signals
+
+if TYPE_CHECKING:
+    from replay.player import ReplayConfig
 
 __all__ = ["register", "run", "resolve_log"]
 
@@ -70,8 +77,45 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--require-subscriber", action="store_true",
                    help="exit with code 1 when no subscriber received the messages (default: say so and exit 0)")
     p.add_argument("--json", action="store_true", help="print the report as one JSON line on stdout")
+    lab = p.add_argument_group(
+        "a data file instead of a log",
+        "LOG may be an MF4/MDF file, a ROS 2 bag (directory, .mcap or .db3), a MATLAB .mat or a CSV: its signals "
+        "--input ... --output ... are read as streamid identify reads them (other rates put on the output's own "
+        "timestamps, inputs zero-order held), played as one stream (named by --stream NEW, default the file's "
+        "name) at their recorded times")
+    lab.add_argument("--input", action="append", dest="signal_inputs", metavar="SIGNAL",
+                     help="an input signal of the data file (repeatable)")
+    lab.add_argument("--output", dest="signal_output", metavar="SIGNAL", help="the output signal of the data file")
+    lab.add_argument("--period-ms", type=float, default=None, metavar="MS",
+                     help="sample period of a data file without a clock")
     add_connection_flags(p, default_connect=(DEFAULT_ENDPOINT,))
     p.set_defaults(func=run)
+
+
+def _as_log(args: argparse.Namespace, path: Path, tmp: Path, config: ReplayConfig) -> tuple[Path, ReplayConfig]:
+    """A streamid log as it is; a data file (MF4, ROS 2 bag, .mat, CSV) converted into ``tmp`` first."""
+    from streamid.logs.as_log import convert_to_log, is_streamid_log
+
+    if is_streamid_log(path):
+        if args.signal_inputs or args.signal_output:
+            raise ConfigError(f"{path} is a streamid log: it is played as it is; --input/--output choose the signals "
+                              "of a data file (MF4, ROS 2 bag, .mat, CSV)")
+        return path, config
+    if not args.signal_inputs or not args.signal_output:
+        raise ConfigError(f"{path} is a data file, not a streamid log: name the signals to play, --input SIGNAL "
+                          "(once per input) --output SIGNAL, as streamid identify takes them")
+    stream = None
+    if config.stream_map:
+        if len(config.stream_map) != 1 or config.stream_map[0][0] != "*":
+            raise ConfigError("a data file is played as one stream: give its name as --stream NEW (not OLD=NEW)")
+        stream = config.stream_map[0][1]
+    done = convert_to_log(path, tmp / "converted.mcap", args.signal_inputs, args.signal_output, stream=stream,
+                          period_ns=None if args.period_ms is None else int(round(args.period_ms * 1e6)))
+    for note in done.record.notes:
+        print(f"streamid replay: warning: {note}", file=sys.stderr, flush=True)
+    print(f"streamid replay: {path}: {done.samples} samples of {', '.join(args.signal_inputs)} -> "
+          f"{args.signal_output} as stream {done.stream!r}", file=sys.stderr, flush=True)
+    return done.path, dataclasses.replace(config, stream_map=())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -85,9 +129,12 @@ def run(args: argparse.Namespace) -> int:
         keys=tuple(args.keys) if args.keys else None,
         wait_subscribers_s=args.wait_subscribers, partial=args.partial,
     )
+    path = resolve_log(args.log)
     stop = threading.Event()
-    with stop_on_signals(stop):
-        report = replay_log(resolve_log(args.log), settings_from_args(args), config, stop_event=stop)
+    with tempfile.TemporaryDirectory(prefix="streamid-replay-") as tmp:
+        path, config = _as_log(args, path, Path(tmp), config)
+        with stop_on_signals(stop):
+            report = replay_log(path, settings_from_args(args), config, stop_event=stop)
     if args.json:
         print(json.dumps({
             "path": str(report.path), "messages": report.messages, "samples": report.samples,

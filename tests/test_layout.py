@@ -20,6 +20,9 @@ model-stands-alone      streamid/model/ (the identified model) imports only the 
                         streamid.wire.names (stdlib only: the one rule for signal names, which the
                         model reader, the codec and the export share) and streamid.model.* (never
                         the engine, online, daemon, transport, ...)
+asammdf-adapter         ``asammdf`` by exactly one module: streamid/logs/mdf_file.py (MDF files)
+rosbags-adapter         ``rosbags`` by exactly one module: streamid/logs/ros2_bag.py (ROS 2 bags, CDR)
+h5py-adapter            ``h5py`` by exactly one module: streamid/logs/mat73_file.py (MATLAB v7.3)
 engine-is-numerics      streamid/engine/ imports only the stdlib, numpy, scipy, threadpoolctl, numba,
                         streamid.errors, streamid._lazy, streamid.threads, streamid.model.* and
                         streamid.engine.* (so never online, daemon, wire, logs, viz, transport,
@@ -70,6 +73,9 @@ ADAPTERS = {
     "rerun-adapter": (("rerun", "rerun_bindings"), "streamid.viz.rerun_view"),
     "mcap-adapter": (("mcap", "mcap_protobuf"), "streamid.logs.mcap_files"),
     "pyarrow-adapter": (("pyarrow",), "streamid.logs.arrow_tables"),
+    "asammdf-adapter": (("asammdf",), "streamid.logs.mdf_file"),
+    "rosbags-adapter": (("rosbags",), "streamid.logs.ros2_bag"),
+    "h5py-adapter": (("h5py",), "streamid.logs.mat73_file"),
 }
 
 
@@ -342,6 +348,9 @@ def test_rules_flag_what_they_must() -> None:
     assert broken("recorders.cli", "replay.player") == {"recorders-not-replay"}
     assert broken("recorders.recorder", "mcap.writer") == {"mcap-adapter"}
     assert broken("streamid.transport.zenoh_bus", "zenoh") == set()
+    assert broken("streamid.daemon.ros2", "rosbags.typesys") == {"rosbags-adapter"}
+    assert broken("streamid.logs.datafile", "asammdf") == {"asammdf-adapter"}
+    assert broken("streamid.logs.ros2_bag", "rosbags.highlevel") == set()
 
 
 # --- the layers: docs/architecture.md's table is the rule ------------------------------------------

@@ -26,6 +26,7 @@ STREAMID = [sys.executable, "-m", "streamid"]
 README_ENDPOINT = "tcp/127.0.0.1:7447"
 SEVERAL = "## More than one machine"
 SECOND_RECORD = "### Judge a model on a record it has never seen"
+LAB = "## 4. Your lab's logs"
 #: Upper bounds of the waits of the several-machines recipe: a process up, the first models at the watcher.
 UP_S, MODELS_S = 30.0, 60.0
 #: Lines of `streamid watch`: which daemon serves a stream (stream, daemon id), a model (stream).
@@ -112,7 +113,7 @@ def test_every_shell_block_is_run_or_listed_with_a_reason() -> None:
     run = {_block_after(h, "sh", k).strip() for h, k in (("## 1. Your own data file", 0), (SECOND_RECORD, 0),
                                                         ("## 2. Replay a log", 0),
                                                         ("## 2. Replay a log", 1), ("## 3. Inspect residuals", 0),
-                                                        (SEVERAL, 0))}
+                                                        (SEVERAL, 0), (LAB, 0))}
     for b in blocks:
         first = b.splitlines()[0].split("#")[0].strip()
         assert b in run or first in NOT_RUN, f"README shell block neither run by the tests nor listed in NOT_RUN: {b!r}"
@@ -369,3 +370,32 @@ def _run_recipe(net: Network, hosts: dict[str, Host], recipe: list[tuple[str, li
     assert [f"{ls.proto}/{ls.local}" for ls in listening["router"]] == [f"tcp/{net.router.address}:{port}"]
     assert all(not listening[m] for m in hosts if m != "router"), listening  # nobody else listens anywhere
     return first
+
+
+def test_journey_4_your_labs_logs_each_line_as_printed(tmp_path: Path) -> None:
+    """The lab's files, written by asammdf and rosbags (tests/lab_files.py), identified and converted by the
+    README's lines as printed; the sample output it shows is the real one."""
+    import lab_files
+
+    from streamid.logs import read_log_arrays
+
+    lab_files.write_mf4(tmp_path / "bench.mf4")
+    lab_files.write_bag(tmp_path / "robot_bag", "mcap")
+    outs = []
+    for line in [ln for ln in _block_after(LAB, "sh").splitlines() if ln.strip()]:
+        p = subprocess.run(_command(line, endpoint()), cwd=tmp_path, capture_output=True, text=True, timeout=180)
+        assert p.returncode == 0, (line, p.stderr)
+        assert "Traceback" not in p.stderr, p.stderr
+        outs.append(p)
+    blocks = re.findall(r"^```(\w*)\n(.*?)^```$", _section(LAB), re.S | re.M)
+    shown = next(text for lang, text in blocks if not lang).splitlines()  # the README's sample output
+    real = (outs[0].stderr + outs[0].stdout).splitlines()
+    for line in shown:
+        assert line in real, (line, real[:6])
+    for p, model in zip(outs[:2], ("bench.json", "robot.json")):
+        best = next(ln for ln in p.stdout.splitlines() if re.match(r"^\s+\d+\*", ln)).split()
+        assert float(best[8]) > 0.95, p.stdout  # FR val: the plant behind both files is identified
+        assert (tmp_path / model).is_file()
+    assert "clock '/joint_states:velocity[2]' (period 10 ms)" in outs[1].stdout
+    arr = read_log_arrays(tmp_path / "robot.mcap")
+    assert arr.stream == "robot_bag" and len(arr) == 2000 and list(arr.outputs) == ["/joint_states:velocity[2]"]

@@ -70,7 +70,7 @@ class Bar:
             self.stream.flush()
 
 
-def add_reading_flags(p: argparse.ArgumentParser) -> None:
+def add_reading_flags(p: argparse._ActionsContainer) -> None:
     """How a data file is read, the same for every command that reads one (identify, validate): ``--delimiter``,
     ``--fill``/``--drop`` (missing values) and ``--allow-time-input``; :func:`reading` turns them into settings."""
     p.add_argument("--delimiter", metavar="D", help="CSV delimiter: , ; tab | whitespace (default: detected)")
@@ -222,6 +222,7 @@ def draw_rrd(path: str, ds: Dataset, runs: list[dict[str, Any]], best: int, gene
 
 def data_help() -> str:
     """The DATA argument's help (names the bundled logs)."""
-    return ("CSV/.tsv (header row), Parquet, Arrow IPC/Feather (.feather/.arrow/.ipc), MATLAB .mat or streamid .mcap "
-            "log, or the name of a bundled log "
+    return ("CSV/.tsv (header row), Parquet, Arrow IPC/Feather (.feather/.arrow/.ipc), MATLAB .mat (v7.3 too), "
+            "streamid .mcap log, ASAM MDF .mf4/.mdf (channels by name, NAME@GROUP where a name repeats), a ROS 2 "
+            "bag (directory, .mcap or .db3; signals /topic:field.path[i]), or the name of a bundled log "
             f"({', '.join(bundled_logs())})")

@@ -1,4 +1,4 @@
-"""Load identification data from CSV (header row), MATLAB ``.mat`` or streamid MCAP logs.
+"""Load identification data from CSV (header row), MATLAB ``.mat``, streamid MCAP logs, MDF files or ROS 2 bags.
 
 :func:`load_table` reads every numeric column of a file into ``{name: array}``;
 :func:`load_record` picks the input and output columns by name and checks them;
@@ -14,7 +14,7 @@ Formats
   gives the samples' times: :mod:`streamid.logs.csv_table`.
 * ``.mat`` (MATLAB v4-v7.2, read with :func:`scipy.io.loadmat`): every numeric
   vector variable is a column (``N x 1`` or ``1 x N``); a matrix ``X`` of shape
-  ``N x k`` gives columns ``X[0] .. X[k-1]``. MATLAB v7.3 (HDF5) files are not supported.
+  ``N x k`` gives columns ``X[0] .. X[k-1]``; MATLAB v7.3 (HDF5) files: :mod:`streamid.logs.mat73_file`.
 * ``.mcap``: a streamid log (see :mod:`streamid.logs.mcap_files`); columns are the
   stream's input and output channel names.
 * ``.parquet`` (``.pq``) and Arrow IPC / Feather v2 (``.feather``, ``.arrow``, ``.ipc``): every numeric column
@@ -23,6 +23,10 @@ Formats
 
 CSV, Parquet and Arrow files are read by Apache Arrow (pyarrow), only the columns named (and the time-like
 ones) when the caller names them, straight into float64 arrays.
+* ``.mf4``/``.mdf`` (ASAM MDF: :mod:`streamid.logs.mdf_file`) and ROS 2 bags (a bag directory, its ``.db3``, or an
+  ``.mcap`` whose profile is ``ros2``: :mod:`streamid.logs.ros2_bag`): signals recorded at their own times, read
+  by name (``signals``: the inputs, then the output) and put on the output's own timestamps
+  (:mod:`streamid.logs.timed`).
 
 The chosen columns are checked (an input equal to the output, a time column as an
 input...) and missing values handled as :mod:`streamid.logs.columns` says.
@@ -39,39 +43,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.logs.table import Table
 from streamid.errors import DataError
 from streamid.logs.columns import MISSING_POLICIES, check_columns, handle_missing
 from streamid.logs.csv_table import clock_of, read_delimited, time_unit_ns
 
 __all__ = ["PERIOD_TOLERANCE", "Table", "Dataset", "Record", "load_table", "load_record", "load_dataset", "same_period",
            "split_index"]
-
-
-@dataclass(frozen=True)
-class Table:
-    """Numeric columns of a data file (equal lengths), with sample times when the file has them."""
-
-    path: str
-    columns: dict[str, NDArray[np.float64]]
-    t_ns: NDArray[np.int64] | None = None
-    period_ns: int | None = None
-    meta: dict[str, Any] = field(default_factory=dict)
-    #: columns that cannot be read as numbers, and why (raised by :meth:`column`, only when one is used)
-    unreadable: dict[str, str] = field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(next(iter(self.columns.values()))) if self.columns else 0
-
-    def column(self, name: str) -> NDArray[np.float64]:
-        """One column; :class:`DataError` naming the available ones if unknown."""
-        if name not in self.columns and name not in self.unreadable:
-            raise DataError(
-                f"unknown column {name!r} in {self.path}; available columns: "
-                f"{sorted(self.meta.get('columns', self.columns))}"
-            )
-        if name in self.unreadable:
-            raise DataError(self.unreadable[name])
-        return self.columns[name]
 
 
 @dataclass(frozen=True)
@@ -152,7 +130,9 @@ def _read_mat(path: Path) -> Table:
     try:
         data = loadmat(str(path), squeeze_me=False)
     except NotImplementedError:
-        raise DataError(f"{path}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 or export CSV") from None
+        from streamid.logs.mat73_file import read_mat73_table
+
+        return read_mat73_table(path)
     except (MemoryError, RecursionError):
         raise DataError(f"{path}: not a readable MATLAB .mat file (its headers ask for more memory than there is: "
                         "damaged?)") from None
@@ -196,7 +176,7 @@ COLUMNAR_KINDS = {"parquet": "parquet", "pq": "parquet", "feather": "ipc", "arro
 
 def load_table(
     path: str | os.PathLike[str], *, stream: str | None = None, fmt: str | None = None, delimiter: str | None = None,
-    columns: Sequence[str] | None = None, progress: Progress | None = None,
+    columns: Sequence[str] | None = None, progress: Progress | None = None, signals: Sequence[str] | None = None,
 ) -> Table:
     """Read a data file's numeric columns.
 
@@ -215,6 +195,9 @@ def load_table(
         ``meta["columns"]`` names every column. Default: every column.
     progress : optional
         Called as ``progress(rows_read, rows_at_most)`` while a CSV, Parquet or Arrow file is read.
+    signals : sequence of str, optional
+        The signals of an MDF file or ROS 2 bag to read (the inputs, then the output, whose timestamps are the
+        grid); the other formats read every column and ignore it.
 
     Raises
     ------
@@ -224,9 +207,15 @@ def load_table(
         An MCAP log that cannot be read.
     """
     p = Path(path)
-    if not p.is_file():
-        raise DataError(f"data file {str(path)!r} does not exist (or is not a file)")
+    if not p.is_file() and not (p / "metadata.yaml").is_file():
+        raise DataError(f"data file {str(path)!r} does not exist (or is not a file, nor a ROS 2 bag directory)")
     kind = (fmt or p.suffix.lstrip(".")).lower()
+    if kind in ("mf4", "mdf"):
+        from streamid.logs.mdf_file import read_mdf_table
+        return read_mdf_table(p, signals)
+    if kind == "db3" or p.is_dir() or (kind == "mcap" and _is_ros2_mcap(p)):
+        from streamid.logs.ros2_bag import read_bag_table
+        return read_bag_table(p, signals)
     if kind in ("csv", "tsv"):
         return _read_csv(p, delimiter, columns, progress)
     if kind in COLUMNAR_KINDS:
@@ -236,7 +225,13 @@ def load_table(
     if kind == "mcap":
         return _read_mcap(p, stream)
     raise DataError(f"{path}: unknown data format {kind!r}; accepted: .csv/.tsv (header row), "
-                    ".parquet, .feather/.arrow/.ipc, .mat, .mcap")
+                    ".parquet, .feather/.arrow/.ipc, .mat, .mcap, .mf4/.mdf, a ROS 2 bag (directory, .mcap or .db3)")
+
+
+def _is_ros2_mcap(p: Path) -> bool:
+    from streamid.logs.ros2_bag import is_ros2_mcap
+
+    return is_ros2_mcap(p)
 
 
 def split_index(n: int, est: int | None = None, est_fraction: float | None = None) -> int:
@@ -289,12 +284,14 @@ def load_record(
     if missing not in MISSING_POLICIES:
         raise DataError(f"missing must be one of {MISSING_POLICIES}; got {missing!r}")
     names = list(dict.fromkeys([*inputs, output]))
-    table = load_table(path, stream=stream, delimiter=delimiter, columns=names, progress=progress)
+    table = load_table(path, stream=stream, delimiter=delimiter, columns=names, progress=progress,
+                       signals=[*inputs, output])
     cols = {c: table.column(c) for c in names}
     lengths = {c: len(a) for c, a in cols.items()}
     if len(set(lengths.values())) != 1:
         raise DataError(f"{path}: the columns have different lengths {lengths}; all must be equal")
-    notes = check_columns(str(path), list(inputs), output, cols, allow_time_input=allow_time_input)
+    notes = list(table.meta.get("notes", ())) + check_columns(str(path), list(inputs), output, cols,
+                                                              allow_time_input=allow_time_input)
     lines = table.meta.get("lines")
     clean = handle_missing(str(path), cols, missing, lines)
     notes += clean.notes
