@@ -70,15 +70,19 @@ def test_damaged_identity_file_gets_a_new_identity_with_a_warning(
     assert json.loads((tmp_path / IDENTITY_FILE).read_text())["daemon"] == o.daemon  # replaced
 
 
-def test_identity_that_cannot_be_written_still_gives_an_origin(
+def test_identity_name_held_by_a_directory_is_moved_aside_and_the_identity_written(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Was: a directory there made every identity write fail for ever (issue 52: quarantined, ERROR).  An identity
+    that cannot be written at all (a full disk) is tests/test_full_disk.py's."""
     d = tmp_path / "ro"
     d.mkdir()
-    (d / IDENTITY_FILE).mkdir()  # a directory where the file should be: every write fails (also as root)
-    with caplog.at_level(logging.WARNING, logger="streamid.daemon.identity"):
+    (d / IDENTITY_FILE).mkdir()
+    with caplog.at_level(logging.WARNING):
         o = daemon_origin(d, now_ns=42)
     assert o.epoch_ns == 42 and o.daemon
-    assert "daemon identity not saved" in caplog.text
+    assert "was a directory, not a regular file; moved aside" in caplog.text
+    assert json.loads((d / IDENTITY_FILE).read_text())["daemon"] == o.daemon
+    assert [q.is_dir() for q in d.glob(f"{IDENTITY_FILE}.quarantined-*")] == [True]
 
 
 # --------------------------------------------------------------------------- damaged state files
