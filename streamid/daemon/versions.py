@@ -187,7 +187,8 @@ class VersionKeeper:
         self.origin = origin
         self.query_timeout_s = float(query_timeout_s)
         self._lock = threading.Lock()
-        self._to_ask: set[str] = set()  # streams without usable state whose network query is still to do
+        #: streams without usable state whose network query is still to do -> the highest version known here
+        self._to_ask: dict[str, int] = {}
         #: stream -> (error of its failing saves, highest version not saved); warned once per stream
         self._unsaved: dict[str, tuple[str, int]] = {}
 
@@ -200,6 +201,7 @@ class VersionKeeper:
         """Restore ``ident`` from the store; on damage quarantine and recover the version; returns the state used."""
         name = ident.stream
         saved: StreamState | None = None
+        floor: int | None = None
         if self.store is not None:
             try:
                 saved = self.store.load(name)
@@ -223,7 +225,7 @@ class VersionKeeper:
                 _log.warning("stream %s: versions continue above v%d, the highest found in %s", name, floor, where)
         if saved is None:
             with self._lock:
-                self._to_ask.add(name)
+                self._to_ask[name] = max(ident.version, floor or 0)
         return saved
 
     def _quarantined_floor(self, name: str) -> tuple[int | None, str]:
@@ -239,7 +241,7 @@ class VersionKeeper:
     def settled(self, name: str) -> None:
         """The stream's version is known from elsewhere (a state handed over by its previous owner): no query."""
         with self._lock:
-            self._to_ask.discard(name)
+            self._to_ask.pop(name, None)
 
     def needs_settle(self, name: str) -> bool:
         """Whether :meth:`settle` still has a network query to do for this stream."""
@@ -258,7 +260,7 @@ class VersionKeeper:
         with self._lock:
             if name not in self._to_ask:
                 return None
-            self._to_ask.discard(name)
+            known_here = self._to_ask.pop(name)
         if bus is None:
             return None
         try:
@@ -272,7 +274,7 @@ class VersionKeeper:
         if not got.versions:
             return None
         with lock if lock is not None else nullcontext():
-            known = ident.version
+            known = max(ident.version, known_here)
             within = [v for v in got.versions if v <= known + MAX_VERSION_STEP]
             floor = within[-1] if within else None
             raise_it = floor is not None and floor > known
