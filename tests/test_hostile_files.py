@@ -96,3 +96,54 @@ def test_integer_matrices_are_read_a_column_at_a_time_to_the_same_numbers(tmp_pa
     for k in range(3):
         assert cols[f"X[{k}]"].dtype == np.float64 and np.array_equal(cols[f"X[{k}]"], m[:, k].astype(np.float64))
     assert np.array_equal(cols["u"], (np.arange(500) % 256).astype(np.float64))
+
+
+def hostile_mcap(path: Path, expands_to: int, declares: int) -> None:
+    """An MCAP file of one zstd chunk of ``expands_to`` zero bytes whose header declares ``declares`` bytes, the
+    compression written in a stream (never the expansion in memory)."""
+    import zstandard
+
+    from streamid.logs.mcap_files import MAGIC
+
+    def record(op: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", op, len(body)) + body
+
+    def string(s: bytes) -> bytes:
+        return struct.pack("<I", len(s)) + s
+
+    c = zstandard.ZstdCompressor(level=19).compressobj()
+    zero, left, parts = bytes(1 << 20), expands_to, []
+    while left:
+        k = min(left, 1 << 20)
+        parts.append(c.compress(zero[:k]))
+        left -= k
+    parts.append(c.flush())
+    data = b"".join(parts)
+    chunk = struct.pack("<QQQI", 0, 0, declares, 0) + string(b"zstd") + struct.pack("<Q", len(data)) + data
+    path.write_bytes(MAGIC + record(1, string(b"") + string(b"tests")) + record(6, chunk)
+                     + record(0x0F, struct.pack("<I", 0)) + record(2, bytes(20)) + MAGIC)
+
+
+def test_an_mcap_chunk_declaring_a_gigabyte_is_refused_before_decompression(tmp_path: Path) -> None:
+    """The issue's file: ~31 KB, a zstd chunk expanding to 1 GB.  Was: refused only after a 2.07 GB peak."""
+    from streamid.logs.mcap_files import MAX_CHUNK_BYTES
+
+    p = tmp_path / "bomb.mcap"
+    hostile_mcap(p, 1 << 30, 1 << 30)
+    assert p.stat().st_size < 100_000
+    r, mb = _max_rss_mb([*STREAMID, "identify", str(p), "--input", "u", "--output", "y"])
+    line = _one_line_exit_2(r)
+    assert "bomb.mcap" in line and f"declares {1 << 30} uncompressed bytes" in line, line
+    assert f"read up to {MAX_CHUNK_BYTES} bytes" in line, line
+    assert mb < RSS_BOUND_MB, f"peak RSS {mb:.0f} MB"
+    print(f"1 GB zstd chunk MCAP ({p.stat().st_size} bytes): refused at peak RSS {mb:.0f} MB", file=sys.stderr)
+
+
+def test_an_mcap_chunk_expanding_beyond_what_it_declares_is_refused_as_soon_as_it_does(tmp_path: Path) -> None:
+    """The same gigabyte behind a header declaring 1,000 bytes: decompression stops at 1,001."""
+    p = tmp_path / "liar.mcap"
+    hostile_mcap(p, 1 << 30, 1000)
+    r, mb = _max_rss_mb([*STREAMID, "identify", str(p), "--input", "u", "--output", "y"])
+    line = _one_line_exit_2(r)
+    assert "liar.mcap" in line and "expands to more than the 1000 bytes it declares" in line, line
+    assert mb < RSS_BOUND_MB, f"peak RSS {mb:.0f} MB"
