@@ -76,7 +76,7 @@ def test_collect_keeps_one_copy_of_identical_answers_and_each_different_one() ->
 
 def test_status_under_a_flood_of_large_answers_reads_a_bounded_part_in_bounded_memory(tmp_path: Path) -> None:
     """2,000 answers of 1 MB each (2 GB): was a 2.0 GB peak (6,000: a MemoryError traceback); now at most 16 MiB
-    of answers are read, the rest counted and said, and the command's peak RSS stays under 300 MB."""
+    of answers are read, the rest counted and said, and the command's peak RSS stays under 500 MB."""
     doc = {"format": "streamid.status/1", "stream": "dev1", "version": 3, "pad": "x" * 1_000_000}
     payload = tmp_path / "answer.json"
     payload.write_text(json.dumps(doc))
@@ -96,8 +96,10 @@ def test_status_under_a_flood_of_large_answers_reads_a_bounded_part_in_bounded_m
     assert rc == 0, err[-2000:]
     assert "dropped" in err and "beyond what one ask reads" in err, err[-2000:]
     assert [ln.split()[0] for ln in out.splitlines()[1:]] == ["dev1"], out
-    assert rss_kib < 300 * 1024, f"streamid status peaked at {rss_kib / 1024:.0f} MB"
-    print(f"streamid status under 2,000 answers of 1 MB: peak RSS {rss_kib / 1024:.0f} MB", file=sys.stderr)
+    # 55 MB when this test runs alone, ~290 MB after other tests in the same pytest process (the router is in it):
+    # the same with 6,000 answers, so a fixed cost of the link, not the flood (was 1,344 MB at 2,000, growing with it)
+    assert rss_kib < 500 * 1024, f"streamid status peaked at {rss_kib / 1024:.0f} MB; {err}"
+    print(f"streamid status under 2,000 answers of 1 MB: peak RSS {rss_kib / 1024:.0f} MB; {err.strip()}", file=sys.stderr)
 
 
 def _run_measured(cmd: list[str], tmp_path: Path) -> tuple[int, int, str, str]:

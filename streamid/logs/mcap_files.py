@@ -396,6 +396,8 @@ class LogReader:
                             continue
                         raw = unpacked
                     records = _parse_record(raw)
+                except LogError:  # said by _fail above
+                    raise
                 except Exception as exc:  # noqa: BLE001 - any parser failure is damage
                     name = _OP_NAMES.get(opcode, f"opcode 0x{opcode:02x}")
                     self._fail(f"corrupt {name} record at byte {pos} ({type(exc).__name__}: "
