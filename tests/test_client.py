@@ -70,3 +70,33 @@ def test_endpoint_string_gets_the_model_and_subscribes() -> None:
         latest_model("127.0.0.1:7447", "piezo")
     with pytest.raises(ConfigError, match="endpoint string such as 'tcp/127.0.0.1:7447'"):
         latest_model(7447, "piezo")  # type: ignore[arg-type]
+
+
+def test_latest_model_reads_a_bounded_part_of_a_flood_of_replies(caplog: pytest.LogCaptureFixture) -> None:
+    """2,000 replies of 512 KiB (1 GiB) next to the genuine model: at most 64 MiB read, the rest counted as
+    ``query_bound`` and warned; the heap's peak stays far below the flood (was: every reply copied first)."""
+    import logging
+    import tracemalloc
+
+    from streamid.transport.client import MODEL_QUERY_MAX_BYTES
+
+    junk = b"x" * (512 * 1024)
+    ep = endpoint()
+    with Bus(ZenohSettings(listen=(ep,))) as server, Bus(ZenohSettings(connect=(ep,))) as client:
+        server.queryable("streamid/piezo/model", lambda _k: [_update(3)])
+        server.queryable("streamid/piezo/model", lambda _k: [junk] * 2000)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and len(client.get("streamid/piezo/model", 0.5, all_replies=True,
+                                                             max_replies=2, max_bytes=1 << 20)) < 2:
+            time.sleep(0.05)  # both declarations arrived
+        tracemalloc.start()
+        try:
+            with caplog.at_level(logging.WARNING, logger="streamid.transport.client"):
+                up = latest_model(client, "piezo", timeout_s=3.0, default=None)
+            _, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+    assert "(query_bound)" in caplog.text and "dropped unread" in caplog.text, caplog.text
+    assert peak < MODEL_QUERY_MAX_BYTES + 64 * 1024 * 1024, f"peak {peak / 2**20:.0f} MiB"
+    # the genuine model is read when it comes before the bound (Zenoh's order), never a crash either way
+    assert up is None or up.version == 3

@@ -70,15 +70,19 @@ def test_damaged_identity_file_gets_a_new_identity_with_a_warning(
     assert json.loads((tmp_path / IDENTITY_FILE).read_text())["daemon"] == o.daemon  # replaced
 
 
-def test_identity_that_cannot_be_written_still_gives_an_origin(
+def test_identity_name_held_by_a_directory_is_moved_aside_and_the_identity_written(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Was: a directory there made every identity write fail for ever (issue 52: quarantined, ERROR).  An identity
+    that cannot be written at all (a full disk) is tests/test_full_disk.py's."""
     d = tmp_path / "ro"
     d.mkdir()
-    (d / IDENTITY_FILE).mkdir()  # a directory where the file should be: every write fails (also as root)
-    with caplog.at_level(logging.WARNING, logger="streamid.daemon.identity"):
+    (d / IDENTITY_FILE).mkdir()
+    with caplog.at_level(logging.WARNING):
         o = daemon_origin(d, now_ns=42)
     assert o.epoch_ns == 42 and o.daemon
-    assert "daemon identity not saved" in caplog.text
+    assert "was a directory, not a regular file; moved aside" in caplog.text
+    assert json.loads((d / IDENTITY_FILE).read_text())["daemon"] == o.daemon
+    assert [q.is_dir() for q in d.glob(f"{IDENTITY_FILE}.quarantined-*")] == [True]
 
 
 # --------------------------------------------------------------------------- damaged state files
@@ -319,3 +323,72 @@ def test_no_state_asks_the_network_once_and_counts_only_the_streams_own_replies(
     ident = OnlineIdentifier(SMALL, stream="s")
     assert keeper.resume(ident) is not None and not keeper.needs_settle("s")
     assert keeper.settle(ident, None) is None
+
+
+# --------------------------------------------------------------------------- issue 52: a forged answer to the version query
+def _serve(server: Bus, client: Bus, key: str, payloads: list[bytes], want: int) -> None:
+    for payload in payloads:
+        server.queryable(key, functools.partial(_reply, payload))
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and len(client.get(key, 0.5, all_replies=True)) < want:
+        time.sleep(0.05)  # declarations propagate asynchronously
+    assert len(client.get(key, 0.5, all_replies=True)) == want
+
+
+def test_a_forged_version_far_above_what_the_daemon_knows_does_not_move_it(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Was: a queryable answering 2^53 - 1 made the daemon continue at 2^53, refused by every client, for its life."""
+    from streamid.daemon.versions import MAX_VERSION_STEP
+
+    ep = endpoint()
+    with Bus(ZenohSettings(listen=(ep,))) as server, Bus(ZenohSettings(connect=(ep,))) as client:
+        _serve(server, client, "streamid/s/model", [_genuine_doc("s", MAX_VERSION - 1), _genuine_doc("s", 41)], 2)
+        keeper = VersionKeeper(StateStore(tmp_path / "a"), Origin("d2", 2), query_timeout_s=1.0)
+        ident = OnlineIdentifier(SMALL, stream="s", origin=keeper.origin_doc)
+        keeper.resume(ident)
+        with caplog.at_level(logging.WARNING, logger="streamid.daemon.versions"):
+            assert keeper.settle(ident, client, threading.Lock()) == 41  # the genuine one, within the step
+        assert f"answered v{MAX_VERSION - 1}, more than {MAX_VERSION_STEP}" in caplog.text and "not taken" in caplog.text
+        assert _first_accepted_version(ident) == 42
+        # a daemon that knows v5,000,000 (its version record) takes a step up to it + 10^6, not beyond
+        store = StateStore(tmp_path / "b")
+        store.record_version("s", 5_000_000)
+        store.path("s").write_text("damaged")  # no usable state: the network is asked
+        for v in (5_000_000 + MAX_VERSION_STEP + 1, 5_000_000 + MAX_VERSION_STEP):
+            server.queryable("streamid/s/model", functools.partial(_reply, _genuine_doc("s", v)))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and len(client.get("streamid/s/model", 0.5, all_replies=True)) < 4:
+            time.sleep(0.05)
+        keeper = VersionKeeper(store, Origin("d3", 3), query_timeout_s=1.0)
+        ident = OnlineIdentifier(SMALL, stream="s", origin=keeper.origin_doc)
+        keeper.resume(ident)
+        assert keeper.needs_settle("s")
+        assert keeper.settle(ident, client, threading.Lock()) == 5_000_000 + MAX_VERSION_STEP
+    assert _first_accepted_version(ident) == 5_000_000 + MAX_VERSION_STEP + 1
+
+
+def test_the_version_query_reads_a_bounded_number_of_replies_and_bytes(tmp_path: Path) -> None:
+    """2,000 replies of 256 KiB (500 MiB in all) to the daemon's version query: at most 64 read, the rest counted;
+    the Python heap's peak stays far below the flood (was: every reply copied, ~500 MiB)."""
+    import tracemalloc
+
+    from streamid.daemon.versions import MAX_REPLIES, network_versions
+
+    pad = _genuine_doc("s", 41)[:-1] + b', "pad": "' + b"x" * (256 * 1024) + b'"}'
+    ep = endpoint()
+    with Bus(ZenohSettings(listen=(ep,))) as server, Bus(ZenohSettings(connect=(ep,))) as client:
+        server.queryable("streamid/s/model", lambda _k: [pad] * 2000)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not client.get("streamid/s/model", 0.5, all_replies=True, max_replies=1):
+            time.sleep(0.05)
+        tracemalloc.start()
+        try:
+            got = network_versions(client, "s", timeout_s=5.0)
+            _, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+    assert got.versions == (41,)
+    assert got.dropped >= 1 and got.dropped + MAX_REPLIES <= 2000 and got.dropped_bytes >= got.dropped * 256 * 1024
+    assert peak < 100 * 1024 * 1024, f"peak {peak / 2**20:.0f} MiB"  # 64 x 256 KiB kept, one parse at a time
+    print(f"version query under a 2,000-reply flood: {got.dropped} dropped, heap peak {peak / 2**20:.1f} MiB",
+          file=sys.stderr)

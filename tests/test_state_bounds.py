@@ -175,3 +175,122 @@ def test_an_identity_file_that_is_not_a_regular_file_gets_a_new_identity(
     with caplog.at_level(logging.WARNING, logger="streamid.daemon.identity"):
         o = daemon_origin(tmp_path, now_ns=7)
     assert o.epoch_ns == 7 and "not a regular file" in caplog.text
+
+
+# --------------------------------------------------------------------------- issue 52, item 3: what the daemon writes
+def _odd_file(p: Path, kind: str, tmp_path: Path) -> None:
+    if kind == "fifo":
+        os.mkfifo(p)
+    elif kind == "directory":
+        p.mkdir()
+        (p / "inside").write_text("kept")
+    elif kind == "symlink-dev-null":
+        os.symlink("/dev/null", p)
+    elif kind == "symlink-elsewhere":
+        (tmp_path / "victim").write_text("not the daemon's\n")
+        os.symlink(tmp_path / "victim", p)
+    else:
+        os.symlink(tmp_path / "nowhere", p)
+
+
+ODD_KINDS = ["fifo", "directory", "symlink-dev-null", "symlink-elsewhere", "dangling-symlink"]
+
+
+@pytest.mark.parametrize("kind", ODD_KINDS)
+def test_a_version_record_that_is_not_a_regular_file_is_quarantined_and_written_fresh(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, kind: str) -> None:
+    """Was: a FIFO there blocked ``record_version`` (opened without O_NONBLOCK, under the stream lock) for ever."""
+    store = StateStore(tmp_path / "st")
+    p = store.record_path("s")
+    _odd_file(p, kind, tmp_path)
+    with caplog.at_level(logging.ERROR, logger="streamid.daemon.state_store"):
+        store.record_version("s", 5)  # returns (a FIFO without a reader: ENXIO at once, never a wait)
+    assert not p.is_symlink() and p.is_file() and p.read_text() == "5\n" and store.recorded_version("s") == 5
+    moved = list(p.parent.glob("s.versions.quarantined-*"))
+    assert len(moved) == 1 and os.path.lexists(moved[0]), list(p.parent.iterdir())
+    assert "not a regular file; moved aside" in caplog.text and "s.versions" in caplog.text
+    assert [r.levelname for r in caplog.records] == ["ERROR"]
+    if kind == "symlink-elsewhere":
+        assert (tmp_path / "victim").read_text() == "not the daemon's\n"  # never written through the link
+    if kind == "directory":
+        assert (moved[0] / "inside").read_text() == "kept"
+
+
+@pytest.mark.parametrize("kind", ODD_KINDS)
+def test_a_state_document_name_that_is_not_a_regular_file_is_quarantined_before_the_rename(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture, kind: str) -> None:
+    store = StateStore(tmp_path / "st")
+    p = store.path("s")
+    _odd_file(p, kind, tmp_path)
+    with caplog.at_level(logging.ERROR, logger="streamid.daemon.state_store"):
+        store.save(StreamState("s", 3))  # was, for a directory: IsADirectoryError at every save, for ever
+    back = store.load("s")
+    assert back is not None and back.version == 3 and not p.is_symlink()
+    assert len(list(p.parent.glob("s.json.quarantined-*"))) == 1 and "moved aside" in caplog.text
+
+
+def test_quarantined_odd_files_are_bounded_per_name_and_directories_never_deleted(tmp_path: Path) -> None:
+    from streamid.daemon.state_store import KEEP_QUARANTINED
+
+    store = StateStore(tmp_path)
+    p = store.record_path("s")
+    for k in range(KEEP_QUARANTINED + 4):
+        p.unlink(missing_ok=True)
+        if k == 0:
+            p.mkdir()
+        else:
+            os.mkfifo(p)
+        store.record_version("s", k + 1)
+    moved = sorted(tmp_path.glob("s.versions.quarantined-*"))
+    assert len(moved) == KEEP_QUARANTINED + 1  # the newest 8 FIFOs and the (never deleted) directory
+    assert sum(m.is_dir() for m in moved) == 1
+
+
+def test_daemon_with_a_fifo_as_its_version_record_publishes_answers_and_stops(tmp_path: Path) -> None:
+    """A real FIFO at STATE/<stream>.versions and a real daemon: models published, the status answered, the FIFO
+    quarantined with an ERROR, SIGTERM honoured.  Was: no model ever, no status answer, SIGTERM ignored 30 s+."""
+    import signal
+    import stat
+    import threading
+
+    from test_daemon_versions import FAST_TOML, _daemon, _publish
+
+    from streamid.transport import Bus, ZenohSettings
+    from streamid.transport.client import ModelSubscriber, latest_status
+    from streamid.transport.updates import ModelUpdate
+
+    (tmp_path / "fast.toml").write_text(FAST_TOML)
+    (tmp_path / "state").mkdir()
+    fifo = tmp_path / "state" / "mr_damper.versions"
+    os.mkfifo(fifo)
+    ep = endpoint()
+    seen: list[ModelUpdate] = []
+    stop = threading.Event()
+    client = ZenohSettings(mode="client", connect=(ep,))
+    with Bus(ZenohSettings(mode="router", listen=(ep,))) as _router, \
+            ModelSubscriber(client, "mr_damper", seen.append, fetch_latest=False):
+        proc = _daemon(ep, tmp_path)
+        feeder = threading.Thread(target=_publish, args=(ep, stop), daemon=True)
+        feeder.start()
+        try:
+            deadline = time.monotonic() + 60  # a deadline for a stuck daemon, not a measure of speed
+            while time.monotonic() < deadline and len(seen) < 2 and proc.poll() is None:
+                time.sleep(0.05)
+            status = latest_status(client, "mr_damper", timeout_s=5.0)
+        finally:
+            stop.set()
+            feeder.join(10)
+            proc.send_signal(signal.SIGTERM)
+            try:
+                _, err = proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                _, err = proc.communicate()
+                raise AssertionError(f"SIGTERM not honoured: {err[-3000:]}") from None
+    assert len(seen) >= 2, err[-3000:]
+    assert status is not None and status.get("stream") == "mr_damper", err[-3000:]
+    assert proc.returncode == 0, err[-3000:]
+    assert "ERROR" in err and "was a FIFO, not a regular file; moved aside" in err, err[-3000:]
+    moved = list((tmp_path / "state").glob("mr_damper.versions.quarantined-*"))
+    assert len(moved) == 1 and stat.S_ISFIFO(os.lstat(moved[0]).st_mode)
+    assert fifo.is_file() and max(int(v) for v in fifo.read_text().split()) == max(u.version for u in seen)

@@ -11,6 +11,12 @@ no stream answered within ``--timeout``.
 Two answers for one stream (two daemons serving it, or a status forged by someone who may answer on the
 bus: without access control anyone can) are a conflict: every answer is printed, its state column says
 CONFLICT and names every daemon that answered, and a warning on standard error says so (exit code 3).
+Two different answers claiming the same daemon and epoch (a replayed or forged copy: the daemon id and
+epoch are public) are a conflict too; identical copies (one answer reaching us twice) count once.
+
+What is not shown, counted and said on standard error: an answer whose document names another stream than
+the key it came on, a document without a stream, an invalid document, and the answers beyond the bound of
+one ask (at most 4096 answers, 16 MiB together, 1 MiB each: what a flood of answers can make status hold).
 """
 
 from __future__ import annotations
@@ -18,11 +24,20 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 from streamid.wire.names import printable
 
-__all__ = ["register", "run", "status_line", "output_lines"]
+__all__ = ["MAX_ANSWERS", "MAX_ANSWER_BYTES", "MAX_ANSWERS_BYTES", "Answers", "collect", "register", "run",
+           "status_line", "output_lines"]
+
+#: What one ``streamid status`` keeps of the answers: their number, their bytes together, the bytes of one
+#: (a status document is a few kB); the rest is counted and said, never read.
+MAX_ANSWERS = 4096
+MAX_ANSWERS_BYTES = 16 * 1024 * 1024
+MAX_ANSWER_BYTES = 1024 * 1024
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -71,9 +86,69 @@ def _who(doc: dict[str, Any]) -> tuple[str, int]:
 
 def conflict_text(answers: list[dict[str, Any]]) -> str:
     """The state column of a stream answered by several daemons: CONFLICT, naming each (escaped)."""
-    names = ", ".join(f"{d} (epoch {e})" for d, e in sorted({_who(a) for a in answers}))
-    return printable(f"CONFLICT: {len(answers)} answers for this stream, from {names}: two daemons serve it, or one "
-                     "answer is forged", 400)
+    lives = Counter(_who(a) for a in answers)
+    names = ", ".join(f"{d} (epoch {e})" + (f" {n} times with different content" if n > 1 else "")
+                      for (d, e), n in sorted(lives.items()))
+    why = ("one daemon life gives one answer: the others are replayed or forged" if len(lives) < len(answers)
+           else "two daemons serve it, or one answer is forged")
+    return printable(f"CONFLICT: {len(answers)} answers for this stream, from {names}: {why}", 400)
+
+
+@dataclass
+class Answers:
+    """The status answers of one ask: per stream, each distinct answer; and what was not shown."""
+
+    #: stream -> (daemon, epoch, payload) -> its document; identical payloads from one life count once
+    docs: dict[str, dict[tuple[str, int, bytes], dict[str, Any]]] = field(default_factory=dict)
+    invalid: int = 0
+    #: documents without a ``stream``
+    no_stream: int = 0
+    #: documents naming another stream than the key they came on
+    wrong_key: int = 0
+    dropped: int = 0
+    dropped_bytes: int = 0
+
+
+def collect(replies: list[tuple[str, bytes]]) -> Answers:
+    """Sort the ``(key, payload)`` replies of a status ask (:class:`Answers`; the drop counts are the caller's)."""
+    from streamid.errors import ModelFormatError
+    from streamid.wire.documents import parse_status
+    from streamid.wire.keys import status_key
+
+    out = Answers()
+    for key, payload in replies:
+        try:
+            doc = parse_status(payload)
+        except ModelFormatError:
+            out.invalid += 1
+            continue
+        stream = doc.get("stream")
+        if not isinstance(stream, str):
+            out.no_stream += 1
+            continue
+        if key != status_key(stream):
+            out.wrong_key += 1
+            continue
+        daemon, epoch = _who(doc)
+        out.docs.setdefault(stream, {})[(daemon, epoch, bytes(payload))] = doc
+    return out
+
+
+def _notes(got: Answers) -> list[str]:
+    """The lines on standard error saying what was not shown."""
+    notes = []
+    if got.invalid:
+        notes.append(f"skipped {got.invalid} invalid status documents")
+    if got.no_stream:
+        notes.append(f"ignored {got.no_stream} status documents without a 'stream' (a daemon always names it)")
+    if got.wrong_key:
+        notes.append(f"ignored {got.wrong_key} answers whose document names another stream than the key they came "
+                     "on (replayed or forged)")
+    if got.dropped:
+        notes.append(f"dropped {got.dropped} answers ({got.dropped_bytes} bytes) beyond what one ask reads "
+                     f"({MAX_ANSWERS} answers, {MAX_ANSWERS_BYTES} bytes together, {MAX_ANSWER_BYTES} each): a "
+                     "flood of answers, or ask one --stream at a time")
+    return notes
 
 
 def status_line(doc: dict[str, Any], conflict: str | None = None) -> str:
@@ -135,9 +210,8 @@ HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'F
 
 def run(args: argparse.Namespace) -> int:
     from streamid.commands.zenoh_flags import settings_from_args
-    from streamid.errors import ConfigError, ModelFormatError
+    from streamid.errors import ConfigError
     from streamid.transport import Bus
-    from streamid.wire.documents import parse_status
     from streamid.wire.keys import PREFIX, check_stream_name, status_key
 
     if not args.timeout > 0:
@@ -149,32 +223,27 @@ def run(args: argparse.Namespace) -> int:
 
         settings = dataclasses.replace(settings, connect_wait_s=args.timeout)
     with Bus(settings) as bus:
-        replies = bus.get(key, timeout_s=args.timeout, all_replies=True)
-    docs: dict[str, dict[tuple[str, int], dict[str, Any]]] = {}  # stream -> answering daemon life -> its answer
-    skipped = 0
-    for _key, payload in replies[:100_000]:
-        try:
-            doc = parse_status(payload)
-        except ModelFormatError:
-            skipped += 1
-            continue
-        docs.setdefault(str(doc.get("stream")), {})[_who(doc)] = doc
+        replies = bus.get(key, timeout_s=args.timeout, all_replies=True, max_replies=MAX_ANSWERS,
+                          max_bytes=MAX_ANSWERS_BYTES, max_reply_bytes=MAX_ANSWER_BYTES)
+    got = collect(replies)
+    got.dropped, got.dropped_bytes = replies.dropped, replies.dropped_bytes
+    docs = got.docs
     conflicts = {name: conflict_text(list(a.values())) for name, a in docs.items() if len(a) > 1}
     if args.json:
         for name in sorted(docs):
-            for _, doc in sorted(docs[name].items()):
+            for _, doc in sorted(docs[name].items(), key=lambda kv: kv[0]):
                 print(json.dumps(doc))
     else:
         print(HEADER)
         for name in sorted(docs):
-            for _, doc in sorted(docs[name].items()):
+            for _, doc in sorted(docs[name].items(), key=lambda kv: kv[0]):
                 print(status_line(doc, conflicts.get(name)))
                 for line in output_lines(doc):
                     print(line)
     for name in sorted(conflicts):
         print(f"streamid status: stream {printable(name, 80)}: {conflicts[name]} (see docs/security.md)", file=sys.stderr)
-    if skipped:
-        print(f"streamid status: skipped {skipped} invalid status documents", file=sys.stderr)
+    for note in _notes(got):
+        print(f"streamid status: {note}", file=sys.stderr)
     if not docs:
         where = ", ".join(settings.connect) or ", ".join(settings.listen) or "the --zenoh-config endpoints"
         print(f"streamid status: no stream answered at {where} within {args.timeout:g} s", file=sys.stderr)

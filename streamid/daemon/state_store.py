@@ -16,12 +16,25 @@ directory, is flushed and fsync'ed, then ``os.replace``d over the old one (and
 the directory fsync'ed), so a crash at any moment leaves either the previous or
 the new document, never a half-written one.  Nothing is ever unpickled: the
 files are JSON, parsed with :func:`json.loads`.
+
+Nothing the daemon writes here can hang it or be redirected: the version record
+is opened non-blocking, without following a symlink, and checked on its
+descriptor to be a regular file; a document is only ever renamed over a regular
+file.  Whatever else sits at one of these names (a FIFO, a device, a directory,
+a symlink) is moved aside as ``<name>.quarantined-<ns>`` (the newest
+:data:`KEEP_QUARANTINED` of a name kept; a directory is never deleted) with an
+ERROR log, and a fresh regular file is written in its place; if it cannot be
+moved, the write fails with an :class:`OSError` (a failed save: the model is
+still published, :mod:`streamid.daemon.versions`).
 """
 
 from __future__ import annotations
 
+import errno
 import glob
+import logging
 import os
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -32,7 +45,10 @@ from streamid.online.snapshot import MAX_VERSION, STATE_FORMAT, StreamState
 from streamid.wire.keys import STREAM_NAME_RULE, is_valid_stream_name
 
 __all__ = ["KEEP_QUARANTINED", "MAX_STATE_BYTES", "RECORD_COMPACT_BYTES", "RECORD_READ_BYTES", "STATE_FORMAT",
-           "StreamState", "StateStore", "atomic_write_text", "read_regular_file"]
+           "StreamState", "StateStore", "atomic_write_text", "open_regular_for_append", "quarantine_odd_file",
+           "read_regular_file"]
+
+_log = logging.getLogger(__name__)
 _SUFFIX = ".json"
 _RECORD = ".versions"
 #: Largest state file read (a state with populations is a few MB; the MR damper's ~96 kB).
@@ -42,8 +58,107 @@ RECORD_COMPACT_BYTES = 4096
 #: Bytes of a version record read.
 RECORD_READ_BYTES = 64 * 1024
 _CORRUPT = ".corrupt-"
+_ODD = ".quarantined-"
 #: Quarantined files kept per stream (the oldest beyond this are deleted when another is moved aside).
 KEEP_QUARANTINED = 8
+#: How the version record is opened: never blocks (a FIFO), never follows a symlink, never takes a terminal,
+#: not inherited by children.
+_APPEND_FLAGS = (os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+                 | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0))
+#: What ``os.open`` says of a name that is not a regular file (symlink with O_NOFOLLOW, FIFO without reader, directory).
+_ODD_ERRNOS = frozenset({errno.ELOOP, errno.ENXIO, errno.EISDIR, errno.EAGAIN, errno.EWOULDBLOCK, errno.EMLINK})
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISLNK, "a symlink"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISDIR, "a directory"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return f"not a regular file (mode {stat.filemode(mode)})"
+
+
+def quarantine_odd_file(path: Path, kind: str) -> Path:
+    """Move ``path`` (something other than a regular file) aside as ``<name>.quarantined-<ns>``, with an ERROR.
+
+    The newest :data:`KEEP_QUARANTINED` of that name are kept (older ones deleted, a directory never).
+
+    Raises
+    ------
+    OSError
+        If it cannot be moved (logged as an ERROR too): the write that needed the name fails.
+    """
+    q = path.with_name(f"{path.name}{_ODD}{time.time_ns()}")
+    try:
+        os.rename(path, q)
+    except OSError as exc:
+        _log.error("state directory: %s is %s, not a regular file, and cannot be moved aside (%s); not written",
+                   path, kind, exc)
+        raise OSError(f"{path} is {kind}, not a regular file, and cannot be moved aside ({exc})") from exc
+    _log.error("state directory: %s was %s, not a regular file; moved aside to %s, a fresh file is written in its "
+               "place", path, kind, q.name)
+    prefix = path.name + _ODD
+
+    def stamp(p: Path) -> int:
+        tail = p.name[len(prefix):]
+        return int(tail) if tail.isdigit() else -1
+
+    found = sorted((p for p in path.parent.glob(f"{glob.escape(prefix)}*") if p.name.startswith(prefix)),
+                   key=stamp, reverse=True)
+    for old in found[KEEP_QUARANTINED:]:
+        try:
+            if not stat.S_ISDIR(old.lstat().st_mode):
+                old.unlink()
+        except OSError:
+            pass
+    return q
+
+
+def _regular_or_moved_aside(path: Path) -> None:
+    """Before a rename over ``path``: something there that is not a regular file is quarantined."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(mode):
+        quarantine_odd_file(path, _kind(mode))
+
+
+def open_regular_for_append(path: Path) -> int:
+    """A descriptor of ``path`` opened for appending (created if missing), checked to be a regular file.
+
+    Opened non-blocking, without following a symlink; checked with ``fstat`` on the descriptor.  A FIFO,
+    device, directory or symlink there is quarantined (:func:`quarantine_odd_file`) and a fresh file made.
+
+    Raises
+    ------
+    OSError
+        If no regular file can be opened there.
+    """
+    for attempt in range(2):
+        try:
+            fd = os.open(path, _APPEND_FLAGS, 0o644)
+        except OSError as exc:
+            try:
+                mode = os.lstat(path).st_mode
+            except OSError:
+                raise exc from None
+            if exc.errno not in _ODD_ERRNOS or stat.S_ISREG(mode) or attempt:
+                raise
+            quarantine_odd_file(path, _kind(mode))
+            continue
+        try:
+            mode = os.fstat(fd).st_mode
+        except OSError:
+            os.close(fd)
+            raise
+        if stat.S_ISREG(mode):
+            return fd
+        os.close(fd)
+        if attempt:
+            break
+        quarantine_odd_file(path, _kind(mode))
+    raise OSError(f"{path} is not a regular file after it was moved aside (something keeps putting one there)")
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -55,6 +170,7 @@ def atomic_write_text(path: Path, text: str) -> None:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
+        _regular_or_moved_aside(path)  # a FIFO, device, directory or symlink there: quarantined, not clobbered
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -156,7 +272,7 @@ class StateStore:
             If it cannot be written (the caller treats it as a failed save).
         """
         p = self.record_path(stream)
-        fd = os.open(p, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        fd = open_regular_for_append(p)  # a FIFO there would block for ever under the stream lock
         try:
             os.write(fd, f"{int(version)}\n".encode())
             os.fsync(fd)

@@ -21,7 +21,15 @@ unheard.  :class:`VersionKeeper` is what the daemon does about it:
   (``streamid/<stream>/model``, bounded by ``query_timeout_s``, 1 s by default)
   and numbers above the highest version answered (if a still-running old life, a
   replica or a storage answers).  Only replies on the stream's own key, naming
-  that stream, are counted.
+  that stream, are counted, and only versions at most :data:`MAX_VERSION_STEP`
+  above what this daemon knows already (its version record, quarantined states,
+  this life's memory; 0 when it knows nothing): a replayed or forged answer of
+  2**53 - 1 does not move the numbering (a WARNING names it), it can push it up by
+  at most the step per daemon life.  The rule is the same with the shipped access
+  control (only the ``daemon`` user can answer there).  A genuine predecessor more
+  than the step ahead (a state directory lost after a million models) is not
+  followed either: this life numbers from its own floor under its later epoch,
+  which every subscriber takes as a restart.
 * **Full disk.**  The rule is *keep publishing*: an update whose state cannot be
   saved is still published (the identifier marks it ``saved = False`` and its
   status ``state_saved: false`` with the error).  Versions stay unique within the
@@ -38,7 +46,9 @@ Bounds (a remote party or a damaged disk can make us spend no more than this):
 each quarantined file is scanned up to :data:`SCAN_MAX_BYTES`, at most
 :data:`~streamid.daemon.state_store.KEEP_QUARANTINED` files per stream; one
 network query per stream and daemon life, at most ``query_timeout_s``, at most
-:data:`MAX_REPLIES` replies of at most :data:`MAX_REPLY_BYTES` each read; a
+:data:`MAX_REPLIES` replies of at most :data:`MAX_REPLY_BYTES` each and
+:data:`MAX_QUERY_BYTES` together read (the rest measured and dropped unread, counted
+in the log), a version taken from it at most :data:`MAX_VERSION_STEP` above the daemon's own; a
 version at or above :data:`MAX_VERSION` (2**53, the largest integer every JSON reader
 keeps exactly) is ignored as not credible (a state file holding one is refused and quarantined);
 only regular files are scanned.
@@ -49,6 +59,7 @@ from __future__ import annotations
 import logging
 import re
 import threading
+from dataclasses import dataclass
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any, Protocol
@@ -57,19 +68,24 @@ from streamid.daemon.identity import IDENTITY_FILE, Origin, save_identity
 from streamid.daemon.state_store import StateStore, read_regular_file
 from streamid.errors import ModelFormatError, StreamidError
 from streamid.online.snapshot import StreamState
-from streamid.wire.documents import MAX_VERSION, parse_model_update_fields
+from streamid.wire.documents import MAX_DOCUMENT_BYTES, MAX_VERSION, parse_model_update_fields
 from streamid.wire.keys import model_key
 
-__all__ = ["MAX_REPLIES", "MAX_REPLY_BYTES", "MAX_UNSAVED", "MAX_VERSION", "SCAN_MAX_BYTES", "VersionKeeper",
-           "highest_version_in", "highest_version_on_network"]
+__all__ = ["MAX_QUERY_BYTES", "MAX_REPLIES", "MAX_REPLY_BYTES", "MAX_UNSAVED", "MAX_VERSION", "MAX_VERSION_STEP",
+           "SCAN_MAX_BYTES", "NetworkVersions", "VersionKeeper", "highest_version_in", "highest_version_on_network",
+           "network_versions"]
 
 _log = logging.getLogger(__name__)
 
 #: Bytes of one quarantined file scanned for versions (state files with populations are a few MB).
 SCAN_MAX_BYTES = 64 * 1024 * 1024
-#: Replies of the network query that are read, and the size of each.
+#: Replies of the network query that are read, the size of each (the wire format's bound of a document) and of all.
 MAX_REPLIES = 64
-MAX_REPLY_BYTES = 16 * 1024 * 1024
+MAX_REPLY_BYTES = MAX_DOCUMENT_BYTES
+MAX_QUERY_BYTES = 64 * 1024 * 1024
+#: How far above what the daemon knows a version answered by the network may raise its numbering (one daemon life):
+#: 10^6 versions, 11.6 days of one model a second.  2**53 / 10**6: nine billion lives to poison the bound.
+MAX_VERSION_STEP = 1_000_000
 #: Streams whose unsaved version is remembered in memory (one small tuple each; the oldest is forgotten first).
 MAX_UNSAVED = 100_000
 _VERSION_RE = re.compile(rb'"version"\s*:\s*(\d{1,19})(?![\d.eE])')
@@ -87,7 +103,8 @@ class _Ident(Protocol):  # what is used of an OnlineIdentifier (typing only)
 
 
 class _Querier(Protocol):  # what is used of a Bus (typing only)
-    def get(self, key_expr: str, timeout_s: float = 1.0, *, all_replies: bool = False) -> list[tuple[str, bytes]]: ...
+    def get(self, key_expr: str, timeout_s: float = 1.0, *, all_replies: bool = False, max_replies: int = ...,
+            max_bytes: int = ..., max_reply_bytes: int | None = None) -> list[tuple[str, bytes]]: ...
 
 
 def highest_version_in(path: str | Path, max_bytes: int = SCAN_MAX_BYTES) -> int | None:
@@ -109,12 +126,27 @@ def highest_version_in(path: str | Path, max_bytes: int = SCAN_MAX_BYTES) -> int
     return best
 
 
-def highest_version_on_network(bus: _Querier, stream: str, timeout_s: float) -> int | None:
-    """The highest version of ``stream`` the network answers on its model key within ``timeout_s``."""
+@dataclass(frozen=True)
+class NetworkVersions:
+    """What the network answered to a version query: the credible versions of the stream, what was dropped unread."""
+
+    versions: tuple[int, ...] = ()
+    dropped: int = 0
+    dropped_bytes: int = 0
+
+
+def network_versions(bus: _Querier, stream: str, timeout_s: float) -> NetworkVersions:
+    """The versions of ``stream`` the network answers on its model key within ``timeout_s`` (sorted, distinct).
+
+    At most :data:`MAX_REPLIES` replies of at most :data:`MAX_REPLY_BYTES` each and :data:`MAX_QUERY_BYTES`
+    together are read; only a document of that stream, on its own key, with a version in [0, 2**53), counts.
+    """
     key = model_key(stream)
-    best: int | None = None
+    found: set[int] = set()
     # every reply (Zenoh would keep one per key): a bad one must not hide a good one
-    for reply_key, payload in bus.get(key, timeout_s=timeout_s, all_replies=True)[:MAX_REPLIES]:
+    replies = bus.get(key, timeout_s=timeout_s, all_replies=True, max_replies=MAX_REPLIES, max_bytes=MAX_QUERY_BYTES,
+                      max_reply_bytes=MAX_REPLY_BYTES)
+    for reply_key, payload in replies:
         if reply_key != key or len(payload) > MAX_REPLY_BYTES:
             continue
         try:
@@ -124,8 +156,15 @@ def highest_version_on_network(bus: _Querier, stream: str, timeout_s: float) -> 
         v = fields.get("version")
         if fields.get("stream") != stream or not isinstance(v, int) or isinstance(v, bool) or not 0 <= v < MAX_VERSION:
             continue
-        best = v if best is None else max(best, v)
-    return best
+        found.add(v)
+    return NetworkVersions(tuple(sorted(found)), int(getattr(replies, "dropped", 0)),
+                           int(getattr(replies, "dropped_bytes", 0)))
+
+
+def highest_version_on_network(bus: _Querier, stream: str, timeout_s: float) -> int | None:
+    """The highest version of ``stream`` the network answers on its model key within ``timeout_s`` (no step bound)."""
+    got = network_versions(bus, stream, timeout_s).versions
+    return got[-1] if got else None
 
 
 class VersionKeeper:
@@ -148,7 +187,8 @@ class VersionKeeper:
         self.origin = origin
         self.query_timeout_s = float(query_timeout_s)
         self._lock = threading.Lock()
-        self._to_ask: set[str] = set()  # streams without usable state whose network query is still to do
+        #: streams without usable state whose network query is still to do -> the highest version known here
+        self._to_ask: dict[str, int] = {}
         #: stream -> (error of its failing saves, highest version not saved); warned once per stream
         self._unsaved: dict[str, tuple[str, int]] = {}
 
@@ -161,6 +201,7 @@ class VersionKeeper:
         """Restore ``ident`` from the store; on damage quarantine and recover the version; returns the state used."""
         name = ident.stream
         saved: StreamState | None = None
+        floor: int | None = None
         if self.store is not None:
             try:
                 saved = self.store.load(name)
@@ -184,7 +225,7 @@ class VersionKeeper:
                 _log.warning("stream %s: versions continue above v%d, the highest found in %s", name, floor, where)
         if saved is None:
             with self._lock:
-                self._to_ask.add(name)
+                self._to_ask[name] = max(ident.version, floor or 0)
         return saved
 
     def _quarantined_floor(self, name: str) -> tuple[int | None, str]:
@@ -200,7 +241,7 @@ class VersionKeeper:
     def settled(self, name: str) -> None:
         """The stream's version is known from elsewhere (a state handed over by its previous owner): no query."""
         with self._lock:
-            self._to_ask.discard(name)
+            self._to_ask.pop(name, None)
 
     def needs_settle(self, name: str) -> bool:
         """Whether :meth:`settle` still has a network query to do for this stream."""
@@ -211,30 +252,45 @@ class VersionKeeper:
         """Once per stream without usable state, before its first model: ask the network, raise the floor.
 
         Call it without holding the stream's lock (the query waits up to ``query_timeout_s``);
-        ``lock`` is taken to raise the floor.  Returns the highest version answered (None: none,
-        or nothing to do).  A transport error is logged and ends the attempt (the origin's
+        ``lock`` is taken to raise the floor.  Returns the highest version answered within
+        :data:`MAX_VERSION_STEP` of the daemon's own (None: none, or nothing to do).  A transport error is logged and ends the attempt (the origin's
         epoch still tells the restart).
         """
         name = ident.stream
         with self._lock:
             if name not in self._to_ask:
                 return None
-            self._to_ask.discard(name)
+            known_here = self._to_ask.pop(name)
         if bus is None:
             return None
         try:
-            floor = highest_version_on_network(bus, name, self.query_timeout_s)
+            got = network_versions(bus, name, self.query_timeout_s)
         except StreamidError as exc:
             _log.warning("stream %s: could not ask the network for its current version (%s)", name, exc)
             return None
-        if floor is not None:
-            with lock if lock is not None else nullcontext():
-                raise_it = floor > ident.version
-                if raise_it:
-                    ident.raise_version_floor(floor)
+        if got.dropped:
+            _log.warning("stream %s: %d replies (%d bytes) to the version query dropped unread beyond its bound "
+                         "(%d replies, %d bytes)", name, got.dropped, got.dropped_bytes, MAX_REPLIES, MAX_QUERY_BYTES)
+        if not got.versions:
+            return None
+        with lock if lock is not None else nullcontext():
+            known = max(ident.version, known_here)
+            within = [v for v in got.versions if v <= known + MAX_VERSION_STEP]
+            floor = within[-1] if within else None
+            raise_it = floor is not None and floor > known
             if raise_it:
-                _log.warning("stream %s: no saved state, but the network serves v%d: versions continue above it",
-                             name, floor)
+                assert floor is not None
+                ident.raise_version_floor(floor)
+        beyond = [v for v in got.versions if v > known + MAX_VERSION_STEP]
+        if beyond:
+            _log.warning("stream %s: the network answered v%d, more than %d (MAX_VERSION_STEP) above v%d, the highest "
+                         "version this daemon knows: not taken (a replayed or forged answer, or a predecessor whose "
+                         "state was lost long ago); versions continue above v%d under this life's origin %s epoch %d",
+                         name, beyond[-1], MAX_VERSION_STEP, known, floor if raise_it else known,
+                         self.origin.daemon, self.origin.epoch_ns)
+        if raise_it:
+            _log.warning("stream %s: no saved state, but the network serves v%d: versions continue above it",
+                         name, floor)
         return floor
 
     def persist(self, state: StreamState) -> None:

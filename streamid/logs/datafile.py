@@ -14,7 +14,8 @@ Formats
   gives the samples' times: :mod:`streamid.logs.csv_table`.
 * ``.mat`` (MATLAB v4-v7.2, read with :func:`scipy.io.loadmat`): every numeric
   vector variable is a column (``N x 1`` or ``1 x N``); a matrix ``X`` of shape
-  ``N x k`` gives columns ``X[0] .. X[k-1]``; MATLAB v7.3 (HDF5) files: :mod:`streamid.logs.mat73_file`.
+  ``N x k`` gives columns ``X[0] .. X[k-1]``, bounded before loading (:mod:`streamid.logs.mat_files`); MATLAB
+  v7.3 (HDF5) files: :mod:`streamid.logs.mat73_file`.
 * ``.mcap``: a streamid log (see :mod:`streamid.logs.mcap_files`); columns are the
   stream's input and output channel names.
 * ``.parquet`` (``.pq``) and Arrow IPC / Feather v2 (``.feather``, ``.arrow``, ``.ipc``): every numeric column
@@ -125,35 +126,15 @@ def _read_columnar(path: Path, kind: str, columns: Sequence[str] | None, progres
 
 
 def _read_mat(path: Path) -> Table:
-    from scipy.io import loadmat
-
-    try:
-        data = loadmat(str(path), squeeze_me=False)
-    except NotImplementedError:
+    with open(path, "rb") as f:  # MATLAB v7.3 is HDF5 behind a 128-byte text header that says so
+        v73 = b"MATLAB 7.3" in f.read(128)
+    if v73:
         from streamid.logs.mat73_file import read_mat73_table
 
         return read_mat73_table(path)
-    except (MemoryError, RecursionError):
-        raise DataError(f"{path}: not a readable MATLAB .mat file (its headers ask for more memory than there is: "
-                        "damaged?)") from None
-    except Exception as exc:  # noqa: BLE001 - scipy's reader raises many kinds on a damaged file (IndexError,
-        # MatReadError, ValueError, zlib.error ...): each is this file's fault, said in one line
-        raise DataError(f"{path}: not a readable MATLAB .mat file: {type(exc).__name__}: {str(exc)[:200]} (a .mat "
-                        "of MATLAB v4-v7.2 with numeric variables is read; a cut or damaged file is not)") from None
-    cols: dict[str, NDArray[np.float64]] = {}
-    for name, val in data.items():
-        if name.startswith("__") or not isinstance(val, np.ndarray) or val.dtype.kind not in "biuf":
-            continue
-        a = np.asarray(val, dtype=np.float64)
-        if a.ndim != 2 or a.size == 0:
-            continue
-        if 1 in a.shape:
-            cols[name] = a.reshape(-1)
-        else:
-            for k in range(a.shape[1]):
-                cols[f"{name}[{k}]"] = a[:, k]
-    if not cols:
-        raise DataError(f"{path}: no numeric vector variables found")
+    from streamid.logs.mat_files import read_mat_columns
+
+    cols = read_mat_columns(path)
     return Table(str(path), cols, meta={"lengths": {k: len(v) for k, v in cols.items()}})
 
 

@@ -12,7 +12,10 @@ sample clock for generated logs) and ``publish_time`` the batch's ``t0_ns``.
 Reading walks the file record by record: a truncated or corrupt file raises a
 :class:`~streamid.errors.LogError` naming the file and byte position, and
 ``partial=True`` instead yields every complete, valid chunk and reports the
-problem in :attr:`LogReader.problem`.
+problem in :attr:`LogReader.problem`.  A chunk is decompressed here, never beyond
+:data:`MAX_CHUNK_BYTES`: one that declares more (its ``uncompressed_size``) is refused
+before anything is allocated, one that expands beyond what it declares is refused as
+soon as it does.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from streamid.wire.keys import DOCUMENT_KINDS, SAMPLE_KINDS, parse_key
 
 __all__ = [
     "LOG_FORMAT",
+    "MAX_CHUNK_BYTES",
     "LogMessage",
     "LogWriter",
     "LogReader",
@@ -67,6 +71,8 @@ _PARSED_OPS = {_OP_HEADER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_
 # StreamReader parses exactly that record and stops cleanly.
 _SENTINEL = struct.pack("<BQ", _OP_FOOTER, 20) + b"\x00" * 20 + MAGIC
 _MAX_RECORD = 1 << 31  # refuse records larger than 2 GiB (corrupt length fields)
+#: Most bytes one chunk is decompressed to (streamid writes chunks of ~1 MiB; mcap's default is 1 MiB).
+MAX_CHUNK_BYTES = 256 * 1024 * 1024
 
 
 class LogMessage(NamedTuple):
@@ -243,6 +249,47 @@ def _parse_record(raw: bytes) -> list[Any]:
     return [r for r in reader.records if not isinstance(r, _McapChunk)]
 
 
+def _inflate(compression: str, data: bytes, most: int) -> bytes:
+    """``data`` decompressed, at most ``most`` bytes of it (a longer result is cut there: the caller compares)."""
+    if compression == "zstd":
+        import zstandard
+
+        parts: list[bytes] = []
+        got = 0
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data)) as reader:
+            while got < most:
+                piece = reader.read(min(1 << 20, most - got))
+                if not piece:
+                    break
+                parts.append(piece)
+                got += len(piece)
+        return b"".join(parts)
+    if compression == "lz4":
+        import lz4.frame  # type: ignore[import-untyped]
+
+        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=most))
+    raise ValueError(f"unknown chunk compression {compression!r}; accepted: zstd, lz4, none")
+
+
+def _unpacked_chunk(raw: bytes) -> tuple[int, bytes | None]:
+    """(the uncompressed size a chunk record declares, the same record uncompressed within
+    :data:`MAX_CHUNK_BYTES`, or None when it declares more).  ValueError if it expands to other than it declares."""
+    start, end, size, crc, n = struct.unpack_from("<QQQII", raw, 9)
+    compression = raw[9 + 32: 9 + 32 + n].decode("utf-8", "replace")
+    if size > MAX_CHUNK_BYTES:
+        return size, None
+    if compression == "":
+        return size, raw
+    (n_data,) = struct.unpack_from("<Q", raw, 9 + 32 + n)
+    data = raw[9 + 40 + n: 9 + 40 + n + n_data]
+    out = _inflate(compression, data, size + 1)
+    if len(out) != size:
+        more = "more" if len(out) > size else "fewer"
+        raise ValueError(f"its {compression} data expands to {more} than the {size} bytes it declares")
+    body = struct.pack("<QQQII", start, end, size, crc, 0) + struct.pack("<Q", size) + out
+    return size, struct.pack("<BQ", _OP_CHUNK, len(body)) + body
+
+
 class LogReader:
     """Iterate the messages of an MCAP log as :class:`LogMessage` in file order.
 
@@ -340,7 +387,17 @@ class LogReader:
                 f.seek(pos)
                 raw = f.read(9 + length)
                 try:
+                    if opcode == _OP_CHUNK:
+                        size, unpacked = _unpacked_chunk(raw)
+                        if unpacked is None:
+                            self._fail(f"chunk record at byte {pos} declares {size} uncompressed bytes; a chunk is "
+                                       f"read up to {MAX_CHUNK_BYTES} bytes (MAX_CHUNK_BYTES)"
+                                       + ("; skipped" if self.partial else ""))
+                            continue
+                        raw = unpacked
                     records = _parse_record(raw)
+                except LogError:  # said by _fail above
+                    raise
                 except Exception as exc:  # noqa: BLE001 - any parser failure is damage
                     name = _OP_NAMES.get(opcode, f"opcode 0x{opcode:02x}")
                     self._fail(f"corrupt {name} record at byte {pos} ({type(exc).__name__}: "

@@ -21,7 +21,10 @@ validation metrics.  A stream with several outputs has one current model per out
 
 Nothing a remote party publishes makes a client raise: a malformed document, one on
 a key of another stream, or one of the wrong kind is skipped, counted and warned
-about (at most one warning per reason every ``warn_every_s`` seconds).
+about (at most one warning per reason every ``warn_every_s`` seconds).  A query for the
+current models (:func:`latest_model`, ``fetch_latest``) keeps at most
+:data:`MODEL_QUERY_MAX_REPLIES` replies of at most :data:`MODEL_QUERY_MAX_BYTES` together
+(each at most the wire format's 8 MiB); the replies beyond are counted as ``query_bound``.
 """
 
 from __future__ import annotations
@@ -37,13 +40,16 @@ from typing import Any, Union
 
 from streamid.errors import ConfigError, ModelFormatError, NoDaemonError, NoModelYetError, TransportError
 from streamid.transport.updates import ModelUpdate, is_newer, parse_model_update, recency
+from streamid.transport.replies import Replies
 from streamid.transport.zenoh_bus import Bus, ZenohSettings, _Handle
-from streamid.wire.documents import parse_status
+from streamid.wire.documents import MAX_DOCUMENT_BYTES, parse_status
 from streamid.wire.keys import PREFIX, check_stream_name, model_key, parse_key, rejected_key, status_key
 from streamid.wire.names import printable
 from streamid.wire.status_events import StatusChanges, StatusEvent
 
 __all__ = [
+    "MODEL_QUERY_MAX_BYTES",
+    "MODEL_QUERY_MAX_REPLIES",
     "STATUS_SKIPS",
     "ModelSubscriber",
     "ModelUpdate",
@@ -61,6 +67,10 @@ _log = logging.getLogger(__name__)
 Target = Union[str, ZenohSettings, Bus]
 #: Why a received document was skipped (the keys of ``ModelSubscriber.skipped``).
 SKIP_REASONS = ("malformed", "key_mismatch", "kind_mismatch", "too_many")
+#: What a query for the current models keeps at most: replies (one per output of each stream answered) and their
+#: bytes together; the replies beyond are measured, not read, and counted as ``query_bound`` (a flood of answers).
+MODEL_QUERY_MAX_REPLIES = 1024
+MODEL_QUERY_MAX_BYTES = 64 * 1024 * 1024
 
 
 def _open(bus_or_settings: Target, wait_s: float | None = None) -> tuple[Bus, bool]:
@@ -99,10 +109,10 @@ class _Skips:
         self._quiet: dict[str, int] = {}
         self._lock = threading.Lock()
 
-    def skip(self, reason: str, key: str, message: str) -> None:
+    def skip(self, reason: str, key: str, message: str, n: int = 1) -> None:
         now = time.monotonic()
         with self._lock:
-            self.counts[reason] = self.counts.get(reason, 0) + 1
+            self.counts[reason] = self.counts.get(reason, 0) + n
             last = self._last_warn.get(reason)
             if last is not None and now - last < self.every_s:
                 self._quiet[reason] = self._quiet.get(reason, 0) + 1
@@ -252,7 +262,8 @@ class ModelSubscriber:
                 rkey = f"{PREFIX}/*/rejected" if stream == "*" else rejected_key(stream)
                 self._subs.append(self._bus.subscribe(rkey, self._on_payload))
             if fetch_latest:
-                for _k, payload in self._bus.get(key, timeout_s=latest_timeout_s, all_replies=True):
+                replies = _bounded_get(self._bus, key, latest_timeout_s, self._skips)
+                for _k, payload in replies:
                     self._on_payload(_k, payload)
         except BaseException:
             self.close()
@@ -364,8 +375,21 @@ class ModelSubscriber:
         self.close()
 
 
+def _bounded_get(bus: Bus, key: str, timeout_s: float, skips: _Skips | None = None) -> Replies:
+    """A query for model updates on ``key``, within :data:`MODEL_QUERY_MAX_REPLIES` / :data:`MODEL_QUERY_MAX_BYTES`
+    (what is dropped is counted in ``skips`` as ``query_bound``)."""
+    got = bus.get(key, timeout_s=timeout_s, all_replies=True, max_replies=MODEL_QUERY_MAX_REPLIES,
+                  max_bytes=MODEL_QUERY_MAX_BYTES, max_reply_bytes=MAX_DOCUMENT_BYTES)
+    if got.dropped and skips is not None:
+        skips.skip("query_bound", key, f"{got.dropped} replies ({got.dropped_bytes} bytes) dropped unread beyond what "
+                   f"one query keeps ({MODEL_QUERY_MAX_REPLIES} replies, {MODEL_QUERY_MAX_BYTES} bytes together, "
+                   f"{MAX_DOCUMENT_BYTES} each)", got.dropped)
+    return got
+
+
 def _query(
-    settings: Target, key: str, timeout_s: float, *, probe: dict[str, object] | None = None, all_replies: bool = False
+    settings: Target, key: str, timeout_s: float, *, probe: dict[str, object] | None = None, all_replies: bool = False,
+    skips: _Skips | None = None,
 ) -> list[tuple[str, bytes]]:
     """Query ``key`` until a reply or ``timeout_s``; ``probe`` receives ``reachable`` and ``where``."""
     if not timeout_s > 0:
@@ -383,7 +407,9 @@ def _query(
     try:
         while True:  # declarations propagate asynchronously: retry until the deadline
             left = deadline - time.monotonic()
-            got = bus.get(key, timeout_s=max(0.05, min(left, 0.5)), all_replies=all_replies)
+            wait_s = max(0.05, min(left, 0.5))
+            got = (_bounded_get(bus, key, wait_s, skips) if all_replies else
+                   bus.get(key, timeout_s=wait_s, max_replies=16, max_bytes=MAX_DOCUMENT_BYTES))
             if got or deadline - time.monotonic() <= 0:
                 if probe is not None:
                     probe["reachable"] = bool(got) or bus.wait_connected(0.0)
@@ -405,7 +431,7 @@ def _fetch(settings: Target, stream: str, timeout_s: float) -> tuple[dict[str, M
     probe: dict[str, object] = {}
     skips = _Skips(60.0)
     best: dict[str, ModelUpdate] = {}
-    for key, payload in _query(settings, model_key(stream), timeout_s, probe=probe, all_replies=True):
+    for key, payload in _query(settings, model_key(stream), timeout_s, probe=probe, all_replies=True, skips=skips):
         up = _check(key, payload, skips)
         if up is None:
             continue

@@ -27,6 +27,7 @@ import zenoh
 
 from streamid.errors import ConfigError, TransportError
 from streamid.transport.endpoints import check_endpoint, explain_open_error
+from streamid.transport.replies import GET_MAX_BYTES, GET_MAX_REPLIES, GET_QUEUE, Replies
 
 __all__ = [
     "DEFAULT_ENDPOINT",
@@ -35,6 +36,9 @@ __all__ = [
     "Bus",
     "BusPublisher",
     "CONNECT_RETRY_S",
+    "GET_MAX_BYTES",
+    "GET_MAX_REPLIES",
+    "Replies",
 ]
 
 _log = logging.getLogger(__name__)
@@ -472,25 +476,42 @@ class Bus:
                 return False
             time.sleep(0.01)
 
-    def get(self, key_expr: str, timeout_s: float = 1.0, *, all_replies: bool = False) -> list[tuple[str, bytes]]:
+    def get(self, key_expr: str, timeout_s: float = 1.0, *, all_replies: bool = False,
+            max_replies: int = GET_MAX_REPLIES, max_bytes: int = GET_MAX_BYTES,
+            max_reply_bytes: int | None = None) -> Replies:
         """Query ``key_expr``; return the successful replies as ``(key, payload)``.
 
         Waits at most ``timeout_s``; error replies are skipped.  Zenoh keeps one reply per
         key by default; ``all_replies=True`` keeps every one (e.g. one per output on a model key).
+
+        Bounded whoever answers: at most ``max_replies`` replies of at most ``max_bytes`` payload
+        bytes together are kept (a reply larger than ``max_reply_bytes``, default ``max_bytes``, is
+        never kept); the others are measured without being copied and counted in
+        :attr:`Replies.dropped` / :attr:`Replies.dropped_bytes` until the query ends (``timeout_s``).
+        Zenoh holds at most a few replies for this get at a time.
         """
         self._check_open()
         if not timeout_s > 0:
             raise ConfigError(f"timeout_s must be > 0 seconds; got {timeout_s!r}")
+        one = max_bytes if max_reply_bytes is None else min(max_reply_bytes, max_bytes)
         try:
-            replies = self._session.get(key_expr, timeout=float(timeout_s),
+            replies = self._session.get(key_expr, zenoh.handlers.FifoChannel(GET_QUEUE), timeout=float(timeout_s),
                                         consolidation=zenoh.ConsolidationMode.NONE if all_replies else None)
         except zenoh.ZError as exc:
             raise TransportError(f"get on {key_expr!r} failed ({exc})") from exc
-        out: list[tuple[str, bytes]] = []
+        out = Replies()
+        kept_bytes = 0
         for reply in replies:  # the handler ends when every replier answered or the timeout hit
             ok = reply.ok
-            if ok is not None:
-                out.append((str(ok.key_expr), ok.payload.to_bytes()))
+            if ok is None:
+                continue
+            size = len(ok.payload)
+            if len(out) >= max_replies or size > one or kept_bytes + size > max_bytes:
+                out.dropped += 1
+                out.dropped_bytes += size
+                continue
+            out.append((str(ok.key_expr), ok.payload.to_bytes()))
+            kept_bytes += size
         return out
 
     # -- introspection ---------------------------------------------------
