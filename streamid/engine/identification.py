@@ -48,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine.search.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.choice.scores import RANGE_MARGIN
 from streamid.engine.choice.complexity import choose as choose_complexity
+from streamid.engine.choice.calibration import with_interval
 from streamid.engine.choice.ensemble_choice import choose_ensemble
 from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.restarts import report_after, wants_more
@@ -398,6 +399,7 @@ def identify(
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
                                        threads=_threads(helper))
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+    final = with_interval(final, ua, ya, RIDGE)  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
