@@ -140,3 +140,25 @@ def test_no_interval_is_made_from_too_few_samples_or_a_diverging_half() -> None:
     u, y = _data(30)
     interval, why = calibrate(_net(0, (Y1, U1)), u.reshape(-1, 1), y, RIDGE)
     assert interval is None and "too few samples to hold out (30" in why["reason"]
+
+
+def test_the_predictor_serves_the_median_its_band_and_whether_it_is_in_domain() -> None:
+    from streamid.model import Predictor
+
+    ms = [_net(0, (Y1, U1)), _net(1, (Y1, U1, U3), 5), _net(2, (Y1, U1), 3)]
+    interval = Interval(LEVELS, (0.5, 1.0, 1.5, 2.0, 3.0), 0.1, 100)
+    ens = replace(ensemble_of(ms, combine="median"), interval=interval)
+    u, y = _data(60)
+    p = Predictor(ens)
+    for t in range(40):
+        p.learn_one(float(u[t]), float(y[t]))
+    want = ens.predict_osa(np.append(u[:41], 0.0), np.append(y[:41], 0.0))[40]
+    assert p.predict_one() == pytest.approx(want, rel=1e-12, abs=1e-12)
+    band = p.forecast(u[40:50], interval=0.9)
+    L = ens.max_lag  # the forecast starts from the newest max_lag measured samples
+    whole = ens.simulate(u[40 - L:50], y[40 - L:40], interval=0.9)
+    assert np.allclose(band.y, whole.y[L:]) and np.allclose(band.upper, whole.upper[L:])
+    assert np.all(band.upper > band.y) and np.all(band.lower < band.y)
+    assert p.in_domain() and p.in_domain(0.5)
+    p.learn_one(1.7, float(y[40]))  # an input beyond the estimation range (u_high = 1): u(t-1) is outside next
+    assert not p.in_domain()
