@@ -293,8 +293,8 @@ def identify(
         ).solve(callback)
         model = run.best_model()
         summary = RunSummary(None, float(run.best_f), run.evaluations, run.seconds, -float(model.metrics["fitness"]), model.lags)
-        return Result(
-            model=model.with_metrics(restarts=1, selection="fitness"),
+        return Result(  # the paper's model, with its free-run interval (calibrated on a held-out half: no change)
+            model=with_interval(model, ua, ya, RIDGE).with_metrics(restarts=1, selection="fitness"),
             state=run.state(),
             fitness_history=np.asarray(run.history),
             evaluations=run.evaluations,
