@@ -21,10 +21,14 @@ from streamid.errors import DataError
 from streamid.model.narx import Model
 from streamid.model.uncertainty import LEVELS, MIN_CALIBRATION, Interval, conformal_quantiles, member_spread
 
-__all__ = ["METHOD", "calibrate", "with_interval"]
+__all__ = ["METHOD", "METHOD_IN_SAMPLE", "UNSTABLE_HALF_R2", "calibrate", "with_interval"]
 
 METHOD = ("split-conformal: the model's structure refitted on the estimation record's first half, its free run "
           "scored on the second half")
+METHOD_IN_SAMPLE = ("conformal on the model's own free-run errors over the estimation record's second half (in sample: "
+                    "the model refitted on the first half left the record)")
+#: A half-model whose held-out free-run R^2 is below this, where the model's own is not, is taken as unstable.
+UNSTABLE_HALF_R2 = 0.0
 
 
 def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> tuple[Interval | None, dict[str, Any]]:
@@ -47,15 +51,26 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     if not (np.all(np.isfinite(err)) and np.all(np.isfinite(spread))):
         return None, {"reason": "the model refitted on the first half diverged in free run over the second half",
                       "samples": n - h}
+    var = float(np.var(y[h:]))
+    r2 = 1.0 - float(np.mean(err**2)) / var if var > 0 else None
+    method, held_out = METHOD, True
+    with np.errstate(over="ignore", invalid="ignore"):
+        own_paths = model.member_paths(u, y[: model.max_lag])
+        own_err = y[h:] - model.combine_paths(own_paths, y)[h:]
+    own_r2 = 1.0 - float(np.mean(own_err**2)) / var if var > 0 and np.all(np.isfinite(own_err)) else None
+    if r2 is not None and own_r2 is not None and r2 < UNSTABLE_HALF_R2 <= own_r2:
+        # the half's refit leaves the record (a structure too large for half the rows, e.g. a long linear part of
+        # hundreds of lags) where the model itself does not: its errors say nothing of the model's; the model's own
+        # errors on the second half are used instead (in sample: the band is then narrower than a held-out one)
+        err, spread, method, held_out = own_err, member_spread(own_paths)[h:], METHOD_IN_SAMPLE, False
     scale = float(np.sqrt(np.mean(err**2)))
     den = scale + spread
     scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
     quantiles = conformal_quantiles(scores, LEVELS)
-    var = float(np.var(y[h:]))
-    r2 = 1.0 - float(np.mean(err**2)) / var if var > 0 else None
-    evidence = {"method": METHOD, "samples": n - h, "scale": scale, "r2_fr_held_out": r2,
-                "mean_spread": float(np.mean(spread)), "quantile_90": quantiles[LEVELS.index(0.9)]}
-    return Interval(LEVELS, quantiles, scale, n - h, METHOD), evidence
+    evidence = {"method": method, "held_out": held_out, "samples": n - h, "scale": scale, "r2_fr_held_out": r2,
+                "r2_fr_second_half": own_r2, "mean_spread": float(np.mean(spread)),
+                "quantile_90": quantiles[LEVELS.index(0.9)]}
+    return Interval(LEVELS, quantiles, scale, n - h, method), evidence
 
 
 def with_interval(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:
