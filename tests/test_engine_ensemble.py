@@ -225,6 +225,9 @@ def test_ensembles_off_give_the_models_identified_before() -> None:
         assert got["metrics"].pop("feedthrough")["min_lag_u"] == 1
         # round 12: a long linear part only below an estimation fit of 0.95; these records fit above it
         assert got["config"].pop("long_linear") == 512 and "long_linear" not in got["metrics"]["complexity"]
+        # issue 51: the kept model carries its free-run interval, calibrated after the choice (the model unchanged)
+        assert got.pop("interval")["method"].startswith("split-conformal")
+        assert got["metrics"].pop("calibration")["samples"] == len(t.y_est) - len(t.y_est) // 2
         # the same model to rounding: the free runs that score the candidates are compiled since round 8
         # (streamid.model.kernels, sums in another order than the numpy loop that recorded these)
         want = json.loads((DATA / f"{name}_seed{seed}.json").read_text())

@@ -166,6 +166,11 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     longlin = next(ln for ln in p.stdout.splitlines() if ln.startswith("long linear part"))
     assert longlin == "long linear part: not tried (the networks' estimation FR R2 is at least 0.95)", longlin
     assert "long linear part" in explained and longlin in section
+    band = next(ln for ln in p.stdout.splitlines() if ln.startswith("interval: "))  # issue 51: the model's band
+    assert re.fullmatch(r"interval: the 90 % free-run band covers \d+\.\d % of the validation samples, mean width "
+                        r"[0-9.]+ \([0-9.]+ of the output's standard deviation\)(; under 80 %: .+)?", band), band
+    domain = next(ln for ln in p.stdout.splitlines() if ln.startswith("estimation domain: "))
+    assert "interval" in explained and "estimation domain" in explained and domain in section
     assert (work / "mr_damper.json").is_file()
     q = subprocess.run([sys.executable, "-c", _block_after("## 1. Your own data file")], cwd=work,
                        capture_output=True, text=True, timeout=60)

@@ -15,6 +15,8 @@ from streamid.commands.identify_io import (Bar, check_rrd_target, draw_rrd, emit
                                            split_text)
 from streamid.logs.datafile import Dataset
 from streamid.engine.settings import MORE_BELOW, CoEAConfig
+from streamid.model.domain import domain_text
+from streamid.model.uncertainty import interval_text
 from streamid.engine.choice.caveats import model_caveats, size_caveat
 from streamid.engine.choice.complexity import parameter_count
 from streamid.model.ensemble import members_of
@@ -63,6 +65,9 @@ def validated_run(model: Model, ds: Dataset, *, seed: int, seconds: float, evalu
         "r2": rep.r2_dict(),  # a free run that diverged: None (null), its first non-finite sample in "diverged"
         "diverged": rep.diverged(),
         "correlation": {"est": rep.correlation_est.to_dict(), "val": rep.correlation_val.to_dict()},
+        # the model's prediction interval and estimation domain on the validation record (streamid.model)
+        "interval_val": rep.extra.get("interval_val"),
+        "outside_domain_val": rep.extra.get("outside_domain_val", 0.0),
         "selection_score": model.metrics.get("selection_score"),
         "model": model.to_json(indent=None),
         "history": history,
@@ -265,6 +270,9 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
           + ", ".join(f"{c['neurons']} (" + ("not admissible" if c["criterion"] is None
                                              else f"FR R2 est {c['r2_fr_est']:.5f}, {c['criterion']:.1f}") + ")"
                       for c in nc["candidates"]) + "\n")
+    if "interval_val" in b:  # the kept model's interval and domain on the validation record (streamid.model)
+        w(interval_text(b["interval_val"], "validation") + "\n")
+        w(domain_text(float(b["outside_domain_val"]), "validation") + "\n")
     for part, title in (("est", "estimation"), ("val", "validation")):
         c = b["correlation"][part]
         w(f"correlation tests on the {title} residual ({c['n']} samples, 95 % band ±{c['band']:.3g}):\n")

@@ -15,6 +15,8 @@ from streamid.commands.identify_io import check_rrd_target, emit_report, read_te
 from streamid.engine.choice.caveats import record_caveats
 from streamid.model.narx import Model
 from streamid.engine.validation import RecordReport, assess, fit_percent
+from streamid.model.domain import domain_text
+from streamid.model.uncertainty import interval_text
 from streamid.errors import ConfigError, DataError
 from streamid.logs.bundled import data_file
 from streamid.logs.datafile import Record, load_record, same_period
@@ -133,6 +135,8 @@ def _print(out: TextIO, args: argparse.Namespace, model: Model, rec: Record, rep
             w(f"  {name:16} {'diverged':>9} {'-':>8} {'-':>11}\n")
             continue
         w(f"  {name:16} {r2v:>9.5f} {fit_percent(r2v):>8.2f} {rmse:>11.5g}\n")
+    w(interval_text(rep.interval, "record") + "\n")
+    w(domain_text(rep.outside_domain, "record") + "\n")
     for n in notes:
         w(f"note: {n}\n")
     for c in caveats:

@@ -48,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine.search.coevolution import CoEAState, Coevolution, Progress, _as_rng
 from streamid.engine.choice.scores import RANGE_MARGIN
 from streamid.engine.choice.complexity import choose as choose_complexity
+from streamid.engine.choice.calibration import with_interval
 from streamid.engine.choice.ensemble_choice import choose_ensemble
 from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.restarts import report_after, wants_more
@@ -292,8 +293,8 @@ def identify(
         ).solve(callback)
         model = run.best_model()
         summary = RunSummary(None, float(run.best_f), run.evaluations, run.seconds, -float(model.metrics["fitness"]), model.lags)
-        return Result(
-            model=model.with_metrics(restarts=1, selection="fitness"),
+        return Result(  # the paper's model, with its free-run interval (calibrated on a held-out half: no change)
+            model=with_interval(model, ua, ya, RIDGE).with_metrics(restarts=1, selection="fitness"),
             state=run.state(),
             fitness_history=np.asarray(run.history),
             evaluations=run.evaluations,
@@ -398,6 +399,7 @@ def identify(
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
                                        threads=_threads(helper))
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+    final = with_interval(final, ua, ya, RIDGE)  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,

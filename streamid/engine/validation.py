@@ -41,7 +41,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from streamid.model.domain import outside_share
 from streamid.model.regressors import as_data
+from streamid.model.uncertainty import interval_report
 from streamid.errors import DataError
 
 if TYPE_CHECKING:
@@ -388,9 +390,15 @@ class RecordReport:
     predictions: dict[str, NDArray[np.float64]] = field(default_factory=dict, repr=False)
     #: the first sample at which the free run is not finite (None: it did not diverge)
     fr_diverged_at: int | None = None
+    #: the model's free-run interval on the record (level, coverage, width, width_over_std); None: it carries none
+    interval: dict[str, Any] | None = None
+    #: the share of the scored samples at which a regressor lies outside the estimation domain
+    outside_domain: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "interval": self.interval,
+            "outside_domain": self.outside_domain,
             "n": self.n,
             "n_scored": self.n_scored,
             "r2": {"osa": self.osa, "fr": self.fr},
@@ -412,6 +420,7 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], fr: ND
         rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
         correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
         predictions={"osa": osa, "fr": fr}, fr_diverged_at=diverged_at(fr),
+        interval=interval_report(model, u, y), outside_domain=outside_share(model, u, y),
     )
 
 
@@ -493,4 +502,5 @@ def validate(
         correlation_val=v.correlation,
         predictions={"osa_est": e.predictions["osa"], "fr_est": p_fr_e, "osa_val": v.predictions["osa"],
                      "fr_val": p_fr_v},
+        extra={"interval_val": v.interval, "outside_domain_val": v.outside_domain},
     )

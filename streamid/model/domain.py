@@ -1,12 +1,23 @@
 """A model's estimation domain: whether a record's values lie beyond the range the estimation data spanned
-(a network of Gaussian bumps does not extrapolate)."""
+(a network of Gaussian bumps does not extrapolate).
+
+The domain is each regressor's range on the estimation record, which the model's normalisation holds (every
+regressor is a lagged input or output, whose estimation range maps to [-1, 1]). :func:`outside_share` is the share
+of a record's samples at which the model would evaluate a regressor outside it: what ``validate``, the daemon's
+status, the ``Predictor`` and an FMU's ``<output>_in_domain`` report.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BEYOND_RANGE", "beyond_range"]
+from streamid.model.regressors import Normalisation, Regressor
+
+__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "outside", "outside_share"]
 
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -19,3 +30,41 @@ def beyond_range(lo: float, hi: float, values: NDArray[np.float64]) -> bool:
     span = hi - lo
     return bool(span > 0 and len(values) and max(float(np.max(values)) - hi, lo - float(np.min(values))) >
                 BEYOND_RANGE * span)
+
+
+def outside(normalisation: Normalisation, regressors: Sequence[Regressor], u: NDArray[np.float64],
+            y: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
+    """For each sample ``t`` of ``u`` (N, n_inputs) (and measured outputs ``y``, when given), whether a regressor of
+    the model at ``t`` lies outside the estimation domain: an input (or the output) ``lag`` samples earlier beyond
+    the range the estimation data spanned (the normalisation's ``low .. high``, to a relative 1e-9). The first
+    samples, which a regressor reaches before the record's start, count by the samples they can see."""
+    n = u.shape[0]
+    tol_u = 1e-9 * (np.asarray(normalisation.u_high) - np.asarray(normalisation.u_low))
+    out_u = (u < np.asarray(normalisation.u_low) - tol_u) | (u > np.asarray(normalisation.u_high) + tol_u)
+    tol_y = 1e-9 * (normalisation.y_high - normalisation.y_low)
+    out_y = None if y is None else (y < normalisation.y_low - tol_y) | (y > normalisation.y_high + tol_y)
+    flags = np.zeros(n, dtype=bool)
+    for r in regressors:
+        src = out_u[:, r.index] if r.signal == "u" else out_y
+        if src is None:
+            continue
+        flags[r.lag:] |= src[: n - r.lag] if r.lag else src
+    return flags
+
+
+def outside_share(model: Any, u: NDArray[np.float64], y: NDArray[np.float64] | None = None) -> float:
+    """The share of the samples of a record (from ``model.max_lag`` on) at which one of the model's regressors (any
+    member's, for an ensemble) lies outside its estimation domain (:func:`outside`); ``model`` a Model (read, not
+    imported)."""
+    regs = {r for m in getattr(model, "members", (model,)) for r in (*m.regressors, *(m.linear_regressors or ()))}
+    flags = outside(model.normalisation, sorted(regs, key=lambda r: (r.signal, r.index, r.lag)), u, y)
+    scored = flags[model.max_lag:]
+    return float(np.mean(scored)) if scored.shape[0] else 0.0
+
+
+def domain_text(share: float, record: str) -> str:
+    """One line on the share of a record's samples outside the model's estimation domain (:func:`outside_share`)."""
+    if share <= 0.0:
+        return f"estimation domain: every {record} sample within it (each regressor inside its estimation range)"
+    return (f"estimation domain: {100 * share:.1f} % of the {record} samples put a regressor outside its estimation "
+            "range: the model extrapolates there (a network of Gaussian bumps does not)")

@@ -45,12 +45,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.narx import (
-    MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, Model, _finite_array, initial_outputs)
+    MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_ENSEMBLE_MEDIAN, Model, _finite_array,
+    initial_outputs)
+from streamid.model.uncertainty import Interval
 from streamid.model.limits import check_model_document
 from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import ModelFormatError
 
-__all__ = ["EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
+__all__ = ["COMBINES", "EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
+
+#: How an ensemble combines its members' outputs: their mean (``streamid.model/3``, ``/5``) or their per-sample median
+#: (``/6``: one member that leaves the next waveform moves the median little, the mean a lot; docs/method.md).
+COMBINES = ("mean", "median")
 
 #: Most members an ensemble holds (each costs a network's evaluation: a document from elsewhere is bounded
 #: by this and by the wire's document size). The engine's "all admissible runs" ensemble takes the top ones.
@@ -93,9 +99,11 @@ class EnsembleModel(Model):
     """
 
     #: The document formats this class reads (:meth:`Model.from_dict` hands them to it).
-    READS: ClassVar[tuple[str, ...]] = (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR)
+    READS: ClassVar[tuple[str, ...]] = (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR,
+                                        MODEL_FORMAT_ENSEMBLE_MEDIAN)
 
     members: tuple[Model, ...] = ()
+    combine: str = "mean"
 
     @classmethod
     def of(cls, members: Sequence[Model], **fields: Any) -> EnsembleModel:
@@ -109,6 +117,8 @@ class EnsembleModel(Model):
         return cls(**{**base, **fields, "members": tuple(members)})
 
     def __post_init__(self) -> None:
+        if self.combine not in COMBINES:
+            raise ModelFormatError(f"an ensemble's combine must be one of {', '.join(COMBINES)}; got {self.combine!r}")
         ms = self.members
         if not isinstance(ms, tuple) or not 2 <= len(ms) <= MAX_MEMBERS:
             raise ModelFormatError(
@@ -165,16 +175,16 @@ class EnsembleModel(Model):
         sizes = ", ".join(f"{m.neurons}" + (" + linear" if m.linear is not None else "") for m in self.members)
         if any(m.linear_regressors is not None for m in self.members):  # Model.summary's "linear part" line: member 0's
             lines = [ln.replace("  linear part ", "  linear part (member 0's) ") for ln in lines]
-        lines[0] = f"RBF-NARX ensemble (mean of {len(self.members)} networks) {', '.join(self.input_names)} -> {self.output_name}"
+        lines[0] = f"RBF-NARX ensemble ({self.combine} of {len(self.members)} networks) {', '.join(self.input_names)} -> {self.output_name}"
         lines[1] = f"  regressors  {self.lags_text()}  (union of the members', max lag {self.max_lag})"
-        lines[2] = f"  network     mean of {len(self.members)} networks of {sizes} Gaussian neurons ({self.neurons} in all)"
+        lines[2] = f"  network     {self.combine} of {len(self.members)} networks of {sizes} Gaussian neurons ({self.neurons} in all)"
         for i, m in enumerate(self.members):
             own = f" and a linear part of {len(m.linear_regressors)} terms of its own" if m.linear_regressors is not None else ""
             lines.insert(3 + i, f"  member {i}    {m.lags_text()}, {m.neurons} neurons{own}")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
-        return (f"<EnsembleModel {self.output_name} = mean of {len(self.members)} networks on F[{self.lags_text()}], "
+        return (f"<EnsembleModel {self.output_name} = {self.combine} of {len(self.members)} networks on F[{self.lags_text()}], "
                 f"{self.neurons} neurons; model.summary() describes it, model.to_json() holds every number>")
 
     # ------------------------------------------------------------------ prediction
@@ -190,7 +200,12 @@ class EnsembleModel(Model):
         ua, ya = self._check(u, y)
         L = self.max_lag
         out = ya.copy()
-        out[L:] = np.mean([m.predict_osa(ua, ya)[L:] for m in self.members], axis=0)
+        out[L:] = self._combined(np.array([m.predict_osa(ua, ya)[L:] for m in self.members]))
+        return out
+
+    def _combined(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The members' outputs ``rows`` (K, n) combined: their mean or their per-sample median."""
+        out: NDArray[np.float64] = np.median(rows, axis=0) if self.combine == "median" else np.mean(rows, axis=0)
         return out
 
     def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
@@ -206,9 +221,23 @@ class EnsembleModel(Model):
         per_member = [m.simulate_many(runs) for m in self.members]
         out = []
         for c, yi in enumerate(inits):
-            avg = np.mean([sims[c] for sims in per_member], axis=0)
+            avg = self._combined(np.array([sims[c] for sims in per_member]))
             avg[:L] = yi[:L]
             out.append(avg)
+        return out
+
+    def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
+        """Each member's free run (rows), from its own past outputs; the first :attr:`max_lag` samples measured."""
+        L = self.max_lag
+        yi = initial_outputs(y_init, L)
+        paths = np.array([m.simulate(u, yi) for m in self.members])
+        paths[:, :L] = yi[:L]
+        return paths
+
+    def combine_paths(self, paths: NDArray[np.float64], y_init: ArrayLike) -> NDArray[np.float64]:
+        """The ensemble's free run from its members' (:meth:`member_paths`), as :meth:`simulate_many` makes it."""
+        out = self._combined(paths)
+        out[: self.max_lag] = paths[0, : self.max_lag]
         return out
 
     def map_members(self, fn: Callable[[Model], Model], **fields: Any) -> EnsembleModel:
@@ -229,14 +258,16 @@ class EnsembleModel(Model):
                 member["linear_regressors"] = d["linear_regressors"]
             members.append(member)
         long_linear = any(m.linear_regressors is not None for m in self.members)
-        return {
-            "format": MODEL_FORMAT_ENSEMBLE_LONG_LINEAR if long_linear else MODEL_FORMAT_ENSEMBLE,
+        median = self.combine == "median"
+        doc: dict[str, Any] = {
+            "format": (MODEL_FORMAT_ENSEMBLE_MEDIAN if median else
+                       MODEL_FORMAT_ENSEMBLE_LONG_LINEAR if long_linear else MODEL_FORMAT_ENSEMBLE),
             "kind": "gaussian-rbf-narx-ensemble",
             "formula": (
                 "yn_i(t) = sum_m members[i].weights[m] * exp(-sum_j (r_ij(t) - members[i].centres[m][j])^2 / "
                 "(2 members[i].widths[m]^2)) [+ sum_j members[i].linear[j] r_ij(t) + members[i].linear[k_i]]; "
                 "r_ij(t) = normalised members[i].signal_j(t - lag_j): measured past outputs one step ahead, "
-                "member i's own past yn_i in free run; yn = mean_i yn_i; x_n = 2 (x - low)/(high - low) - 1; "
+                "member i's own past yn_i in free run; yn = " + ("median" if median else "mean") + "_i yn_i; x_n = 2 (x - low)/(high - low) - 1; "
                 "y = (yn + 1) (y_high - y_low)/2 + y_low"
                 + ("; a member with linear_regressors has the linear part sum_q members[i].linear[q] l_iq(t) + "
                    "members[i].linear[-1] instead, l_iq(t) = normalised signal_q(t - lag_q) of members[i].linear_regressors[q]"
@@ -252,6 +283,11 @@ class EnsembleModel(Model):
             "window": self.window,
             "config": self.config,
         }
+        if median:
+            doc["combine"] = "median"
+        if self.interval is not None:
+            doc["interval"] = self.interval.to_dict()
+        return doc
 
     @classmethod
     def from_dict(cls, d: Any) -> EnsembleModel:
@@ -259,9 +295,13 @@ class EnsembleModel(Model):
         if not isinstance(d, Mapping):
             raise ModelFormatError(f"a model document must be a JSON object; got {type(d).__name__}")
         fmt = d.get("format")
-        if fmt not in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR):
-            raise ModelFormatError(f"model 'format' must be {MODEL_FORMAT_ENSEMBLE!r} or {MODEL_FORMAT_ENSEMBLE_LONG_LINEAR!r} "
-                                   f"for an ensemble; got {fmt!r}")
+        if fmt not in cls.READS:
+            raise ModelFormatError(f"model 'format' must be one of {', '.join(repr(f) for f in cls.READS)} for an "
+                                   f"ensemble; got {fmt!r}")
+        median = fmt == MODEL_FORMAT_ENSEMBLE_MEDIAN
+        if d.get("combine", "median" if median else "mean") != ("median" if median else "mean"):
+            raise ModelFormatError(f"model field 'combine' must be {'median' if median else 'mean'!r} in a {fmt} "
+                                   f"document (the format says how the members combine); got {d.get('combine')!r}")
         check_model_document(d)  # neurons, regressors, lags, parameters: before any array is built
         raw = d.get("members")
         if not isinstance(raw, list) or not 2 <= len(raw) <= MAX_MEMBERS:
@@ -273,7 +313,7 @@ class EnsembleModel(Model):
             raise ModelFormatError("model field 'normalisation' is missing (one normalisation shared by the members)") from None
         names = tuple(str(s) for s in d.get("inputs", ()))
         output = str(d.get("output", "y"))
-        members = [_member(i, e, norm, names, output, fmt == MODEL_FORMAT_ENSEMBLE_LONG_LINEAR) for i, e in enumerate(raw)]
+        members = [_member(i, e, norm, names, output, fmt != MODEL_FORMAT_ENSEMBLE) for i, e in enumerate(raw)]
         if fmt == MODEL_FORMAT_ENSEMBLE_LONG_LINEAR and all(m.linear_regressors is None for m in members):
             raise ModelFormatError(f"a {MODEL_FORMAT_ENSEMBLE_LONG_LINEAR} document has at least one member with "
                                    f"'linear_regressors' (a long linear part); got none (an ensemble of networks is "
@@ -281,7 +321,8 @@ class EnsembleModel(Model):
         try:
             return cls.of(members, normalisation=norm, input_names=names or members[0].input_names, output_name=output,
                           metrics=dict(d.get("metrics", {})), window=dict(d.get("window", {})),
-                          config=dict(d.get("config", {})))
+                          config=dict(d.get("config", {})), combine="median" if median else "mean",
+                          interval=Interval.from_dict(d["interval"]) if "interval" in d else None)
         except (TypeError, ValueError) as exc:
             if isinstance(exc, ModelFormatError):
                 raise

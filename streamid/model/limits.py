@@ -49,7 +49,7 @@ MIN_SPAN = 1e-60
 #: Bytes of the temporaries of one block of one-step-ahead rows.
 OSA_BLOCK_BYTES = 64 * 1024 * 1024
 
-_ENSEMBLES = ("streamid.model/3", "streamid.model/5")
+_ENSEMBLES = ("streamid.model/3", "streamid.model/5", "streamid.model/6")
 
 
 def json_depth(doc: Any, limit: int = MAX_DEPTH) -> int:

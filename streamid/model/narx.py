@@ -41,18 +41,20 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.freerun import free_run
-from streamid.bounded_files import read_regular_file
-from streamid.model.limits import MAX_MODEL_BYTES, MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
+from streamid.model.describe import describe
+from streamid.model.files import read_model_file
+from streamid.model.limits import MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
 from streamid.model.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
+from streamid.model.uncertainty import Band, Interval
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_ENSEMBLE_LONG_LINEAR", "MODEL_FORMAT_LINEAR",
+__all__ = ["Model", "MODEL_FORMAT", "MODEL_FORMAT_ENSEMBLE", "MODEL_FORMAT_ENSEMBLE_LONG_LINEAR", "MODEL_FORMAT_ENSEMBLE_MEDIAN", "MODEL_FORMAT_LINEAR",
            "MODEL_FORMAT_LONG_LINEAR",
            "MODEL_FORMATS", "free_run", "format_lags"]
 
@@ -66,8 +68,11 @@ MODEL_FORMAT_LONG_LINEAR = "streamid.model/4"
 #: The format of the mean of several networks of which at least one has a long linear part (``/3``'s layout, a member
 #: then also holding ``linear_regressors``); loads as an ``EnsembleModel``. A ``/3`` reader refuses it by its format.
 MODEL_FORMAT_ENSEMBLE_LONG_LINEAR = "streamid.model/5"
+#: The format of the per-sample median of several networks (members as in ``/5``, a long linear part allowed); loads
+#: as an ``EnsembleModel`` whose ``combine`` is ``"median"``. A reader of ``/3`` or ``/5`` refuses it by its format.
+MODEL_FORMAT_ENSEMBLE_MEDIAN = "streamid.model/6"
 MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_LONG_LINEAR,
-                 MODEL_FORMAT_ENSEMBLE_LONG_LINEAR)
+                 MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_ENSEMBLE_MEDIAN)
 
 
 #: Rows of a one-step-ahead prediction computed at once: its regressors and activations take about 900 bytes a row
@@ -134,6 +139,9 @@ class Model:
     linear_regressors : tuple of Regressor, optional
         The linear part's own regressors (a long linear part); ``linear`` then has shape
         ``(len(linear_regressors) + 1,)``. None: the linear part (if any) is on ``regressors``.
+    interval : Interval, optional
+        What the free-run prediction interval needs (:mod:`~streamid.model.uncertainty`); None: the model
+        carries none (it was identified without calibration data, or by an earlier streamid).
 
     Raises
     ------
@@ -153,6 +161,7 @@ class Model:
     config: dict[str, Any] = field(default_factory=dict)
     linear: NDArray[np.float64] | None = None
     linear_regressors: tuple[Regressor, ...] | None = None
+    interval: Interval | None = None
 
     def __post_init__(self) -> None:
         m = int(np.shape(self.widths)[0]) if np.ndim(self.widths) == 1 else -1
@@ -229,33 +238,7 @@ class Model:
 
         ``str(model)`` and ``print(model)`` give the same text; ``to_json`` gives every number.
         """
-        lines = [
-            f"RBF-NARX model {', '.join(self.input_names)} -> {self.output_name}",
-            f"  regressors  {self.lags_text()}  ({len(self.regressors)} terms, max lag {self.max_lag})",
-            f"  network     {self.neurons} Gaussian neurons" + (" and a linear part" if self.linear is not None else ""),
-        ]
-        if self.linear_regressors is not None:
-            ly = [r.lag for r in self.linear_regressors if r.signal == "y"]
-            lu = [[r.lag for r in self.linear_regressors if r.signal == "u" and r.index == i] for i in range(self.n_inputs)]
-            lines.append(f"  linear part {format_lags(self.output_name, ly, self.input_names, lu)}  "
-                         f"({len(self.linear_regressors)} terms of its own)")
-        r2 = {k: self.metrics.get(f"r2_{k}") for k in ("osa_est", "fr_est", "osa_val", "fr_val")}
-        if any(isinstance(v, (int, float)) for v in r2.values()):
-
-            def f(v: Any) -> str:
-                return f"{v:.4f}" if isinstance(v, (int, float)) else "n/a"
-
-            lines.append(
-                f"  R2          one-step-ahead est {f(r2['osa_est'])} val {f(r2['osa_val'])}, "
-                f"free run est {f(r2['fr_est'])} val {f(r2['fr_val'])}"
-            )
-        fit = self.metrics.get("fitness")
-        if isinstance(fit, (int, float)):
-            lines.append(f"  fitness     {fit:.6g} (one-step-ahead MSE on the estimation data, {self.output_name} units squared)")
-        n = self.window.get("n_samples", self.window.get("samples"))
-        if isinstance(n, int):
-            lines.append(f"  fitted on   {n} samples")
-        return "\n".join(lines)
+        return describe(self)
 
     def __str__(self) -> str:
         return self.summary()
@@ -325,7 +308,13 @@ class Model:
             out[a:b] = self.normalisation.y_inverse(yn_hat)
         return out
 
-    def simulate(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
+    @overload
+    def simulate(self, u: ArrayLike, y_init: ArrayLike, interval: None = None) -> NDArray[np.float64]: ...
+
+    @overload
+    def simulate(self, u: ArrayLike, y_init: ArrayLike, interval: float) -> Band: ...
+
+    def simulate(self, u: ArrayLike, y_init: ArrayLike, interval: float | None = None) -> NDArray[np.float64] | Band:
         """Free run: recursive simulation on the model's own past outputs.
 
         Parameters
@@ -334,13 +323,32 @@ class Model:
         y_init : array_like
             At least ``max_lag`` measured outputs: the first ``max_lag`` samples.
             (A full-length measured output may be passed; only its start is used.)
+        interval : float, optional
+            A level of the model's prediction interval (one of ``model.interval.levels``, e.g. 0.9): then the
+            free run comes with the band's lower and upper paths (:class:`~streamid.model.uncertainty.Band`).
 
         Returns
         -------
-        ndarray, shape (N,)
-            First ``max_lag`` values from ``y_init``, then the simulated outputs.
+        ndarray, shape (N,), or Band of three
+            First ``max_lag`` values from ``y_init``, then the simulated outputs (and, with ``interval``, the band:
+            of width zero over the measured initial outputs).
         """
-        return self.simulate_many([(u, y_init)])[0]
+        if interval is None:
+            return self.simulate_many([(u, y_init)])[0]
+        if self.interval is None:
+            raise DataError("this model carries no prediction interval (identified without calibration data, or by "
+                            "an earlier streamid): simulate without interval=, or identify it again")
+        paths = self.member_paths(u, y_init)
+        return self.interval.band(self.combine_paths(paths, y_init), paths, float(interval), self.max_lag)
+
+    def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
+        """The free runs of the model's networks, shape ``(K, N)``: one row for a single network, a member's each
+        for an ensemble (each from its own past outputs; the first ``max_lag`` samples measured)."""
+        return self.simulate_many([(u, y_init)])[0][None, :]
+
+    def combine_paths(self, paths: NDArray[np.float64], y_init: ArrayLike) -> NDArray[np.float64]:
+        """The model's free run from its networks' (:meth:`member_paths`): the one network's path itself."""
+        return np.array(paths[0])
 
     def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
         """Several free runs of this model at once, e.g. on the estimation and the validation data.
@@ -431,6 +439,8 @@ class Model:
                 "sum_i linear[i] l_i(t) + linear[q]; l_i(t) = normalised signal_i(t - lag_i) of linear_regressors[i];")
             doc["linear_regressors"] = [
                 {**r.to_dict(), "name": r.label(self.input_names, self.output_name)} for r in self.linear_regressors]
+        if self.interval is not None:
+            doc["interval"] = self.interval.to_dict()
         return doc
 
     def to_json(self, indent: int | None = 1) -> str:
@@ -446,7 +456,7 @@ class Model:
         if fmt not in MODEL_FORMATS:
             raise ModelFormatError(f"model 'format' must be one of {list(MODEL_FORMATS)}; got {fmt!r}")
         check_model_document(d)  # neurons, regressors, lags, parameters: before any array is built
-        if fmt in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR):  # the mean of several networks (a Model too)
+        if fmt in (MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_ENSEMBLE_MEDIAN):  # the mean of several networks (a Model too)
             return _reader_of(fmt).from_dict(d)
         if fmt == MODEL_FORMAT_LINEAR and "linear" not in d:
             raise ModelFormatError(f"a {MODEL_FORMAT_LINEAR} model document needs the field 'linear' (k + 1 numbers)")
@@ -473,6 +483,7 @@ class Model:
                 linear=(_finite_array("linear", d["linear"], (len(regs if lregs is None else lregs) + 1,))
                         if fmt in (MODEL_FORMAT_LINEAR, MODEL_FORMAT_LONG_LINEAR) else None),
                 linear_regressors=lregs,
+                interval=Interval.from_dict(d["interval"]) if "interval" in d else None,
             )
         except ModelFormatError:
             raise
@@ -511,20 +522,7 @@ class Model:
             If the file is missing, not JSON, or not a valid model document (the message names the file).
         """
         p = Path(path)
-        try:
-            raw = read_regular_file(p, MAX_MODEL_BYTES)  # UTF-8 (a BOM skipped), or UTF-16 with a BOM
-            text = raw.decode("utf-16" if raw.startswith((b"\xff\xfe", b"\xfe\xff")) else "utf-8-sig")
-        except ValueError as exc:  # not a regular file, or too large (UnicodeDecodeError is handled below)
-            if isinstance(exc, UnicodeDecodeError):
-                raise ModelFormatError(f"model file {str(p)!r} must be UTF-8 JSON text; {exc}") from None
-            raise ModelFormatError(f"model file {str(p)!r}: {exc} (a model document is at most {MAX_MODEL_BYTES} "
-                                   "bytes, in a regular file)") from None
-        except OSError as exc:
-            raise ModelFormatError(f"model file must be a readable streamid.model/1 JSON file; cannot read {str(p)!r}: "
-                                   f"{exc}") from None
-        d = parse_model_json(text, f"model file {str(p)!r}")
-        if isinstance(d, Mapping) and d.get("format") not in MODEL_FORMATS and isinstance(d.get("model"), Mapping):
-            d = d["model"]
+        d = read_model_file(p, MODEL_FORMATS)
         try:
             return cls.from_dict(d)
         except ModelFormatError as exc:

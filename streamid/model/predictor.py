@@ -34,18 +34,19 @@ hand its model to the control loop (a queue, or one attribute assignment) and ca
 from __future__ import annotations
 
 from math import isfinite
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.kernels import one_row
-from streamid.model.domain import beyond_range
-from streamid.model.ensemble import members_of
+from streamid.model.domain import beyond_range, outside
+from streamid.model.ensemble import EnsembleModel, members_of
 from streamid.model.narx import Model
 from streamid.model.limits import MAX_INPUTS, MAX_LAG, MAX_NEURONS
 from streamid.model.regressors import Normalisation, Regressor
 from streamid.model.regressors import check_finite
+from streamid.model.uncertainty import Band
 from streamid.errors import DataError
 
 __all__ = ["Predictor", "has_direct_terms", "one_step"]
@@ -246,17 +247,27 @@ class Predictor:
             self._un[n] = 2.0 * (_inputs("u_next", u_next, self._model.n_inputs) - self._u_low) / self._u_span - 1.0
         elif self._direct:
             raise _u_next_missing(self._model)
+        if self._median:  # a median ensemble: its members' median (in output units, as predict_osa's)
+            return float(np.median([(net.yn(self._un, self._yn, n) + 1.0) * self._y_half + self._y_low
+                                    for net in self._nets]))
         total = 0.0
         for net in self._nets:  # an ensemble's prediction is its members' mean (in output units, as predict_osa's)
             total += (net.yn(self._un, self._yn, n) + 1.0) * self._y_half + self._y_low
         return total / len(self._nets)
 
-    def forecast(self, u_plan: ArrayLike) -> NDArray[np.float64]:
+    @overload
+    def forecast(self, u_plan: ArrayLike, interval: None = None) -> NDArray[np.float64]: ...
+
+    @overload
+    def forecast(self, u_plan: ArrayLike, interval: float) -> Band: ...
+
+    def forecast(self, u_plan: ArrayLike, interval: float | None = None) -> NDArray[np.float64] | Band:
         """``yhat(t+1) .. yhat(t+H)``: the free run from the newest samples for the planned inputs.
 
         ``u_plan`` holds ``u(t+1) .. u(t+H)``, shape (H,) or (H, n_inputs).  The run feeds its own
         predictions back (it never sees a measured output after ``t``); with every input lag >= 1 the
-        last planned input is not used.
+        last planned input is not used. With ``interval`` (a level of the model's interval, e.g. 0.9) the
+        forecast comes with its band's lower and upper paths (:class:`~streamid.model.uncertainty.Band`).
 
         Raises
         ------
@@ -267,7 +278,25 @@ class Predictor:
         plan = _inputs("u_plan", u_plan, m.n_inputs, many=True)
         u, y = self._needed()
         L = m.max_lag
+        if interval is not None:
+            band = m.simulate(np.vstack([u, plan]), y, interval=interval)
+            return Band(band.y[L:], band.lower[L:], band.upper[L:])
         return m.simulate(np.vstack([u, plan]), y)[L:]
+
+    def in_domain(self, u_next: ArrayLike | None = None) -> bool:
+        """Whether every regressor of the next prediction (from the newest samples, and ``u_next`` when given)
+        lies inside the model's estimation domain (:func:`~streamid.model.domain.outside`): what an FMU's
+        ``<output>_in_domain`` says at each step."""
+        m = self._model
+        k = min(self.held, m.max_lag)
+        u, y = self._recent(k)
+        nxt = _inputs("u_next", u_next, m.n_inputs)[None, :] if u_next is not None else np.zeros((1, m.n_inputs))
+        regs = sorted({r for net in members_of(m) for r in (*net.regressors, *(net.linear_regressors or ()))},
+                      key=lambda r: (r.signal, r.index, r.lag))
+        if u_next is None:  # no input at the predicted instant: its direct terms (lag 0) are not judged
+            regs = [r for r in regs if r.lag > 0]
+        flags = outside(m.normalisation, regs, np.vstack([u, nxt]), np.concatenate([y, [m.normalisation.y_low]]))
+        return not bool(flags[-1])
 
     def forecast_many(self, u_plans: ArrayLike) -> NDArray[np.float64]:
         """:meth:`forecast` for several candidate plans at once (what a model-predictive controller compares):
@@ -347,6 +376,7 @@ class Predictor:
         self._u_low0, self._u_span0 = float(self._u_low[0]), float(self._u_span[0])
         self._scalar_u = model.n_inputs == 1
         self._nets = [_Network(m) for m in members_of(model)]
+        self._median = isinstance(model, EnsembleModel) and model.combine == "median"
         self._direct = has_direct_terms(model)
         self._lag = model.max_lag
         self._model = model

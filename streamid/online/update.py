@@ -41,11 +41,14 @@ import numpy as np
 
 from streamid.engine import CoEAState, Coevolution, EvalHelper
 from streamid.model import Model
+from streamid.model.domain import outside_share
+from streamid.model.uncertainty import interval_report
 from streamid.engine.fit.blas import one_blas_thread
 from streamid.engine.choice.scores import RANGE_MARGIN
 from streamid.engine.search.feedthrough import direct_terms
 from streamid.engine.identification import select_model
 from streamid.engine.choice.longlinear import long_linear_choice
+from streamid.engine.choice.calibration import with_interval
 from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.settings import MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import StreamidError
@@ -223,7 +226,11 @@ def champion_figures(champion: Model | None, u_val: np.ndarray, y_val: np.ndarra
         fr = champion.simulate(u_val, y_val[:L])
     e = y_val[L:] - osa[L:]
     figs = {"r2_osa_val": r2_or_nan(y_val[L:], osa[L:]), "r2_fr_val": r2_or_nan(y_val[L:], fr[L:]),
-            "mse_osa_val": float(np.mean(e * e)) if np.isfinite(e).all() else float("nan")}
+            "mse_osa_val": float(np.mean(e * e)) if np.isfinite(e).all() else float("nan"),
+            "outside_domain_val": outside_share(champion, u_val, y_val)}
+    band = interval_report(champion, u_val, y_val)  # the champion's interval on current data (None: it has none)
+    if band is not None:
+        figs["interval_coverage_val"] = band["coverage"]
     return figs, np.asarray(fr, dtype=np.float64)
 
 
@@ -360,6 +367,7 @@ def identify_window(
             model, refined = refine_judged(model, u_est, y_est, engine_cfg.refine_iterations, REFINE_ABOVE,
                                            RANGE_MARGIN)
             model = model.with_metrics(refinement=refined)
+        model = with_interval(model, u_est, y_est, RIDGE)  # its free-run interval, calibrated on a held-out half
         with one_blas_thread():  # the validation's products: steady with one thread (see identify_window)
             summary = summarise(model, u_est, y_est, u_val, y_val)
             if generations is not None and champion is not None and champion.n_inputs == u_est.shape[1]:

@@ -1,0 +1,130 @@
+"""Issue 51: models that know when they do not know, measured on the suite's targets.
+
+A measurement, not part of the engine. For each target and seed: the paper's plain procedure (``--paper``'s
+settings, :data:`benchmarks.suite.SUITE_PAPER`) and the defaults' kept model, each with its free-run interval (both
+calibrated by ``identify`` on the estimation record's held-out half), and the median of the defaults' restarts'
+finished models (:func:`streamid.engine.choice.robust.median_of_finished`, calibrated the same way). Per model: the
+validation free-run R^2 on the other experiment, the 90 % interval's coverage there and its mean width over the
+output's standard deviation and over the free-run RMS error. ``--read`` prints per row the median / worst of the
+seeds, the coverage (median over seeds) and the **silent failures**: seeds whose free-run R^2 is more than 0.05 under
+the paper's median on the row and whose interval covers less than 80 % of the validation samples::
+
+    python -m benchmarks.honesty piezo_sim,bouc_wen_sim --seeds 0,1,2,3,4 > rows.jsonl
+    python -m benchmarks.honesty --read rows.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from benchmarks.ablation import _targets
+from benchmarks.suite import SUITE_PAPER, Target, free_run_val
+from streamid.engine import identify
+from streamid.engine.choice.calibration import with_interval
+from streamid.engine.choice.robust import median_of_finished
+from streamid.engine.settings import DEFAULT, RIDGE
+from streamid.model.narx import Model
+from streamid.model.uncertainty import DEFAULT_LEVEL, Band, band_coverage
+
+KINDS = ("paper", "kept", "median")
+SILENT_GAP = 0.05
+SILENT_COVERAGE = 0.8
+
+
+def validation_band(model: Model, t: Target) -> dict[str, Any] | None:
+    """The model's 90 % band on the validation part, scored as :func:`benchmarks.suite.free_run_val` scores the
+    free run (periodic: the second pass); None without an interval."""
+    if model.interval is None:
+        return None
+    L = model.max_lag
+    with np.errstate(over="ignore", invalid="ignore"):
+        if t.periodic_val:
+            b = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L], interval=DEFAULT_LEVEL)
+            n = len(t.y_val)
+            band, start = Band(b.y[n:], b.lower[n:], b.upper[n:]), 0
+        else:
+            band, start = model.simulate(t.u_val, t.y_val[:L], interval=DEFAULT_LEVEL), L
+        got = band_coverage(t.y_val, band, start)
+        err = t.y_val[start:] - band.y[start:]
+        rms = float(np.sqrt(np.mean(err**2)))
+    return {**got, "width_over_rms": got["width"] / rms if rms > 0 and math.isfinite(rms) else math.inf}
+
+
+def _score(model: Model, t: Target) -> dict[str, Any]:
+    fr = free_run_val(model, t)
+    return {"fr_val": fr if math.isfinite(fr) else -1e300, "band": validation_band(model, t)}
+
+
+def _row(job: tuple[str, int, int]) -> dict[str, Any]:
+    system, index, seed = job
+    t = _targets(system)[index]
+    out: dict[str, Any] = {"target": t.name, "seed": seed}
+    paper = identify(t.u_est, t.y_est, SUITE_PAPER, seed).model
+    out["paper"] = _score(paper, t)
+    res = identify(t.u_est, t.y_est, DEFAULT, seed)
+    out["kept"] = _score(res.model, t)
+    models = list(res.extra.get("run_models") or ())
+    scores = [float(s) for s in res.model.metrics.get("run_scores", [])]
+    med, ev = median_of_finished(models, scores, DEFAULT, t.u_est, t.y_est)
+    out["median"] = None if med is None else _score(with_interval(med, t.u_est, t.y_est, RIDGE), t)
+    out["median_evidence"] = {k: v for k, v in ev.items() if k != "finished"}
+    return out
+
+
+def summarise(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per target: per kind, median / worst FR val, coverage (median over seeds), width / std, silent."""
+    by: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        by.setdefault(r["target"], []).append(r)
+    lines, silent_total = [], dict.fromkeys(KINDS, 0)
+    for name, rs in by.items():
+        paper_median = statistics.median(r["paper"]["fr_val"] for r in rs)
+        cells = []
+        for kind in KINDS:
+            got = [r[kind] if r.get(kind) is not None else r["kept"] for r in rs]  # no median: the kept model stands
+            frs = [g["fr_val"] for g in got]
+            bands = [g["band"] for g in got if g["band"] is not None]
+            cov = statistics.median(b["coverage"] for b in bands) if bands else math.nan
+            wid = statistics.median(b["width_over_std"] for b in bands) if bands else math.nan
+            silent = sum(1 for g in got if g["fr_val"] < paper_median - SILENT_GAP
+                         and (g["band"] is None or g["band"]["coverage"] < SILENT_COVERAGE))
+            silent_total[kind] += silent
+            cells.append(f"{statistics.median(frs):.4f} / {min(frs):.4g}, cov {cov:.2f}, w/sd {wid:.2f}, silent {silent}")
+        lines.append(f"| {name} ({len(rs)} seeds) | " + " | ".join(cells) + " |")
+    lines.append("silent failures: " + ", ".join(f"{k} {v}" for k, v in silent_total.items()))
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.honesty", description=(__doc__ or "").split("\n")[0])
+    ap.add_argument("systems", nargs="?", default="", help="comma-separated suite systems, e.g. piezo_sim,rlc")
+    ap.add_argument("--read", metavar="JSONL", help="summarise rows printed by an earlier run instead")
+    ap.add_argument("--seeds", default="0,1,2,3,4")
+    ap.add_argument("--jobs", type=int, default=2)
+    a = ap.parse_args(argv)
+    if a.read:
+        with open(a.read, encoding="utf-8") as f:
+            rows = [json.loads(line) for line in f if line.strip()]
+        print("| target | " + " | ".join(KINDS) + " |")
+        print("\n".join(summarise(rows)))
+        return 0
+    if not a.systems:
+        ap.error("name the systems to run, or --read a file of rows")
+    seeds = [int(s) for s in a.seeds.split(",")]
+    plan = [(s, i, seed) for s in a.systems.split(",") for i in range(len(_targets(s))) for seed in seeds]
+    with ProcessPoolExecutor(a.jobs) as ex:
+        for out in ex.map(_row, plan):
+            print(json.dumps(out), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

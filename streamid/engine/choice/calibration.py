@@ -1,0 +1,64 @@
+"""The kept model's prediction interval, calibrated on data held out from fitting (split conformal).
+
+The estimation record is split in two halves. The kept model's structure (lags, centres, widths; each member's,
+for an ensemble) is refitted by least squares on the first half alone, then free-run over the whole record from
+its first measured outputs; the second half, which that fit never saw, gives the calibration scores
+``|y(t) - centre(t)| / (scale + spread(t))`` (:mod:`streamid.model.uncertainty`), ``scale`` the RMS of its free-run
+error there. Their conformal quantiles at :data:`~streamid.model.uncertainty.LEVELS` and ``scale`` are what the
+model carries. What this covers and what it does not: docs/method.md ("The prediction interval").
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.engine.choice.selection import refit_weights
+from streamid.errors import DataError
+from streamid.model.narx import Model
+from streamid.model.uncertainty import LEVELS, MIN_CALIBRATION, Interval, conformal_quantiles, member_spread
+
+__all__ = ["METHOD", "calibrate", "with_interval"]
+
+METHOD = ("split-conformal: the model's structure refitted on the estimation record's first half, its free run "
+          "scored on the second half")
+
+
+def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> tuple[Interval | None, dict[str, Any]]:
+    """The interval of ``model`` from its estimation record ``(u, y)`` and the evidence (``metrics.calibration``):
+    ``samples``, ``scale``, the refitted half's held-out free-run R^2 (``r2_fr_held_out``), or ``reason`` when
+    no interval could be made (a record too short, a refit that failed, a held-out free run that diverged)."""
+    n = int(y.shape[0])
+    h = n // 2
+    if n - h < MIN_CALIBRATION or h < model.max_lag + 2:
+        return None, {"reason": f"too few samples to hold out ({n}; at least {2 * MIN_CALIBRATION} are needed)"}
+    try:
+        half = refit_weights(model, u[:h], y[:h], ridge)
+    except DataError as exc:
+        return None, {"reason": f"the model could not be refitted on the first half ({exc})"}
+    with np.errstate(over="ignore", invalid="ignore"):
+        paths = half.member_paths(u, y[: half.max_lag])
+        centre = half.combine_paths(paths, y)
+        err = y[h:] - centre[h:]
+        spread = member_spread(paths)[h:]
+    if not (np.all(np.isfinite(err)) and np.all(np.isfinite(spread))):
+        return None, {"reason": "the model refitted on the first half diverged in free run over the second half",
+                      "samples": n - h}
+    scale = float(np.sqrt(np.mean(err**2)))
+    den = scale + spread
+    scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
+    quantiles = conformal_quantiles(scores, LEVELS)
+    var = float(np.var(y[h:]))
+    r2 = 1.0 - float(np.mean(err**2)) / var if var > 0 else None
+    evidence = {"method": METHOD, "samples": n - h, "scale": scale, "r2_fr_held_out": r2,
+                "mean_spread": float(np.mean(spread)), "quantile_90": quantiles[LEVELS.index(0.9)]}
+    return Interval(LEVELS, quantiles, scale, n - h, METHOD), evidence
+
+
+def with_interval(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:
+    """``model`` carrying its calibrated interval (or none), the evidence in ``metrics.calibration``."""
+    interval, evidence = calibrate(model, u, y, ridge)
+    return replace(model, interval=interval, metrics={**model.metrics, "calibration": evidence})
