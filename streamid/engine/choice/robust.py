@@ -53,7 +53,8 @@ def median_of_finished(models: list[Model], scores: list[float], cfg: CoEAConfig
     ev: dict[str, Any] = {"combine": "median", "runs": runs, "min_runs": MIN_RUNS}
     if len(runs) < MIN_RUNS:
         return None, {**ev, "reason": f"{len(runs)} admissible run(s); a median needs {MIN_RUNS}"}
-    finished, steps = [], []
+    finished: list[Model] = []
+    steps: list[dict[str, Any]] = []
     for i in runs:
         m, step = finish(members_of(models[i])[0], scores[i], cfg, u, y, threads)
         finished.extend(members_of(m))
