@@ -289,8 +289,8 @@ def _strips(pts: np.ndarray) -> tuple[np.ndarray, ...]:
 COL_MEASURED: RGB = (230, 230, 230)
 COL_OSA: RGB = (66, 150, 250)
 COL_FR: RGB = (250, 140, 40)
-COL_BAND: RGB = (200, 120, 50)  # the free run's band: its edges
-COL_BAND_FILL: RGB = (95, 62, 32)  # and its inside (a darker orange under the lines)
+COL_BAND: RGB = (215, 150, 80)  # the free run's band: its edges
+COL_BAND_FILL: RGB = (125, 80, 36)  # and its inside (a darker orange under the lines)
 COL_COLD: RGB = (120, 200, 120)
 COL_WARM: RGB = (235, 200, 70)
 _EPOCH_NS = 10**17  # clocks beyond ~1973 are Unix time
@@ -328,7 +328,8 @@ def validation_figures(r: UpdateReport, max_points: int = 1000) -> tuple[Figure,
     lo, hi = data_range([y, osa, fr, *band])
     yax = Axis(max(lo, ylo - span), min(hi, yhi + span))
     when = f"window end {clock_text(r.window_end_ns)}"
-    shade = [Series("band_fill", "", COL_BAND_FILL, *_fill(t, band[0], band[1]), 1.0),
+    stroke = float(np.clip((CANVAS["validation"][0] - _LEFT - _RIGHT) / max(1, t.size), 1.0, 8.0))  # strokes touch
+    shade = [Series("band_fill", "", COL_BAND_FILL, *_fill(t, band[0], band[1]), stroke),
              Series("band_lower", "", COL_BAND, t, band[0], 1.0),
              Series("band_upper", f"{100 * r.band_level:g} % band", COL_BAND, t, band[1], 1.0)] if band else []
     fit = figure(
