@@ -10,12 +10,16 @@ from dataclasses import replace
 
 import numpy as np
 
+from streamid.model.domain import outside
 from streamid.model.ensemble import ensemble_of
 from streamid.model.narx import Model
 from streamid.model.regressors import Normalisation, Regressor
+from streamid.model.uncertainty import LEVELS, Interval
 
 PERIOD_NS = 10_000_000  # 10 ms
 INPUTS = ("force_N", "valve")
+#: A 90 % interval (and the others a model carries) as a calibration would make it: q_0.9 = 1.7, scale 0.05.
+INTERVAL = Interval(LEVELS, (0.7, 1.3, 1.7, 2.1, 2.9), 0.05, 200)
 
 
 def net(regs: list[tuple[str, int, int]], *, linear: str = "", seed: int = 0, output: str = "pos_mm",
@@ -48,6 +52,10 @@ def kinds() -> dict[str, Model]:
         "direct": d,
         "ensemble": ensemble_of([a, b, d], window=win),
         "ensemble_long_linear": ensemble_of([c, a], window=win),
+        # the per-sample median of 4 (the mean of the middle two) and of 3 networks, with the 90 % band
+        "median": ensemble_of([a, b, d, c], combine="median", window=win, interval=INTERVAL),
+        "median_odd": ensemble_of([b, c, a], combine="median", window=win, interval=INTERVAL),
+        "network_band": replace(a, interval=INTERVAL),  # a single network's band: q_0.9 * scale
     }
 
 
@@ -62,3 +70,27 @@ def record(n: int = 600, seed: int = 5) -> np.ndarray:
     rng = np.random.default_rng(seed)
     steps = np.repeat(rng.uniform(-2.2, 2.2, (n // 20 + 1, 2)), 20, axis=0)[:n]
     return steps + rng.normal(0, 0.2, (n, 2)) * np.array([1.0, 2.0]) + np.array([0.0, 1.0])
+
+
+def check_added_outputs(m: Model, u: np.ndarray, initial: float, x: dict[str, np.ndarray]) -> None:
+    """The export's ``<output>_lower``/``_upper`` equal the 90 % band of ``Model.simulate`` (to 1e-9 of the
+    output's range; present only when the model carries an interval) and ``<output>_in_domain`` is 1.0 exactly
+    where :func:`streamid.model.domain.outside` finds every regressor within the estimation range."""
+    name, span = m.output_name, m.normalisation.y_high - m.normalisation.y_low
+    y_init = np.full(m.max_lag, initial)
+    if m.interval is None:
+        assert f"{name}_lower" not in x and f"{name}_upper" not in x
+        y = m.simulate(u, y_init)
+    else:
+        band = m.simulate(u, y_init, interval=0.9)
+        y = band.y
+        assert np.max(np.abs(x[f"{name}_lower"] - band.lower)) <= 1e-9 * span, name
+        assert np.max(np.abs(x[f"{name}_upper"] - band.upper)) <= 1e-9 * span, name
+        width = band.upper - band.lower
+        assert np.all(width[m.max_lag:] > 0) and np.all(width[: m.max_lag] == 0)
+        if len(getattr(m, "members", ())) > 1:  # the members' spread widens it beyond q * scale somewhere
+            assert np.max(width) > 2 * m.interval.quantile(0.9) * m.interval.scale * 1.5
+    regs = {r for net in getattr(m, "members", (m,)) for r in (*net.regressors, *(net.linear_regressors or ()))}
+    flags = outside(m.normalisation, sorted(regs, key=lambda r: (r.signal, r.index, r.lag)), u, y)
+    assert np.array_equal(x[f"{name}_in_domain"], np.where(flags, 0.0, 1.0)), name
+    assert 0.05 < np.mean(flags) < 0.95  # the record leaves the domain and comes back: both values tested

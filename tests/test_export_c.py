@@ -1,7 +1,9 @@
 """streamid export --c: the C99 code compiles with gcc -std=c99 -Wall -Wextra -Werror, calls nothing but
-``exp`` (no allocation), documents itself, and its step function equals ``Model.simulate`` from the same
-constant initial history to 1e-6 of the output's range at every sample, for every model kind (a small C
-driver, compiled and run, prints the outputs)."""
+``exp`` (and ``sqrt`` for an ensemble's band; no allocation), documents itself, and its step function equals
+``Model.simulate`` from the same constant initial history to 1e-9 of the output's range at every sample, for
+every model kind (a median ensemble: the per-sample median of its members), and so do its added outputs: the
+90 % band ``Model.simulate(..., interval=0.9)`` gives and the estimation domain
+:func:`streamid.model.domain.outside` finds (a small C driver, compiled and run, prints them)."""
 
 from __future__ import annotations
 
@@ -13,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from export_models import INPUTS, kinds, record, second_output
+from export_models import INPUTS, check_added_outputs, kinds, record, second_output
 from streamid.model.narx import Model
-from streamid.export import write_c
+from streamid.export import plan_of, write_c
 
 KINDS = [*kinds(), "two_outputs"]
 STREAMID = [sys.executable, "-m", "streamid"]
@@ -26,7 +28,7 @@ DRIVER = r"""#include <stdio.h>
 int main(void)
 {
     @N@_state s;
-    double u[@N_UP@_N_INPUTS], y[@N_UP@_N_OUTPUTS], initial[@N_UP@_N_OUTPUTS];
+    double u[@N_UP@_N_INPUTS], y[@N_UP@_N_OUTPUTS], initial[@N_UP@_N_OUTPUTS], x[@N_UP@_N_EXTRAS];
     int i;
     for (i = 0; i < @N_UP@_N_OUTPUTS; ++i)
         if (scanf("%lf", &initial[i]) != 1) return 1;
@@ -34,8 +36,10 @@ int main(void)
     for (;;) {
         for (i = 0; i < @N_UP@_N_INPUTS; ++i)
             if (scanf("%lf", &u[i]) != 1) return 0;
+        @N@_outputs_all(&s, u, y, x);  /* the added outputs of the sample (band, domain) */
         @N@_step(&s, u, y);
-        for (i = 0; i < @N_UP@_N_OUTPUTS; ++i) printf("%.17g%c", y[i], i + 1 < @N_UP@_N_OUTPUTS ? ' ' : '\n');
+        for (i = 0; i < @N_UP@_N_OUTPUTS; ++i) printf("%.17g ", y[i]);
+        for (i = 0; i < @N_UP@_N_EXTRAS; ++i) printf("%.17g%c", x[i], i + 1 < @N_UP@_N_EXTRAS ? ' ' : '\n');
     }
 }
 """
@@ -64,7 +68,8 @@ def test_the_c_step_function_equals_model_simulate(kind: str, tmp_path: Path) ->
     if shutil.which("nm") is None:
         pytest.skip("needs nm (Debian package binutils)")
     undefined = subprocess.run(["nm", "-u", str(obj)], capture_output=True, text=True, check=True).stdout.split()
-    assert [s for s in undefined if s != "U"] == ["exp"], undefined
+    spread = any(len(o.networks) > 1 and o.band is not None for o in plan_of(models, "x").outputs)
+    assert [s for s in undefined if s != "U"] == (["exp", "sqrt"] if spread else ["exp"]), undefined
     exe = tmp_path / "drive"
     subprocess.run([cc, *GCC, "-O2", "-I", str(tmp_path), "-o", str(exe), str(tmp_path / "driver.c"), str(obj), "-lm"],
                    check=True, capture_output=True, text=True)
@@ -72,12 +77,18 @@ def test_the_c_step_function_equals_model_simulate(kind: str, tmp_path: Path) ->
     feed = " ".join(repr(v) for v in init) + "\n" + "\n".join(" ".join(repr(float(v)) for v in row) for row in u)
     out = subprocess.run([str(exe)], input=feed, capture_output=True, text=True, check=True, timeout=30).stdout
     got = np.array([[float(v) for v in ln.split()] for ln in out.splitlines()])
-    assert got.shape == (len(u), len(models))
+    extras = [name for _, name in plan_of(models, "x").extras]
+    assert got.shape == (len(u), len(models) + len(extras))
+    x = dict(zip(extras, got[:, len(models):].T))
     for j, m in enumerate(models):
         want = m.simulate(u, np.full(m.max_lag, init[j]))
         span = m.normalisation.y_high - m.normalisation.y_low
-        assert np.max(np.abs(got[:, j] - want)) <= 1e-6 * span, (kind, m.output_name)
+        assert np.max(np.abs(got[:, j] - want)) <= 1e-9 * span, (kind, m.output_name)
         assert np.allclose(got[: m.max_lag, j], init[j])  # the initial history, as Model.simulate's y_init
+        check_added_outputs(m, u, init[j], x)
+        if getattr(m, "combine", "mean") == "median":  # the median, not the mean, of the members
+            mean = np.mean([net.simulate(u, np.full(m.max_lag, init[j])) for net in m.members], axis=0)
+            assert np.max(np.abs(got[:, j] - mean)) > 1e-2 * span
 
 
 def test_the_header_documents_inputs_outputs_units_period_and_timing(tmp_path: Path) -> None:
@@ -118,3 +129,15 @@ def test_models_that_do_not_go_together_are_refused_in_one_line(tmp_path: Path) 
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "Sample period: 0.002 s" in (tmp_path / "out" / "c.h").read_text()
+
+
+def test_a_model_whose_interval_lacks_the_90_percent_level_is_refused_in_one_line() -> None:
+    from dataclasses import replace
+
+    from streamid.errors import ModelFormatError
+    from streamid.model.uncertainty import Interval
+
+    odd = replace(kinds()["network"], interval=Interval((0.5, 0.8), (0.7, 1.3), 0.05, 200))
+    with pytest.raises(ModelFormatError, match=r"its interval has no level 0.9 \(levels 0.5, 0.8\); the export's "
+                                               r"<output>_lower and <output>_upper are the 90 % band"):
+        plan_of([odd], "x")

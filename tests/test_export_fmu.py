@@ -5,7 +5,9 @@
 * fmpy runs the compiled FMU: with a master that sets a communication point's inputs before reading its
   outputs (fmpy's FMU2Slave, as FMI 2.0 masters do for direct feedthrough) it equals ``Model.simulate`` from
   the same constant initial history to 1e-6 of the output's range at every sample, for every model kind;
-  fmpy's own loop (``simulate_fmu``) too for every kind without direct terms; with direct terms that loop
+  fmpy's own loop (``simulate_fmu``) too for every kind without direct terms; its added outputs
+  ``<output>_lower``/``_upper`` (the 90 % band, when the model carries an interval) and ``<output>_in_domain``
+  equal ``Model.simulate(..., interval=0.9)`` and :func:`streamid.model.domain.outside` on the same inputs; with direct terms that loop
   reads the outputs before it sets the next inputs, and gets exactly the documented value for that order;
 * a communication step of n sample periods advances n samples; any other step is refused (fmi2Error, logged);
 * the binary does not link libpython; a model file failing the model checks is refused before any file.
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from export_models import INPUTS, PERIOD_NS, kinds, record, second_output
+from export_models import INPUTS, PERIOD_NS, check_added_outputs, kinds, record, second_output
 from streamid.model.narx import Model
 from streamid.export import write_fmu
 from streamid.export.plan import plan_of
@@ -83,7 +85,8 @@ def test_fmpy_validation_finds_no_problem_and_the_description_is_truthful(fmus: 
     assert md.coSimulation.modelIdentifier == "two_outputs"
     by = {v.name: v for v in md.modelVariables}
     assert [v.name for v in md.modelVariables if v.causality == "input"] == list(INPUTS)
-    assert [v.name for v in md.modelVariables if v.causality == "output"] == ["pos_mm", "temp_C"]
+    assert [v.name for v in md.modelVariables if v.causality == "output"] == ["pos_mm", "temp_C", "pos_mm_in_domain",
+                                                                              "temp_C_in_domain"]
     for m in models_of("two_outputs"):
         p = by[f"initial_{m.output_name}"]
         assert (p.causality, p.variability, p.type) == ("parameter", "fixed", "Real")
@@ -91,17 +94,29 @@ def test_fmpy_validation_finds_no_problem_and_the_description_is_truthful(fmus: 
     assert md.defaultExperiment is not None and float(md.defaultExperiment.stepSize) == H
     # direct terms: pos_mm has force_N(t), temp_C has valve(t), and nothing else directly
     deps = {u.variable.name: [d.name for d in u.dependencies] for u in md.outputs}
-    assert deps == {"pos_mm": ["force_N"], "temp_C": ["valve"]}
+    assert deps == {"pos_mm": ["force_N"], "temp_C": ["valve"], "pos_mm_in_domain": ["force_N"],
+                    "temp_C_in_domain": ["valve"]}
     one = read_model_description(str(fmus["network"]))
-    assert {u.variable.name: [d.name for d in u.dependencies] for u in one.outputs} == {"pos_mm": []}
+    assert {u.variable.name: [d.name for d in u.dependencies] for u in one.outputs} == {"pos_mm": [],
+                                                                                        "pos_mm_in_domain": []}
+    # a model with an interval: its band's bounds, after the parameters (the first value references unchanged)
+    med = read_model_description(str(fmus["median"]))
+    vrs = {v.name: (v.valueReference, v.causality, v.initial) for v in med.modelVariables}
+    assert vrs == {"force_N": (0, "input", "exact"), "valve": (1, "input", "exact"), "pos_mm": (2, "output", "calculated"),
+                   "initial_pos_mm": (3, "parameter", "exact"), "pos_mm_lower": (4, "output", "calculated"),
+                   "pos_mm_upper": (5, "output", "calculated"), "pos_mm_in_domain": (6, "output", "calculated")}
+    assert {u.variable.name: [d.name for d in u.dependencies] for u in med.outputs} == {
+        n: ["force_N"] for n in ("pos_mm", "pos_mm_lower", "pos_mm_upper", "pos_mm_in_domain")}
+    assert "90 % free-run band" in next(v.description for v in med.modelVariables if v.name == "pos_mm_upper")
     names = zipfile.ZipFile(fmus["network"]).namelist()
     assert "binaries/linux64/network.so" in names and "sources/network.c" in names
     assert "documentation/licenses/fmi2-headers.txt" in names and "sources/fmi2Functions.h" in names
 
 
-def run_master(path: Path, models: list[Model], u: np.ndarray, init: list[float], every: int = 1) -> np.ndarray:
+def run_master(path: Path, models: list[Model], u: np.ndarray, init: list[float], every: int = 1,
+               extras: list[str] | None = None) -> np.ndarray:
     """A co-simulation master with fmpy's FMU2Slave: at each communication point set the inputs, read the
-    outputs, then step (``every`` sample periods a step)."""
+    outputs (and the variables ``extras``, as columns after them), then step (``every`` sample periods a step)."""
     md = read_model_description(str(path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
     d = fmpy.extract(str(path))
@@ -115,7 +130,7 @@ def run_master(path: Path, models: list[Model], u: np.ndarray, init: list[float]
     out, t = [], 0.0
     for k in range(0, len(u), every):
         fmu.setReal([vr[n] for n in INPUTS], list(u[k]))
-        out.append(fmu.getReal([vr[m.output_name] for m in models]))
+        out.append(fmu.getReal([vr[m.output_name] for m in models] + [vr[n] for n in extras or ()]))
         fmu.doStep(currentCommunicationPoint=t, communicationStepSize=every * H)
         t = (k + every) * H
     fmu.terminate()
@@ -128,11 +143,13 @@ def run_master(path: Path, models: list[Model], u: np.ndarray, init: list[float]
 def test_fmu_in_fmpy_equals_model_simulate(fmus: dict[str, Path], kind: str) -> None:
     models, u = models_of(kind), record()
     init = initials(models)
-    got = run_master(fmus[kind], models, u, init)
+    extras = [name for _, name in plan_of(models, "x").extras]
+    got = run_master(fmus[kind], models, u, init, extras=extras)
     for j, m in enumerate(models):
         want = reference(m, u, init[j])
-        assert err(m, got[:, j], want) <= 1e-6, (kind, m.output_name)
+        assert err(m, got[:, j], want) <= 1e-9, (kind, m.output_name)
         assert np.std(want[m.max_lag:]) > 0.05 * (m.normalisation.y_high - m.normalisation.y_low)  # not a flat run
+        check_added_outputs(m, u, init[j], dict(zip(extras, got[:, len(models):].T)))
     # fmpy's own co-simulation loop: set the inputs of t_k, step, read the outputs at t_k+1
     res = fmpy.simulate_fmu(str(fmus[kind]), start_time=0.0, stop_time=(len(u) - 1) * H, output_interval=H,
                             input=signals(u), fmi_type="CoSimulation",
@@ -144,6 +161,7 @@ def test_fmu_in_fmpy_equals_model_simulate(fmus: dict[str, Path], kind: str) -> 
         direct = plan_of([m], "x", H).outputs[0].direct_inputs
         if not direct:
             assert err(m, rec, want) <= 1e-6, (kind, m.output_name)
+            check_added_outputs(m, u, init[j], {n: res[n] for n in extras})  # fmpy records them too
         else:
             # it reads sample k's outputs before setting sample k's inputs: the direct terms still see u(t_k-1)
             # (docs/export.md); the master above, which sets them first, gets want exactly

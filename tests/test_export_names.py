@@ -115,7 +115,8 @@ def test_hostile_but_legal_names_make_a_valid_fmu_and_c_that_compiles(tmp_path: 
     fmu = write_fmu([m], tmp_path / "hostile.fmu")
     assert validate_fmu(str(fmu)) == []
     md = read_model_description(str(fmu))
-    assert [v.name for v in md.modelVariables] == [*HOSTILE_INPUTS, HOSTILE_OUTPUT, f"initial_{HOSTILE_OUTPUT}"]
+    assert [v.name for v in md.modelVariables] == [*HOSTILE_INPUTS, HOSTILE_OUTPUT, f"initial_{HOSTILE_OUTPUT}",
+                                                   f"{HOSTILE_OUTPUT}_in_domain"]
     page = zipfile.ZipFile(fmu).read("documentation/index.html").decode()
     assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     h, c = write_c([m], tmp_path / "c", name="hostile")

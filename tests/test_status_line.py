@@ -43,3 +43,31 @@ def test_a_stream_of_several_outputs_gets_a_line_per_output_under_its_own() -> N
         for column, value in (("FR R2 now", fr), ("drifts", drifts)):
             end = HEADER.index(column) + len(column)
             assert row[end - len(value) : end] == value, (column, row)
+
+
+
+def test_the_champions_interval_on_current_data_is_in_two_columns_and_its_absence_a_dash() -> None:
+    def champ(**current: object) -> dict[str, object]:
+        return {"age_s": 1.0, "current": {"r2_fr_val": 0.97, **current}}
+
+    def cell(line: str, column: str, width: int) -> str:
+        end = HEADER.index(column) + len(column)  # right-aligned under its header
+        return line[end - width : end].strip()
+
+    doc = {"stream": "dev1", "version": 3, "champion": champ(interval_coverage_val=0.912, outside_domain_val=0.034)}
+    line = status_line(doc)
+    assert (cell(line, "band cover", 10), cell(line, "outside", 7), cell(line, "FR R2 now", 9)) == \
+        ("91.2 %", "3.4 %", "0.9700"), line
+    # absent, or not a share: a dash, no error
+    for hostile in ({}, {"interval_coverage_val": None}, {"interval_coverage_val": "0.9"}, {"interval_coverage_val": True},
+                    {"interval_coverage_val": 1.5, "outside_domain_val": -0.1}, {"outside_domain_val": [0.1]}):
+        line = status_line({**doc, "champion": champ(**hostile)})
+        assert (cell(line, "band cover", 10), cell(line, "outside", 7)) == ("-", "-"), (hostile, line)
+    assert cell(status_line({"stream": "x", "champion": {"current": "x"}}), "band cover", 10) == "-"
+    # several outputs: each output's champion in its own row, under the same headers
+    mimo = {"stream": "f16", "version": 9, "models": {
+        "a1": {"version": 9, "champion": champ(interval_coverage_val=1, outside_domain_val=0)},
+        "a2": {"version": 8, "champion": champ()}}}
+    rows = output_lines(mimo)
+    assert [r.split()[:2] for r in rows] == [["a1", "v9"], ["a2", "v8"]]
+    assert [(cell(r, "band cover", 10), cell(r, "outside", 7)) for r in rows] == [("100.0 %", "0.0 %"), ("-", "-")]

@@ -70,12 +70,13 @@ def run(args: argparse.Namespace) -> int:
     models = [Model.load(path) for path in args.models]  # every model checked before anything is written
     fmu_name = args.name or (c_identifier(Path(args.fmu).stem) if args.fmu else "")
     c_name = args.name or c_identifier(Path(args.models[0]).stem)
-    plan_of(models, fmu_name or c_name, args.period)  # the models go together: refused here, before any file
+    plan = plan_of(models, fmu_name or c_name, args.period)  # the models go together: refused here, before any file
     if args.fmu:
         path = write_fmu(models, args.fmu, name=fmu_name, period_s=args.period, sources_only=args.sources_only)
         what = "sources only, no binary" if args.sources_only else "with a binary for this platform"
         print(printable(f"wrote {path} (FMI 2.0 co-simulation, model identifier {fmu_name}, "
-                        f"outputs {', '.join(m.output_name for m in models)}; {what})"))  # names escaped
+                        f"outputs {', '.join(m.output_name for m in models)}; added "
+                        f"{', '.join(name for _, name in plan.extras)}; {what})"))  # names escaped
     if args.c_dir:
         h, c = write_c(models, args.c_dir, name=c_name, period_s=args.period)
         print(printable(f"wrote {h} and {c}"))

@@ -3,7 +3,8 @@
 Asks every stream's status queryable (``streamid/<stream>/status``: only the daemon
 serving a stream answers for it) and prints one line per stream: the daemon that
 serves it (its id and the start of its life), the model version, the champion's
-age and current free-run R², the drift events so far, the stream's state, and the members sharing the
+age and current free-run R² (and, re-judged on the newest held-out data, the share of samples its 90 % interval
+covered, ``band cover``, and the share outside its estimation domain, ``outside``), the drift events so far, the stream's state, and the members sharing the
 streams as that daemon sees them.  A stream of several outputs (MIMO: one champion per output) gets one more
 line per output, indented, with that output's champion.  Network text is shown escaped.  Exit code 1 when
 no stream answered within ``--timeout``.
@@ -72,10 +73,20 @@ def _outputs(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return {str(k): v for k, v in models.items() if isinstance(v, dict)} if isinstance(models, dict) else {}
 
 
+def _share(v: Any) -> str:
+    """A share in [0, 1] as a percentage (``91.2 %``); ``-`` for anything else (absent, or not a share)."""
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
+    return f"{100 * v:.1f} %" if ok else "-"
+
+
 def _model_columns(version: Any, champ: dict[str, Any], drifts: Any) -> str:
-    """The version, champion, FR R2 now and drifts columns of the table (a stream's line and an output's)."""
+    """The version, champion, FR R2 now, band cover, outside and drifts columns of the table (a stream's line and
+    an output's): ``band cover`` the share of the newest held-out samples inside the champion's 90 % interval,
+    ``outside`` the share of them outside its estimation domain (``-``: the status does not say)."""
+    now = _table(champ, "current")
     return (f"v{_num(version, 'd'):<6} {_num(champ.get('age_s'), '.1f'):>8} s "
-            f"{_num(_table(champ, 'current').get('r2_fr_val'), '.4f'):>9} {_num(drifts, 'd'):>6}")
+            f"{_num(now.get('r2_fr_val'), '.4f'):>9} {_share(now.get('interval_coverage_val')):>10} "
+            f"{_share(now.get('outside_domain_val')):>7} {_num(drifts, 'd'):>6}")
 
 
 def _who(doc: dict[str, Any]) -> tuple[str, int]:
@@ -204,7 +215,8 @@ def output_lines(doc: dict[str, Any]) -> list[str]:
     return lines
 
 
-HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'drifts':>6} "
+HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'band cover':>10} "
+          f"{'outside':>7} {'drifts':>6} "
           f"{'next update':<20} {'backlog':>12} {'daemons':>7}  state")
 
 

@@ -1,8 +1,10 @@
-"""``streamid watch``: print model updates live (version, lags, R^2, age, why accepted).
+"""``streamid watch``: print model updates live (version, lags, R^2, age, interval, why accepted).
 
 Connects to the daemon (``tcp/127.0.0.1:7447`` by default), prints the current
 model of every output of every watched stream at once (from the daemon's
-queryable), then one line per new model with why it was accepted ("accepted:
+queryable), then one line per new model with its prediction interval (the 90 % free-run band
+"FR -+ q x (scale + spread)" and the calibration's held-out R2; on held-out data, when the update says, how much
+of it the band covered and the share outside the model's estimation domain) and why it was accepted ("accepted:
 better than v12 (FR R2 0.9370 on the same data) by 0.013"); with ``--rejected`` also the challengers that were
 not; with ``--every S`` the age of the current models is re-printed every S
 seconds.  From the streams' status it also says when a stream becomes degraded or healthy again, and when
@@ -39,7 +41,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
     p = sub.add_parser(
         "watch",
-        help="print identified models live (version, lags, R^2, age)",
+        help="print identified models live (version, lags, R^2, interval, age)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -112,6 +114,44 @@ def _how(up: Any) -> str:
     return run if gain is None else f"{run} refined (held out FR {gain})"
 
 
+def _share(v: Any) -> float | None:
+    """``v`` when it is a share (a real number in [0, 1]); None for anything else a publisher may have sent."""
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
+    return float(v) if ok else None
+
+
+def interval_part(up: Any) -> str:
+    """What ``up``'s model says of its uncertainty, in a few words: its free-run band (level, quantile and scale:
+    ``FR -+ q x (scale + spread)``, the calibration's held-out FR R^2 from ``metrics.calibration``) or why it has
+    none, then, when the update's metrics carry them, the band's coverage and the share outside the estimation
+    domain on held-out data (``interval_coverage_val``, ``outside_domain_val``). Fields from the network that are
+    missing or malformed are left out, never raised on; not escaped."""
+    from streamid.model.uncertainty import DEFAULT_LEVEL
+
+    model = up.model
+    cal = model.metrics.get("calibration") if isinstance(model.metrics, dict) else None
+    cal = cal if isinstance(cal, dict) else {}
+    iv = getattr(model, "interval", None)
+    if iv is None:
+        reason = cal.get("reason")
+        text = "no interval" + (f" ({reason if len(reason) <= 120 else reason[:117] + '...'})"
+                                if isinstance(reason, str) and reason else "")
+    else:  # a parsed model's interval is valid (Interval checks it); the default level, else the nearest one
+        level, q = min(zip(iv.levels, iv.quantiles), key=lambda lq: abs(lq[0] - DEFAULT_LEVEL))
+        text = f"interval {100 * level:g} % FR -+ {q:.3g} x ({iv.scale:.4g} + spread)"
+        r2 = cal.get("r2_fr_held_out")
+        if isinstance(r2, (int, float)) and not isinstance(r2, bool) and abs(r2) < 1e6:
+            text += f", calibration held-out FR R2 {r2:.4f}"
+    m = up.metrics if isinstance(up.metrics, dict) else {}
+    cov, out = _share(m.get("interval_coverage_val")), _share(m.get("outside_domain_val"))
+    held = []
+    if cov is not None:
+        held.append(f"covers {100 * cov:.1f} %")
+    if out is not None:
+        held.append(f"{100 * out:.1f} % outside the estimation domain")
+    return text + (f"; on held-out data {', '.join(held)}" if held else "")
+
+
 def format_update(up: Any, now_ns: int | None = None) -> str:
     """One line: stream, version, output and lags, validation R^2, age, and why it was accepted or rejected.
 
@@ -129,7 +169,7 @@ def format_update(up: Any, now_ns: int | None = None) -> str:
     return printable(
         f"{head} {_how(up)} "
         f"{output}(t) = F[{up.model.lags_text()}]{ll} R2 val OSA {_r2(m.get('r2_osa_val'))} FR {_r2(m.get('r2_fr_val'))} "
-        f"ident {up.identification_s:.2f}s age {age:.1f}s" + (f"; {why}" if why else ""),
+        f"ident {up.identification_s:.2f}s age {age:.1f}s; {interval_part(up)}" + (f"; {why}" if why else ""),
         2000,
     )
 

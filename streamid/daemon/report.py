@@ -8,7 +8,7 @@ import numpy as np
 from streamid.model.ensemble import members_of
 from streamid.online import Update
 from streamid.online.refresh import RefreshOutcome
-from streamid.viz.reports import UpdateReport, first_input_tests
+from streamid.viz.reports import UpdateReport, band_of, first_input_tests
 
 __all__ = ["update_report"]
 
@@ -22,6 +22,10 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
     val_t0 = window.t0_ns + (window.n - n_val) * window.period_ns
     lags = out.model.lags if out.model is not None else {}
     nets = members_of(out.model) if out.model is not None else ()  # an ensemble (streamid.model/3): the mean of its networks
+    u_val = np.asarray(out.u_val)
+    # an accepted model's band on the held-out part (drawn around its free run), its coverage and domain share there
+    band, figures = band_of(out.model, u_val, np.asarray(out.y_val)) if up.accepted and out.model is not None \
+        else ({}, {})
     return UpdateReport(
         stream=stream,
         version=version,
@@ -41,7 +45,7 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         fitness=out.fitness,
         correlations=first_input_tests(s.tests),
         lags=lags,
-        metrics=dict(s.metrics),
+        metrics={**s.metrics, **figures},
         identification_s=out.seconds,
         latency_s=latency_s,
         note=up.reason if up.decision is not None or not up.accepted else "",
@@ -52,5 +56,6 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         long_linear_order=max((m.linear_order for m in nets), default=0),
         refinement=out.model.metrics.get("refinement") if out.model is not None else None,
         refreshed_from=out.refreshed_from if isinstance(out, RefreshOutcome) else None,
+        **band,
     )
 

@@ -8,7 +8,9 @@
 Both hold one model per output (several model files of one stream make one export) of every kind the engine
 writes (single networks, ensembles, linear and long linear parts, direct terms), and follow one timing
 convention (:data:`CONVENTION`, docs/export.md): a run equals :meth:`Model.simulate
-<streamid.model.narx.Model.simulate>` from the same constant initial history.
+<streamid.model.narx.Model.simulate>` from the same constant initial history. Each output comes with
+``<output>_lower`` and ``<output>_upper`` (the model's 90 % band, when it carries an interval) and
+``<output>_in_domain`` (1.0 while every regressor lies within its estimation range).
 """
 
 from __future__ import annotations

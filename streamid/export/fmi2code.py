@@ -4,7 +4,8 @@ They wrap the model's C code (:mod:`streamid.export.ccode`): the instance holds 
 inputs as last set and each output's initial value (the parameter ``initial_<output>``). Outputs are
 computed when read, from the inputs as they are then, so a master that sets the inputs of a communication
 point before reading the outputs gets the direct terms of that point (the model description declares
-which outputs depend directly on which inputs). ``fmi2DoStep(t, h)`` takes the inputs as the current
+which outputs depend directly on which inputs); the added outputs (``<output>_lower``, ``<output>_upper``,
+``<output>_in_domain``) are computed with them. ``fmi2DoStep(t, h)`` takes the inputs as the current
 sample's, commits it and advances one sample period; a step of n periods advances n samples with the
 inputs held; any other step, or a step from another time than the FMU's, is refused with ``fmi2Error``
 and a logged message.
@@ -28,6 +29,8 @@ _TEMPLATE = r"""/* fmi2_@N@.c: FMI 2.0 co-simulation interface of @N@ (generated
 #define NO @NO@
 #define VR_OUT NI
 #define VR_INIT (NI + NO)
+#define VR_EXTRA (NI + 2 * NO)
+#define NX @NX@
 #define PERIOD @PERIOD@
 
 typedef enum { ST_INSTANTIATED, ST_INIT, ST_STEP, ST_TERMINATED, ST_ERROR } stage_t;
@@ -162,24 +165,24 @@ fmi2Status fmi2Reset(fmi2Component comp)
 fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
 {
     instance_t *c = (instance_t *)comp;
-    double y[NO];
+    double y[NO], x[NX];
     size_t i;
     int have_y = 0;
     for (i = 0; i < nvr; ++i) {
         if (vr[i] < VR_OUT) {
             value[i] = c->u[vr[i]];
-        } else if (vr[i] < VR_INIT) {
-            if (!have_y) {
+        } else if (vr[i] < VR_INIT || (vr[i] >= VR_EXTRA && vr[i] < VR_EXTRA + NX)) {
+            if (!have_y) {  /* the outputs and the added outputs (band, domain) at once */
                 if (c->stage == ST_INSTANTIATED || c->stage == ST_INIT) {  /* sample 0 from the values set so far */
                     @N@_state s0;
                     @N@_init(&s0, c->initial);
-                    @N@_outputs(&s0, c->u, y);
+                    @N@_outputs_all(&s0, c->u, y, x);
                 } else {
-                    @N@_outputs(&c->s, c->u, y);
+                    @N@_outputs_all(&c->s, c->u, y, x);
                 }
                 have_y = 1;
             }
-            value[i] = y[vr[i] - VR_OUT];
+            value[i] = vr[i] < VR_INIT ? y[vr[i] - VR_OUT] : x[vr[i] - VR_EXTRA];
         } else if (vr[i] < VR_INIT + NO) {
             value[i] = c->initial[vr[i] - VR_INIT];
         } else {
@@ -369,5 +372,6 @@ def fmi2_source(plan: ExportPlan, guid: str) -> str:
     ustart = [0.5 * (lo + hi) for lo, hi in zip(plan.outputs[0].u_low, plan.outputs[0].u_high)] or [0.0]
     return (_TEMPLATE.replace("@N@", plan.name).replace("@GUID@", guid)
             .replace("@NI@", str(len(plan.inputs))).replace("@NO@", str(len(plan.outputs)))
+            .replace("@NX@", str(len(plan.extras)))
             .replace("@PERIOD@", repr(float(plan.period_s)))
             .replace("@USTART@", "{" + ", ".join(repr(float(v)) for v in ustart) + "}"))

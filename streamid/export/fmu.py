@@ -4,7 +4,9 @@ The FMU (a zip file) holds:
 
 * ``modelDescription.xml``: a real input per model input, a real output per modelled output, a real
   parameter ``initial_<output>`` per output (its initial value: the model's initial history, default the
-  middle of the output's range), the default experiment's step = the sample period, and each output's
+  middle of the output's range), after them the added outputs ``<output>_lower`` and ``<output>_upper`` (the
+  model's 90 % free-run band, when it carries an interval) and ``<output>_in_domain`` (1.0 when every regressor
+  lies within its estimation range), the default experiment's step = the sample period, and each output's
   direct dependencies on the inputs (its direct terms, inputs at lag 0);
 * ``sources/``: the model's C99 code (:mod:`streamid.export.ccode`), the FMI functions
   (:mod:`streamid.export.fmi2code`) and the FMI 2.0 standard headers (BSD-2, Modelica Association);
@@ -37,7 +39,7 @@ from streamid.errors import ConfigError
 from streamid.export.ccode import c_sources
 from streamid.export.compiler import MAX_COMPILE_ESTIMATE_S, MAX_COMPILE_REGRESSORS, compile_budget_s, compile_shared
 from streamid.export.fmi2code import fmi2_source
-from streamid.export.plan import CONVENTION, ExportPlan, plan_of
+from streamid.export.plan import BAND_LEVEL, CONVENTION, ExportPlan, plan_of
 
 __all__ = ["FMI_HEADERS", "FmuFiles", "compile_budget", "fmu_files", "model_description", "platform_dir", "write_fmu"]
 
@@ -77,14 +79,26 @@ def model_description(plan: ExportPlan, guid: str, *, source_files: Sequence[str
                    'causality="parameter" variability="fixed" initial="exact" description='
                    f'{quoteattr(f"the value of every past {o.name} before the start: the first {o.max_lag} samples")}>\n'
                    f'      <Real start="{o.middle!r}"/>\n    </ScalarVariable>')
+    for x, (j, name) in enumerate(plan.extras):
+        o = plan.outputs[j]
+        what = (f"1.0 when every regressor of {o.name} at the sample lies within the range the model saw, else 0.0"
+                if name.endswith("_in_domain") else
+                f"{'lower' if name.endswith('_lower') else 'upper'} bound of the {100 * BAND_LEVEL:g} % free-run band "
+                f"of {o.name}")
+        var.append(f'    <ScalarVariable name={quoteattr(name)} valueReference="{ni + 2 * no + x}" causality="output" '
+                   f'variability="continuous" initial="calculated" description={quoteattr(what)}>\n'
+                   "      <Real/>\n    </ScalarVariable>")
     outs, inits = [], []
-    for j, o in enumerate(plan.outputs):
-        deps = " ".join(str(i + 1) for i in o.direct_inputs)  # ModelVariables indices (1-based): inputs first
+    owners = [*range(no), *(j for j, _ in plan.extras)]  # each output variable's model output, in index order
+    for k, j in enumerate(owners):
+        o = plan.outputs[j]
+        index = ni + k + 1 if k < no else ni + no + k + 1  # ModelVariables indices (1-based): inputs first
+        deps = " ".join(str(i + 1) for i in o.direct_inputs)
         kinds = " ".join("dependent" for _ in o.direct_inputs)
-        outs.append(f'      <Unknown index="{ni + j + 1}" dependencies="{deps}"'
+        outs.append(f'      <Unknown index="{index}" dependencies="{deps}"'
                     + (f' dependenciesKind="{kinds}"' if deps else "") + "/>")
         ideps = " ".join([*(str(i + 1) for i in o.direct_inputs), str(ni + no + j + 1)])
-        inits.append(f'      <Unknown index="{ni + j + 1}" dependencies="{ideps}"/>')
+        inits.append(f'      <Unknown index="{index}" dependencies="{ideps}"/>')
     files = "\n".join(f'        <File name="{f}"/>' for f in source_files)
     now = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     return f"""<?xml version="1.0" encoding="UTF-8"?>

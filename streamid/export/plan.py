@@ -22,10 +22,14 @@ from dataclasses import dataclass
 from streamid.model.ensemble import members_of
 from streamid.model.narx import Model
 from streamid.model.regressors import Regressor
+from streamid.model.uncertainty import DEFAULT_LEVEL
 from streamid.errors import ConfigError, ModelFormatError
 from streamid.wire.names import check_signal_names, printable
 
-__all__ = ["CONVENTION", "ExportPlan", "Network", "Output", "c_identifier", "model_period_s", "plan_of"]
+__all__ = ["BAND_LEVEL", "CONVENTION", "ExportPlan", "Network", "Output", "c_identifier", "model_period_s", "plan_of"]
+
+#: The level of the band an export's ``<output>_lower`` / ``<output>_upper`` give (the reported one).
+BAND_LEVEL = DEFAULT_LEVEL
 
 #: The timing convention in words (the C header, the FMU's description and docs/export.md say it).
 CONVENTION = (
@@ -60,7 +64,9 @@ class Network:
 
 @dataclass(frozen=True)
 class Output:
-    """One modelled output: its name, normalisation and networks (several: an ensemble, their mean)."""
+    """One modelled output: its name, normalisation and networks (several: an ensemble, their mean or their
+    per-sample median), its band (``q`` and ``scale`` of the model's 90 % interval, None without one) and the
+    regressors whose estimation ranges its ``<output>_in_domain`` checks (every member's, each once)."""
 
     name: str
     y_low: float
@@ -70,6 +76,16 @@ class Output:
     networks: tuple[Network, ...]
     max_lag: int
     direct_inputs: tuple[int, ...]  # inputs used at lag 0 (direct terms), in input order
+    combine: str = "mean"  # "mean" | "median" of the networks' outputs
+    band: tuple[float, float] | None = None  # (q at BAND_LEVEL, scale): centre -+ q (scale + members' std)
+    domain: tuple[Regressor, ...] = ()  # the union of the networks' regressors (and linear parts')
+
+    @property
+    def extras(self) -> tuple[str, ...]:
+        """The names of the output's added variables, in order: ``<output>_lower``, ``<output>_upper`` (with a
+        band) and ``<output>_in_domain``."""
+        band = (f"{self.name}_lower", f"{self.name}_upper") if self.band is not None else ()
+        return (*band, f"{self.name}_in_domain")
 
     @property
     def middle(self) -> float:
@@ -91,6 +107,11 @@ class ExportPlan:
     def history(self) -> int:
         """Samples every ring buffer holds: the largest lag + 1 (the current sample)."""
         return max(o.max_lag for o in self.outputs) + 1
+
+    @property
+    def extras(self) -> tuple[tuple[int, str], ...]:
+        """Every added output variable (band and domain) with its output's index, in output order."""
+        return tuple((i, name) for i, o in enumerate(self.outputs) for name in o.extras)
 
     @property
     def networks(self) -> tuple[tuple[int, Network], ...]:
@@ -139,6 +160,19 @@ def _spellable(o: Output) -> None:
     _finite(tuple(0.5 * lo + 0.5 * hi for lo, hi in zip(o.u_low, o.u_high)), "input middles", o.name)
 
 
+def _band(m: Model) -> tuple[float, float] | None:
+    """``(q, scale)`` of the model's interval at :data:`BAND_LEVEL`; None when it carries none."""
+    if m.interval is None:
+        return None
+    if not any(abs(lv - BAND_LEVEL) < 1e-12 for lv in m.interval.levels):
+        raise ModelFormatError(f"model of '{printable(m.output_name, 120)}': its interval has no level {BAND_LEVEL:g} "
+                               f"(levels {', '.join(f'{v:g}' for v in m.interval.levels)}); the export's "
+                               f"<output>_lower and <output>_upper are the {100 * BAND_LEVEL:g} % band")
+    q, scale = m.interval.quantile(BAND_LEVEL), m.interval.scale
+    _finite((q, scale, q * scale), "interval quantile, scale", m.output_name)
+    return q, scale
+
+
 def plan_of(models: Sequence[Model], name: str, period_s: float | None = None) -> ExportPlan:
     """The export of ``models`` (one per output, the same inputs in the same order) under the C name ``name``.
 
@@ -174,7 +208,11 @@ def plan_of(models: Sequence[Model], name: str, period_s: float | None = None) -
                          for r in (*member.regressors, *(member.linear_regressors or ())) if r.signal == "u" and r.lag == 0})
         outputs.append(Output(name=m.output_name, y_low=float(nm.y_low), y_high=float(nm.y_high),
                               u_low=tuple(float(v) for v in nm.u_low), u_high=tuple(float(v) for v in nm.u_high),
-                              networks=nets, max_lag=m.max_lag, direct_inputs=tuple(direct)))
+                              networks=nets, max_lag=m.max_lag, direct_inputs=tuple(direct),
+                              combine=str(getattr(m, "combine", "mean")), band=_band(m),
+                              domain=tuple(sorted({r for member in members_of(m)
+                                                   for r in (*member.regressors, *(member.linear_regressors or ()))},
+                                                  key=lambda r: (r.signal, r.index, r.lag)))))
         _spellable(outputs[-1])
     # the one rule for names (streamid.wire.names) over the whole export: every output's name distinct from every
     # input's and every other output's, and from the names streamid adds for each (initial_<output>, ...)

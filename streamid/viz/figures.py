@@ -38,6 +38,8 @@ __all__ = [
     "tick_text",
     "CANVAS",
     "validation_figures",
+    "COL_BAND",
+    "COL_BAND_FILL",
     "fitness_figure",
     "plane_figure",
     "clock_text",
@@ -287,6 +289,8 @@ def _strips(pts: np.ndarray) -> tuple[np.ndarray, ...]:
 COL_MEASURED: RGB = (230, 230, 230)
 COL_OSA: RGB = (66, 150, 250)
 COL_FR: RGB = (250, 140, 40)
+COL_BAND: RGB = (215, 150, 80)  # the free run's band: its edges
+COL_BAND_FILL: RGB = (125, 80, 36)  # and its inside (a darker orange under the lines)
 COL_COLD: RGB = (120, 200, 120)
 COL_WARM: RGB = (235, 200, 70)
 _EPOCH_NS = 10**17  # clocks beyond ~1973 are Unix time
@@ -311,6 +315,8 @@ def validation_figures(r: UpdateReport, max_points: int = 1000) -> tuple[Figure,
     n = len(r.y_val)
     step = _decimate(n, max_points)
     y, osa, fr = (np.asarray(a, dtype=np.float64)[::step] for a in (r.y_val, r.osa_val, r.fr_val))
+    band = [] if r.lower_val is None or r.upper_val is None else \
+        [np.asarray(a, dtype=np.float64)[::step] for a in (r.lower_val, r.upper_val)]
     t = (r.val_t0_ns + np.arange(0, n, step, dtype=np.int64) * np.int64(r.period_ns) - r.window_end_ns) / 1e9
     lo_t = float(min(t[0], -r.period_ns / 1e9)) if t.size else -1.0
     ms = -lo_t < 2.0
@@ -319,11 +325,16 @@ def validation_figures(r: UpdateReport, max_points: int = 1000) -> tuple[Figure,
     m = r.metrics
     ylo, yhi = data_range([y])
     span = yhi - ylo  # predictions may leave the measured range by one span, then they are clipped
-    lo, hi = data_range([y, osa, fr])
+    lo, hi = data_range([y, osa, fr, *band])
     yax = Axis(max(lo, ylo - span), min(hi, yhi + span))
     when = f"window end {clock_text(r.window_end_ns)}"
+    stroke = float(np.clip((CANVAS["validation"][0] - _LEFT - _RIGHT) / max(1, t.size), 1.0, 8.0))  # strokes touch
+    shade = [Series("band_fill", "", COL_BAND_FILL, *_fill(t, band[0], band[1]), stroke),
+             Series("band_lower", "", COL_BAND, t, band[0], 1.0),
+             Series("band_upper", f"{100 * r.band_level:g} % band", COL_BAND, t, band[1], 1.0)] if band else []
     fit = figure(
         [
+            *shade,  # under the lines: the free run's band (the model's prediction interval)
             Series("measured", "measured", COL_MEASURED, t, y, 2.0),
             Series("osa", f"one step ahead  R² {_r2(m.get('r2_osa_val'))}", COL_OSA, t, osa),
             Series("free_run", f"free run  R² {_r2(m.get('r2_fr_val'))}", COL_FR, t, fr),
@@ -340,6 +351,16 @@ def validation_figures(r: UpdateReport, max_points: int = 1000) -> tuple[Figure,
         x_unit=unit,
     )
     return fit, res
+
+
+def _fill(t: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The band's fill: a vertical stroke from ``lower`` to ``upper`` at each time, the strokes separated by NaN
+    (the figure breaks a series at its non-finite values)."""
+    n = t.shape[0]
+    x, y = np.full(3 * n, np.nan), np.full(3 * n, np.nan)
+    x[0::3], x[1::3] = t, t
+    y[0::3], y[1::3] = lower, upper
+    return x, y
 
 
 def fitness_figure(newest: tuple[int, bool, np.ndarray], cold: tuple[int, np.ndarray] | None) -> Figure:

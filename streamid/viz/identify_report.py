@@ -3,7 +3,7 @@
 The kept model becomes one :class:`~streamid.viz.reports.UpdateReport` (version 1,
 a cold run over the whole estimation part, validated on the rest) and is drawn by
 :class:`streamid.viz.rerun_view.Viz` exactly as the daemon draws an update: the
-validation figure, residuals, the five correlation tests, best fitness per
+validation figure (with the free run's band when the model carries an interval), residuals, the five correlation tests, best fitness per
 generation, R² (one point), the input-output plane, the model as text and an
 event log (how the file was read, warnings, every run).  ``streamid view
 FILE.rrd`` opens it; ``--screenshot PNG`` renders it.
@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from streamid.model.ensemble import members_of
 from streamid.model.narx import Model
 from streamid.engine.validation import CorrelationReport, RecordReport, ValidationReport
-from streamid.viz.reports import UpdateReport, VizSettings, first_input_tests
+from streamid.viz.reports import UpdateReport, VizSettings, band_of, first_input_tests
 
 __all__ = ["Clock", "identify_update_report", "record_update_report", "draw_identification", "NO_CLOCK_PERIOD_NS"]
 
@@ -88,6 +88,8 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
     n_val = len(y_val)
     n = n_est + n_val
     u = np.asarray(u_val, dtype=np.float64)
+    band, figures = band_of(model, u, np.asarray(y_val, dtype=np.float64))  # the free run's band, if it has one
+    metrics = {f"r2_{k}": (float("nan") if v is None else float(v)) for k, v in r2.items()}  # None: diverged
     return UpdateReport(
         stream=stream,
         version=1,
@@ -107,7 +109,7 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
         fitness=np.asarray(fitness_history, dtype=np.float64),
         correlations=first_input_tests(tuple(correlation.tests)),
         lags=model.lags,
-        metrics={f"r2_{k}": (float("nan") if v is None else float(v)) for k, v in r2.items()},  # None: diverged
+        metrics={**metrics, **figures},
         identification_s=float(seconds),
         note=note,
         input_names=tuple(model.input_names),
@@ -116,6 +118,7 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
         long_linear_order=model.linear_order,
         judged_only=judged_only,
         refinement=None if judged_only else model.metrics.get("refinement"),
+        **band,
     )
 
 

@@ -30,6 +30,8 @@ __all__ = [
     "fmt_metric",
     "TEST_LABELS",
     "SERIES_STYLES",
+    "band_of",
+    "band_text",
 ]
 
 #: The five residual correlation tests (Billings & Voon): the engine's names and formulas (``ee: φ_ee(τ) = δ(τ)``).
@@ -40,6 +42,8 @@ SERIES_STYLES: dict[str, tuple[tuple[int, int, int], str]] = {
     "validation/measured": ((230, 230, 230), "measured"),
     "validation/osa": ((66, 150, 250), "one step ahead"),
     "validation/free_run": ((250, 140, 40), "free run"),
+    "validation/lower": ((200, 150, 100), "free run's band, lower"),
+    "validation/upper": ((200, 150, 100), "free run's band, upper"),
     "residual/osa": ((66, 150, 250), "one step ahead"),
     "residual/free_run": ((250, 140, 40), "free run"),
     "history/r2_osa": ((66, 150, 250), "one step ahead, when it won"),
@@ -193,6 +197,9 @@ class UpdateReport:
     judged_only: bool = False  # a model judged on a record (streamid validate): no identification ran
     refinement: Mapping[str, Any] | None = None  # the model's metrics.refinement (streamid.engine.choice.refine), if any
     refreshed_from: int | None = None  # a refresh (streamid.online.refresh): the champion's version it re-solved
+    lower_val: np.ndarray | None = None  # the free run's band on the validation part (the model's interval), or None
+    upper_val: np.ndarray | None = None
+    band_level: float = 0.9  # the band's level
 
 
 def run_text(r: UpdateReport, sep: str = " · ") -> str:
@@ -235,12 +242,44 @@ def model_markdown(r: UpdateReport) -> str:
         + f"F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]"
         + (" (the union of their lags)" if r.networks > 1 else "") + _linear_text(r),
     ]
+    lines += ["", band_text(r)]
     refined = refinement_text(r.refinement)
     if refined:
         lines += ["", refined]
     if verdicts:
         lines += ["", "correlation tests (validation residual):", *verdicts]
     return "\n".join(lines)
+
+
+def band_text(r: UpdateReport) -> str:
+    """What the model text says of the free run's band: its level and how much of the validation part it covered
+    (``metrics.interval_coverage_val``), the share outside the estimation domain, or that the model has none."""
+    if r.lower_val is None or r.upper_val is None:
+        return "no prediction interval (the model carries none)"
+    cov, out = r.metrics.get("interval_coverage_val"), r.metrics.get("outside_domain_val")
+    text = f"{100 * r.band_level:g} % band around the free run"
+    if cov is not None and math.isfinite(cov):
+        text += f": covers **{100 * cov:.1f} %** of the validation samples"
+    if out is not None and math.isfinite(out) and out > 0:
+        text += f"; {100 * out:.1f} % of them outside the estimation domain"
+    return text
+
+
+def band_of(model: Any, u: np.ndarray, y: np.ndarray, level: float = 0.9) -> tuple[dict[str, Any], dict[str, float]]:
+    """The fields of an :class:`UpdateReport` that draw ``model``'s band (of ``level``) on the validation part
+    ``(u, y)``, and its coverage and the share outside the estimation domain there (``metrics`` entries); both
+    empty when the model carries no interval or the part is too short. ``model`` a Model (read, not imported)."""
+    from streamid.model.domain import outside_share
+    from streamid.model.uncertainty import band_coverage
+
+    L = int(model.max_lag)
+    if getattr(model, "interval", None) is None or len(y) <= L:
+        return {}, {}
+    with np.errstate(over="ignore", invalid="ignore"):
+        band = model.simulate(u, y[:L], interval=level)
+    figures = {"interval_coverage_val": band_coverage(y, band, L)["coverage"],
+               "outside_domain_val": outside_share(model, u, y)}
+    return {"lower_val": band.lower, "upper_val": band.upper, "band_level": level}, figures
 
 
 def held_out_gain(ev: Any) -> str | None:

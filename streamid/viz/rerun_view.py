@@ -5,7 +5,8 @@ draws, per stream, under ``streams/<stream>/``:
 
 ``plot/validation/*``
     the newest update: measured vs one-step-ahead and free-run predictions on
-    the validation part (a 2-D figure: lines, grid, ticks, legend)
+    the validation part, and the free run's band when the model carries a
+    prediction interval (a 2-D figure: lines, grid, ticks, legend)
 ``plot/residual/*``
     the newest update: measured minus predictions on the validation part
 ``plot/fitness/*``
@@ -23,7 +24,7 @@ draws, per stream, under ``streams/<stream>/``:
 ``model``, ``events``
     the newest model (lags, R², share of lags inside each band; Markdown) and a
     text log (model published, bad input, gaps, backlog)
-``validation/*``, ``residual/*``, ``fitness``
+``validation/*`` (``lower``, ``upper``: the band), ``residual/*``, ``fitness``
     the validation part and residuals as scalars on the stream's clock, and the
     raw best fitness per generation: data for other views and tools, not in the
     layout
@@ -85,7 +86,8 @@ _COL_GRID = (58, 58, 58)
 _COL_FRAME = (110, 110, 110)
 _COL_MARK = (150, 150, 150)
 #: the figures' series keys (a key missing from an update's figure is cleared)
-_FIGURE_KEYS = {"validation": ("measured", "osa", "free_run"), "residual": ("osa", "free_run"),
+_FIGURE_KEYS = {"validation": ("band_fill", "band_lower", "band_upper", "measured", "osa", "free_run"),
+                "residual": ("osa", "free_run"),
                 "fitness": ("cold", "newest"), "plane": ("measured", "simulated")}
 _EPOCH_NS = 10**17  # clocks beyond ~1973 are Unix time: use a timestamp timeline
 _TIMELINE = "stream_time"
@@ -359,7 +361,10 @@ class Viz:
             t = r.val_t0_ns + np.arange(0, n, step, dtype=np.int64) * np.int64(r.period_ns)
             tcol = self._time_column(t)
             y, osa, fr = (np.asarray(a, dtype=np.float64)[::step] for a in (r.y_val, r.osa_val, r.fr_val))
-            for name, v in (("measured", y), ("osa", osa), ("free_run", fr)):
+            band = () if r.lower_val is None or r.upper_val is None else (
+                ("lower", np.asarray(r.lower_val, dtype=np.float64)[::step]),
+                ("upper", np.asarray(r.upper_val, dtype=np.float64)[::step]))  # the free run's band, if any
+            for name, v in (("measured", y), ("osa", osa), ("free_run", fr), *band):
                 rec.send_columns(f"{base}/validation/{name}", indexes=[tcol], columns=rr.Scalars.columns(scalars=_finite(v)))
             for name, v in (("osa", y - osa), ("free_run", y - fr)):
                 rec.send_columns(f"{base}/residual/{name}", indexes=[tcol], columns=rr.Scalars.columns(scalars=_finite(v)))
