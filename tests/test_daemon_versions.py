@@ -392,3 +392,11 @@ def test_the_version_query_reads_a_bounded_number_of_replies_and_bytes(tmp_path:
     assert peak < 100 * 1024 * 1024, f"peak {peak / 2**20:.0f} MiB"  # 64 x 256 KiB kept, one parse at a time
     print(f"version query under a 2,000-reply flood: {got.dropped} dropped, heap peak {peak / 2**20:.1f} MiB",
           file=sys.stderr)
+
+
+def test_a_version_from_the_bus_moves_the_daemons_only_within_a_bounded_step() -> None:
+    """The rule the version query and a handed-over state share (streamid.daemon.versions.within_step)."""
+    from streamid.daemon.versions import MAX_VERSION_STEP, within_step
+
+    assert within_step(41, 0) and within_step(MAX_VERSION_STEP, 0) and not within_step(MAX_VERSION_STEP + 1, 0)
+    assert not within_step(2**53 - 1, 40) and within_step(40 + MAX_VERSION_STEP, 40)

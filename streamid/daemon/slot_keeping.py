@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from streamid.daemon.share_link import ShareLink
     from streamid.daemon.sharing import Shares
     from streamid.daemon.state_store import StateStore
-    from streamid.daemon.versions import VersionKeeper
+    from streamid.daemon.versions import MAX_VERSION_STEP, within_step, VersionKeeper
     from streamid.transport import Bus
 
 __all__ = ["SlotKeeping"]
@@ -80,6 +80,13 @@ class SlotKeeping:
             return
         state = self.link.take_handoff(name)
         with st.lock:
+            if state is not None and not within_step(state.version, st.ident.version):
+                # a version beyond the bounded step: a forged or replayed state does not move this daemon's
+                self.link.counters["handoff_version_refused"] += 1
+                _log.warning("stream %s: the state handed over is at v%d, more than %d (MAX_VERSION_STEP) above this "
+                             "daemon's v%d: not taken (forged or replayed?); resuming from this daemon's own state",
+                             name, state.version, MAX_VERSION_STEP, st.ident.version)
+                state = None
             if state is not None and state.version > st.ident.version:
                 for warning in st.ident.restore(state):
                     _log.warning("stream %s: %s", name, warning)

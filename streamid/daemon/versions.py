@@ -72,6 +72,7 @@ from streamid.wire.documents import MAX_DOCUMENT_BYTES, MAX_VERSION, parse_model
 from streamid.wire.keys import model_key
 
 __all__ = ["MAX_QUERY_BYTES", "MAX_REPLIES", "MAX_REPLY_BYTES", "MAX_UNSAVED", "MAX_VERSION", "MAX_VERSION_STEP",
+           "within_step",
            "SCAN_MAX_BYTES", "NetworkVersions", "VersionKeeper", "highest_version_in", "highest_version_on_network",
            "network_versions"]
 
@@ -86,6 +87,12 @@ MAX_QUERY_BYTES = 64 * 1024 * 1024
 #: How far above what the daemon knows a version answered by the network may raise its numbering (one daemon life):
 #: 10^6 versions, 11.6 days of one model a second.  2**53 / 10**6: nine billion lives to poison the bound.
 MAX_VERSION_STEP = 1_000_000
+
+
+def within_step(version: int, known: int) -> bool:
+    """Whether a version learned from the bus (a reply to the version query, a state handed over by a sharing
+    daemon) may move this daemon's: at most :data:`MAX_VERSION_STEP` above the highest it knows."""
+    return version <= known + MAX_VERSION_STEP
 #: Streams whose unsaved version is remembered in memory (one small tuple each; the oldest is forgotten first).
 MAX_UNSAVED = 100_000
 _VERSION_RE = re.compile(rb'"version"\s*:\s*(\d{1,19})(?![\d.eE])')
@@ -275,13 +282,13 @@ class VersionKeeper:
             return None
         with lock if lock is not None else nullcontext():
             known = max(ident.version, known_here)
-            within = [v for v in got.versions if v <= known + MAX_VERSION_STEP]
+            within = [v for v in got.versions if within_step(v, known)]
             floor = within[-1] if within else None
             raise_it = floor is not None and floor > known
             if raise_it:
                 assert floor is not None
                 ident.raise_version_floor(floor)
-        beyond = [v for v in got.versions if v > known + MAX_VERSION_STEP]
+        beyond = [v for v in got.versions if not within_step(v, known)]
         if beyond:
             _log.warning("stream %s: the network answered v%d, more than %d (MAX_VERSION_STEP) above v%d, the highest "
                          "version this daemon knows: not taken (a replayed or forged answer, or a predecessor whose "

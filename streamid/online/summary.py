@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from streamid.model.domain import outside_share
+from streamid.model.uncertainty import interval_report
 from streamid.engine.validation import CorrelationTest, correlation_tests, r2
 from streamid.errors import DataError
 
@@ -64,7 +66,11 @@ def summarise(
         "r2_fr_est": r2_or_nan(y_est[L:], fr_e[L:]),
         "r2_osa_val": r2_or_nan(y_val[L:], osa_v[L:]),
         "r2_fr_val": r2_or_nan(y_val[L:], fr_v[L:]),
+        "outside_domain_val": outside_share(model, u_val, y_val),  # the share outside the estimation domain
     }
+    band = interval_report(model, u_val, y_val)  # its own interval on the held-out part (None: it has none)
+    if band is not None:
+        metrics["interval_coverage_val"] = band["coverage"]
     tests: tuple[CorrelationTest, ...] = ()
     if np.isfinite(osa_v).all():
         rep = correlation_tests(y_val[L:] - osa_v[L:], u_val[L:], corr_lags, input_names=model.input_names)
