@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from streamid.daemon.slots import StreamSlot as _Stream
 from streamid.daemon.slots import forward_events
+from streamid.daemon.versions import MAX_VERSION_STEP, within_step
 from streamid.wire.documents import encode_json
 from streamid.wire.keys import model_key, rejected_key, status_key
 
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
     from streamid.daemon.share_link import ShareLink
     from streamid.daemon.sharing import Shares
     from streamid.daemon.state_store import StateStore
-    from streamid.daemon.versions import MAX_VERSION_STEP, within_step, VersionKeeper
+    from streamid.daemon.versions import VersionKeeper
     from streamid.transport import Bus
 
 __all__ = ["SlotKeeping"]
