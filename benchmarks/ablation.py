@@ -19,6 +19,7 @@ import json
 import math
 import statistics
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from functools import lru_cache
 from typing import Any
@@ -59,6 +60,21 @@ SYSTEMS = ("piezo_sim", "mr_damper_sim", "bouc_wen_sim", "reactor_sim", "rlc", "
 def _targets(system: str) -> tuple[Target, ...]:
     """A system's targets, loaded or simulated once per process (every seed of a row uses the same)."""
     return tuple(targets((system,)))
+
+
+def read_rows(path: str) -> list[dict[str, Any]]:
+    """The JSON rows (one a line) a measurement printed earlier (``--read``)."""
+    with open(path, encoding="utf-8") as f:
+        return [json.loads(line) for line in f if line.strip()]
+
+
+def print_rows(systems: str, seeds: str, jobs: int, row: Callable[[tuple[str, int, int]], dict[str, Any]]) -> None:
+    """``row((system, target index, seed))`` for every target of the comma-separated ``systems`` and every seed of
+    ``seeds`` (comma-separated), ``jobs`` processes at a time, each printed as a JSON line as it comes."""
+    plan = [(s, i, int(seed)) for s in systems.split(",") for i in range(len(_targets(s))) for seed in seeds.split(",")]
+    with ProcessPoolExecutor(jobs) as ex:
+        for out in ex.map(row, plan):
+            print(json.dumps(out), flush=True)
 
 
 def _one(job: tuple[str, int, int, dict[str, Any]]) -> tuple[int, int, float]:

@@ -26,18 +26,16 @@ second half as the plain refit of that half)::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmarks.ablation import _targets, verdict
+from benchmarks.ablation import _targets, print_rows, read_rows, verdict
 from benchmarks.suite import free_run_val
 from streamid.engine import identify
 from streamid.model.ensemble import EnsembleModel
@@ -176,19 +174,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args(argv)
     if a.read:
-        with open(a.read, encoding="utf-8") as f:
-            lines, met = summarise([json.loads(line) for line in f if line.strip()])
+        lines, met = summarise(read_rows(a.read))
         print("| target | " + " | ".join(COLUMNS) + " |")
         print("\n".join(lines))
         print("targets met: " + ", ".join(f"{k} {v}" for k, v in met.items()))
         return 0
     if not a.systems:
         ap.error("name the systems to run, or --read a file of rows")
-    seeds = [int(s) for s in a.seeds.split(",")]
-    plan = [(s, i, seed) for s in a.systems.split(",") for i in range(len(_targets(s))) for seed in seeds]
-    with ProcessPoolExecutor(a.jobs) as ex:
-        for out in ex.map(_row, plan):
-            print(json.dumps(out), flush=True)
+    print_rows(a.systems, a.seeds, a.jobs, _row)
     return 0
 
 

@@ -16,16 +16,14 @@ the paper's median on the row and whose interval covers less than 80 % of the va
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
 
-from benchmarks.ablation import _targets
+from benchmarks.ablation import _targets, print_rows, read_rows
 from benchmarks.suite import SUITE_PAPER, Target, free_run_val
 from streamid.engine import identify
 from streamid.engine.choice.calibration import with_interval
@@ -111,18 +109,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args(argv)
     if a.read:
-        with open(a.read, encoding="utf-8") as f:
-            rows = [json.loads(line) for line in f if line.strip()]
         print("| target | " + " | ".join(KINDS) + " |")
-        print("\n".join(summarise(rows)))
+        print("\n".join(summarise(read_rows(a.read))))
         return 0
     if not a.systems:
         ap.error("name the systems to run, or --read a file of rows")
-    seeds = [int(s) for s in a.seeds.split(",")]
-    plan = [(s, i, seed) for s in a.systems.split(",") for i in range(len(_targets(s))) for seed in seeds]
-    with ProcessPoolExecutor(a.jobs) as ex:
-        for out in ex.map(_row, plan):
-            print(json.dumps(out), flush=True)
+    print_rows(a.systems, a.seeds, a.jobs, _row)
     return 0
 
 

@@ -16,29 +16,10 @@ from streamid.errors import DataError, ModelFormatError
 from streamid.model import Model
 from streamid.model.domain import domain_text, outside, outside_share
 from streamid.model.ensemble import EnsembleModel, ensemble_of
-from streamid.model.regressors import Normalisation, Regressor
 from streamid.model.uncertainty import (LEVELS, Band, Interval, band_coverage, conformal_quantiles, interval_report,
                                         interval_text, member_spread)
 from streamid.sim import simulate_mr_damper
-
-NORM = Normalisation((-1.0,), (1.0,), -2.0, 2.0)
-Y1, U1, U3 = Regressor("y", 0, 1), Regressor("u", 0, 1), Regressor("u", 0, 3)
-
-
-def _net(seed: int, regs: tuple[Regressor, ...], m: int = 4) -> Model:
-    rng = np.random.default_rng(seed)
-    return Model(regressors=regs, centres=rng.uniform(-1, 1, (m, len(regs))), widths=rng.uniform(0.5, 1.5, m),
-                 weights=rng.normal(0, 0.4, m), normalisation=NORM, input_names=("volt",), output_name="um")
-
-
-def _data(n: int = 300, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    u = rng.uniform(-1, 1, n)
-    y = np.zeros(n)
-    for t in range(3, n):
-        y[t] = 0.6 * y[t - 1] + np.tanh(u[t - 1]) - 0.2 * u[t - 3]
-    return u, y
-
+from test_engine_ensemble import NORM, U1, U3, Y1, _data, _net
 
 def test_conformal_quantiles_are_the_finite_sample_order_statistics() -> None:
     scores = np.arange(1.0, 100.0)  # 99 scores 1..99: level 0.9 takes the ceil(100 * 0.9) = 90th smallest
@@ -89,6 +70,8 @@ def test_the_band_is_the_quantile_times_the_scale_and_the_members_spread() -> No
     assert np.allclose((one.upper - one.y)[single.max_lag:], 0.5 * 0.1)  # one network: the scale alone
     back = Model.from_json(ens.to_json())
     assert back.interval == interval
+    rep = interval_report(single, u, y)  # a single network's band from a free run the caller has: the same figures
+    assert rep is not None and rep == interval_report(single, u, y, free_run=single.simulate(u, y))
     with pytest.raises(DataError, match="interval level must be one of 0.5, 0.8, 0.9, 0.95, 0.99 .* got 0.42"):
         ens.simulate(u, y, interval=0.42)
     with pytest.raises(DataError, match="carries no prediction interval"):

@@ -420,7 +420,7 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], fr: ND
         rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
         correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
         predictions={"osa": osa, "fr": fr}, fr_diverged_at=diverged_at(fr),
-        interval=interval_report(model, u, y), outside_domain=outside_share(model, u, y),
+        interval=interval_report(model, u, y, free_run=fr), outside_domain=outside_share(model, u, y),
     )
 
 

@@ -137,16 +137,21 @@ def band_coverage(y: ArrayLike, band: Band, start: int = 0) -> dict[str, float]:
             "width_over_std": (width / std) if std > 0 and math.isfinite(width) else math.inf}
 
 
-def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64],
-                    level: float = DEFAULT_LEVEL) -> dict[str, Any] | None:
+def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], level: float = DEFAULT_LEVEL,
+                    free_run: NDArray[np.float64] | None = None) -> dict[str, Any] | None:
     """The model's interval of ``level`` on a measured record (free run from its first ``max_lag`` outputs):
     ``level``, ``coverage``, mean ``width`` and ``width_over_std`` over the scored samples; None when the model
-    carries no interval. ``model`` a Model (read, not imported)."""
-    if getattr(model, "interval", None) is None:
+    carries no interval. ``model`` a Model (read, not imported); ``free_run``: its free run on the record when the
+    caller has it (a single network's band is then made from it, not simulated again)."""
+    interval = getattr(model, "interval", None)
+    if interval is None:
         return None
     L = int(model.max_lag)
     with np.errstate(over="ignore", invalid="ignore"):
-        band = model.simulate(u, y[:L], interval=level)
+        if free_run is not None and len(getattr(model, "members", (model,))) == 1:
+            band = interval.band(free_run, free_run[None, :], float(level), L)
+        else:
+            band = model.simulate(u, y[:L], interval=level)
     return {"level": float(level), **band_coverage(y, band, L)}
 
 

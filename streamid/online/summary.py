@@ -68,7 +68,7 @@ def summarise(
         "r2_fr_val": r2_or_nan(y_val[L:], fr_v[L:]),
         "outside_domain_val": outside_share(model, u_val, y_val),  # the share outside the estimation domain
     }
-    band = interval_report(model, u_val, y_val)  # its own interval on the held-out part (None: it has none)
+    band = interval_report(model, u_val, y_val, free_run=fr_v)  # its interval on the held-out part (None: none)
     if band is not None:
         metrics["interval_coverage_val"] = band["coverage"]
     tests: tuple[CorrelationTest, ...] = ()

@@ -228,7 +228,7 @@ def champion_figures(champion: Model | None, u_val: np.ndarray, y_val: np.ndarra
     figs = {"r2_osa_val": r2_or_nan(y_val[L:], osa[L:]), "r2_fr_val": r2_or_nan(y_val[L:], fr[L:]),
             "mse_osa_val": float(np.mean(e * e)) if np.isfinite(e).all() else float("nan"),
             "outside_domain_val": outside_share(champion, u_val, y_val)}
-    band = interval_report(champion, u_val, y_val)  # the champion's interval on current data (None: it has none)
+    band = interval_report(champion, u_val, y_val, free_run=fr)  # the champion's interval on current data
     if band is not None:
         figs["interval_coverage_val"] = band["coverage"]
     return figs, np.asarray(fr, dtype=np.float64)

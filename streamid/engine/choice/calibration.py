@@ -33,7 +33,8 @@ UNSTABLE_HALF_R2 = 0.0
 
 def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> tuple[Interval | None, dict[str, Any]]:
     """The interval of ``model`` from its estimation record ``(u, y)`` and the evidence (``metrics.calibration``):
-    ``samples``, ``scale``, the refitted half's held-out free-run R^2 (``r2_fr_held_out``), or ``reason`` when
+    ``samples``, ``scale``, the refitted half's held-out free-run R^2 (``r2_fr_held_out``; the model's own over the
+    second half, ``r2_fr_second_half``, only when that one is below :data:`UNSTABLE_HALF_R2`), or ``reason`` when
     no interval could be made (a record too short, a refit that failed, a held-out free run that diverged)."""
     n = int(y.shape[0])
     h = n // 2
@@ -53,16 +54,17 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
                       "samples": n - h}
     var = float(np.var(y[h:]))
     r2 = 1.0 - float(np.mean(err**2)) / var if var > 0 else None
-    method, held_out = METHOD, True
-    with np.errstate(over="ignore", invalid="ignore"):
-        own_paths = model.member_paths(u, y[: model.max_lag])
-        own_err = y[h:] - model.combine_paths(own_paths, y)[h:]
-    own_r2 = 1.0 - float(np.mean(own_err**2)) / var if var > 0 and np.all(np.isfinite(own_err)) else None
-    if r2 is not None and own_r2 is not None and r2 < UNSTABLE_HALF_R2 <= own_r2:
-        # the half's refit leaves the record (a structure too large for half the rows, e.g. a long linear part of
-        # hundreds of lags) where the model itself does not: its errors say nothing of the model's; the model's own
-        # errors on the second half are used instead (in sample: the band is then narrower than a held-out one)
-        err, spread, method, held_out = own_err, member_spread(own_paths)[h:], METHOD_IN_SAMPLE, False
+    method, held_out, own_r2 = METHOD, True, None
+    if r2 is not None and r2 < UNSTABLE_HALF_R2:  # only then is the model's own free run needed (one more run)
+        with np.errstate(over="ignore", invalid="ignore"):
+            own_paths = model.member_paths(u, y[: model.max_lag])
+            own_err = y[h:] - model.combine_paths(own_paths, y)[h:]
+        own_r2 = 1.0 - float(np.mean(own_err**2)) / var if np.all(np.isfinite(own_err)) else None
+        if own_r2 is not None and own_r2 >= UNSTABLE_HALF_R2:
+            # the half's refit leaves the record (a structure too large for half the rows, e.g. a long linear part
+            # of hundreds of lags) where the model itself does not: its errors say nothing of the model's; the
+            # model's own errors on the second half are used instead (in sample: narrower than a held-out band)
+            err, spread, method, held_out = own_err, member_spread(own_paths)[h:], METHOD_IN_SAMPLE, False
     scale = float(np.sqrt(np.mean(err**2)))
     den = scale + spread
     scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
