@@ -215,12 +215,18 @@ def run(args: argparse.Namespace) -> int:
     seen = [0]
     origins: dict[str, Any] = {}
     out_lock = threading.Lock()
+    count_lock = threading.Lock()
 
     def emit(text: str) -> None:
         with out_lock:
             print(text, flush=True)
 
     def on_update(up: Any) -> None:
+        with count_lock:  # updates arrive on the transport's threads: --count N prints exactly N
+            if args.count is not None and seen[0] >= args.count:
+                return
+            seen[0] += 1
+            last = args.count is not None and seen[0] >= args.count
         prev = origins.get(up.stream)
         if not args.json and up.accepted and up.origin is not None and up.origin != prev and len(origins) < 10_000:
             origins[up.stream] = up.origin
@@ -228,9 +234,8 @@ def run(args: argparse.Namespace) -> int:
         emit(json.dumps(up.document) if args.json else format_update(up))  # json.dumps escapes non-ASCII
         if saver is not None and up.accepted:
             saver.offer(up)
-        seen[0] += 1
-        if args.count is not None and seen[0] >= args.count:
-            stop.set()
+        if last:
+            stop.set()  # after its line is out
 
     def on_event(ev: StatusEvent) -> None:  # what the streams' status says has changed (ModelSubscriber's)
         emit(json.dumps(ev.to_dict()) if args.json else ev.text())
