@@ -21,39 +21,15 @@ import statistics
 import sys
 from typing import Any
 
-import numpy as np
-
 from benchmarks.ablation import _targets, print_rows, read_rows
-from benchmarks.suite import SUITE_PAPER, Target, free_run_val
+from benchmarks.suite import SUITE_PAPER, Target, free_run_val, silent_failures, validation_band
 from streamid.engine import identify
 from streamid.engine.choice.calibration import with_interval
 from streamid.engine.choice.robust import median_of_finished
 from streamid.engine.settings import DEFAULT, RIDGE
 from streamid.model.narx import Model
-from streamid.model.uncertainty import DEFAULT_LEVEL, Band, band_coverage
 
 KINDS = ("paper", "kept", "median")
-SILENT_GAP = 0.05
-SILENT_COVERAGE = 0.8
-
-
-def validation_band(model: Model, t: Target) -> dict[str, Any] | None:
-    """The model's 90 % band on the validation part, scored as :func:`benchmarks.suite.free_run_val` scores the
-    free run (periodic: the second pass); None without an interval."""
-    if model.interval is None:
-        return None
-    L = model.max_lag
-    with np.errstate(over="ignore", invalid="ignore"):
-        if t.periodic_val:
-            b = model.simulate(np.concatenate([t.u_val, t.u_val]), t.y_val[:L], interval=DEFAULT_LEVEL)
-            n = len(t.y_val)
-            band, start = Band(b.y[n:], b.lower[n:], b.upper[n:]), 0
-        else:
-            band, start = model.simulate(t.u_val, t.y_val[:L], interval=DEFAULT_LEVEL), L
-        got = band_coverage(t.y_val, band, start)
-        err = t.y_val[start:] - band.y[start:]
-        rms = float(np.sqrt(np.mean(err**2)))
-    return {**got, "width_over_rms": got["width"] / rms if rms > 0 and math.isfinite(rms) else math.inf}
 
 
 def _score(model: Model, t: Target) -> dict[str, Any]:
@@ -92,8 +68,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[str]:
             bands = [g["band"] for g in got if g["band"] is not None]
             cov = statistics.median(b["coverage"] for b in bands) if bands else math.nan
             wid = statistics.median(b["width_over_std"] for b in bands) if bands else math.nan
-            silent = sum(1 for g in got if g["fr_val"] < paper_median - SILENT_GAP
-                         and (g["band"] is None or g["band"]["coverage"] < SILENT_COVERAGE))
+            silent = silent_failures(frs, [g["band"] for g in got], paper_median)
             silent_total[kind] += silent
             cells.append(f"{statistics.median(frs):.4f} / {min(frs):.4g}, cov {cov:.2f}, w/sd {wid:.2f}, silent {silent}")
         lines.append(f"| {name} ({len(rs)} seeds) | " + " | ".join(cells) + " |")

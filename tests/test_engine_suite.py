@@ -81,14 +81,23 @@ def test_bench_suite_quick_runs_from_the_command_line(capsys: pytest.CaptureFixt
         assert {r["metric"] for r in mine} == {"FR R2 val, paper", "FR R2 val, default", "seconds, paper",
                                                "seconds, default", "networks, paper", "networks, default",
                                                "refined, paper", "refined, default", "long linear order, paper",
-                                               "long linear order, default"}, system
+                                               "long linear order, default", "90 % band coverage, paper",
+                                               "90 % band coverage, default", "band width / output std, paper",
+                                               "band width / output std, default", "band width / FR RMS error, paper",
+                                               "band width / FR RMS error, default", "silent failures, paper",
+                                               "silent failures, default"}, system
         assert next(r for r in mine if r["metric"] == "long linear order, paper")["max"] == 0.0  # never with the paper's
         assert all(r["median"] >= 1 for r in mine if r["metric"].startswith("networks"))
         assert next(r for r in mine if r["metric"] == "refined, paper")["max"] == 0.0  # the paper never refines
         assert all(v in (0.0, 1.0) for r in mine if r["metric"].startswith("refined") for v in r["values"])
         assert all(np.isfinite(r["median"]) for r in mine)
+        assert all(0.0 <= v <= 1.0 for r in mine if r["metric"].startswith("90 % band coverage") for v in r["values"])
+        assert all(r["median"] > 0 for r in mine if r["metric"].startswith("band width"))
+        assert all(r["values"] in ([0.0], [1.0]) for r in mine if r["metric"].startswith("silent"))  # of 1 seed
     notes = {r["case"].split(" (")[0]: r["note"] for r in rows if r["metric"] == "FR R2 val, default"}
     assert all(n.endswith("validated on the record's second part") for n in notes.values()), notes  # half/half rows
+    # the silent failures' sum is over the two-experiment rows (the quick systems are half/half: none)
+    assert not [r for r in rows if r["metric"].startswith("silent") and r["case"].startswith("every")]
     reactor = [r for r in rows if r["case"].startswith("reactor") and r["metric"] == "FR R2 val, default"]
     assert reactor[0]["median"] > 0.99  # even the smoke run identifies the reactor
 
@@ -129,3 +138,17 @@ def test_bench_suite_systems_option_runs_a_two_experiment_system(capsys: pytest.
         command.run(parser.parse_args(["bench", "--suite", "--systems", "reactor_sim,nope"]))
     with pytest.raises(ConfigError, match="add --suite"):
         command.run(parser.parse_args(["bench", "--systems", "reactor_sim"]))
+
+
+def test_silent_failures_need_a_poor_free_run_and_a_band_that_does_not_say_so() -> None:
+    from benchmarks.suite import SILENT_COVERAGE, SILENT_GAP, silent_failures
+
+    paper_median = 0.9
+    poor, fine = paper_median - SILENT_GAP - 0.01, paper_median - SILENT_GAP + 0.01
+    said = {"coverage": SILENT_COVERAGE - 0.1}  # a band that misses the data: the model does not say it is wrong
+    wide = {"coverage": SILENT_COVERAGE + 0.1}  # a band wide enough to cover: it says so
+    assert silent_failures([poor], [said], paper_median) == 1
+    assert silent_failures([poor], [wide], paper_median) == 0
+    assert silent_failures([poor], [None], paper_median) == 1  # no interval says nothing
+    assert silent_failures([fine], [said], paper_median) == 0  # good enough: not a failure
+    assert silent_failures([poor, fine, poor], [said, said, wide], paper_median) == 1
