@@ -48,8 +48,12 @@ def _row(job: tuple[str, int, int]) -> dict[str, Any]:
     models = list(res.extra.get("run_models") or ())
     scores = [float(s) for s in res.model.metrics.get("run_scores", [])]
     med, ev = median_of_finished(models, scores, DEFAULT, t.u_est, t.y_est)
-    out["median"] = None if med is None else _score(with_interval(med, t.u_est, t.y_est, RIDGE), t)
+    med = None if med is None else with_interval(med, t.u_est, t.y_est, RIDGE)
+    out["median"] = None if med is None else _score(med, t)
     out["median_evidence"] = {k: v for k, v in ev.items() if k != "finished"}
+    # the models themselves (documents), so that another band rule can be scored on them without identifying again
+    out["models"] = {"paper": paper.to_dict(), "kept": res.model.to_dict(),
+                     "median": None if med is None else med.to_dict()}
     return out
 
 

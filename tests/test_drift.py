@@ -151,6 +151,11 @@ def test_recalibration_recovers_a_gain_and_offset_change_exactly() -> None:
     assert r.metrics["recalibrated_offset"] == pytest.approx(-0.7, abs=1e-6 * np.ptp(drifted))
     assert np.allclose(r.simulate(uu, drifted[: m.max_lag]), drifted, atol=1e-6 * np.ptp(drifted))
     assert np.array_equal(r.centres, m.centres) and np.array_equal(r.weights, m.weights)  # the same network
+    # its band in the new scale: the same quantiles, the scale (output units) times the gain
+    assert m.interval is not None and r.interval is not None and r.interval.quantiles == m.interval.quantiles
+    assert r.interval.scale == pytest.approx(1.3 * m.interval.scale, rel=1e-6)
+    b0, b1 = m.simulate(uu, own[: m.max_lag], interval=0.9), r.simulate(uu, drifted[: m.max_lag], interval=0.9)
+    assert np.allclose(b1.upper - b1.lower, 1.3 * (b0.upper - b0.lower), rtol=1e-6, atol=1e-9 * np.ptp(drifted))
     assert recalibrate(m, uu, (MAX_GAIN_CHANGE + 0.5) * own) is None  # too large a change: identify anew
     assert recalibrate(m, uu, -own) is None
     assert recalibrate(dataclasses.replace(m), uu, np.full(1000, 2.0)) is None  # a constant output

@@ -74,6 +74,9 @@ def recalibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) ->
     n0, n1 = model.normalisation, current.normalisation
     gain = (n1.y_high - n1.y_low) / (n0.y_high - n0.y_low)
     offset = n1.y_low - gain * n0.y_low
+    if current.interval is not None:  # its errors are in the new scale too: the band's scale (output units) follows
+        current = dataclasses.replace(current, interval=dataclasses.replace(current.interval,
+                                                                            scale=current.interval.scale * abs(gain)))
     return current.with_metrics(recalibrated_gain=float(gain), recalibrated_offset=float(offset))
 
 
