@@ -35,6 +35,10 @@ A configuration file is optional: every setting has an embedded default, so
     [streams.bench1.engine]   # any other CoEAConfig field (de_f, centre_bounds, ...)
     de_f = 0.5
 
+    [streams.arm.ros2]        # the stream's fields from ROS 2 topics (streamid.daemon.ros2_config)
+    inputs = ["/cmd_vel:linear.x"]
+    output = "/joint_states:velocity[2]"
+
 Unknown keys and wrong types are refused when the file is loaded, with a
 :class:`~streamid.errors.ConfigError` naming the key, the accepted form and the
 value found.
