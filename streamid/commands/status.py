@@ -6,7 +6,8 @@ serves it (its id and the start of its life), the model version, the champion's
 age and current free-run R² (and, re-judged on the newest held-out data, the share of samples its 90 % interval
 covered, ``band cover``, and the share outside its estimation domain, ``outside``), the drift events so far, the stream's state, and the members sharing the
 streams as that daemon sees them.  A stream of several outputs (MIMO: one champion per output) gets one more
-line per output, indented, with that output's champion.  Network text is shown escaped.  Exit code 1 when
+line per output, indented, with that output's champion; a stream fed by ROS 2 topics one line per topic (messages
+received, the bad ones by kind, samples waiting for the grid, the clock).  Network text is shown escaped.  Exit code 1 when
 no stream answered within ``--timeout``.
 
 Two answers for one stream (two daemons serving it, or a status forged by someone who may answer on the
@@ -32,7 +33,7 @@ from typing import Any
 from streamid.wire.names import printable
 
 __all__ = ["MAX_ANSWERS", "MAX_ANSWER_BYTES", "MAX_ANSWERS_BYTES", "Answers", "collect", "register", "run",
-           "status_line", "output_lines"]
+           "status_line", "output_lines", "ros2_lines"]
 
 #: What one ``streamid status`` keeps of the answers: their number, their bytes together, the bytes of one
 #: (a status document is a few kB); the rest is counted and said, never read.
@@ -215,6 +216,22 @@ def output_lines(doc: dict[str, Any]) -> list[str]:
     return lines
 
 
+def ros2_lines(doc: dict[str, Any]) -> list[str]:
+    """Under a stream fed by ROS 2 topics (``[streams.X.ros2]``), one line per topic: messages received, the bad
+    ones by kind (a payload that does not decode, a wrong type, a field missing or not a number, ...), the samples
+    waiting for the grid and the clock that timed them (escaped); none for other streams."""
+    topics = _table(_table(doc, "ros2"), "topics")
+    lines = []
+    for topic in sorted(topics):
+        tp = topics[topic] if isinstance(topics[topic], dict) else {}
+        bad = _table(tp, "bad")
+        kinds = ", ".join(f"{k} {_num(v, 'd')}" for k, v in sorted(bad.items()))
+        lines.append(printable(f"  ros2 {topic}: {_num(tp.get('received'), 'd')} received, {_num(tp.get('bad_total'), 'd')}"
+                               f" bad{f' ({kinds})' if kinds else ''}, {_num(tp.get('pending'), 'd')} pending, "
+                               f"clock {tp.get('clock') or '-'}", 400))
+    return lines
+
+
 HEADER = (f"{'stream':<20} {'served by':<18} {'version':<7} {'champion':>10} {'FR R2 now':>9} {'band cover':>10} "
           f"{'outside':>7} {'drifts':>6} "
           f"{'next update':<20} {'backlog':>12} {'daemons':>7}  state")
@@ -250,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
         for name in sorted(docs):
             for _, doc in sorted(docs[name].items(), key=lambda kv: kv[0]):
                 print(status_line(doc, conflicts.get(name)))
-                for line in output_lines(doc):
+                for line in (*output_lines(doc), *ros2_lines(doc)):
                     print(line)
     for name in sorted(conflicts):
         print(f"streamid status: stream {printable(name, 80)}: {conflicts[name]} (see docs/security.md)", file=sys.stderr)

@@ -35,6 +35,10 @@ A configuration file is optional: every setting has an embedded default, so
     [streams.bench1.engine]   # any other CoEAConfig field (de_f, centre_bounds, ...)
     de_f = 0.5
 
+    [streams.arm.ros2]        # the stream's fields from ROS 2 topics (streamid.daemon.ros2_config)
+    inputs = ["/cmd_vel:linear.x"]
+    output = "/joint_states:velocity[2]"
+
 Unknown keys and wrong types are refused when the file is loaded, with a
 :class:`~streamid.errors.ConfigError` naming the key, the accepted form and the
 value found.
@@ -51,6 +55,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from streamid.daemon.ros2_config import Ros2Source, ros2_from_table, ros2_toml
 from streamid.engine.settings import RETIRED_FIELDS, CoEAConfig, retired_message
 from streamid.online.refresh_policy import RefreshPolicy
 from streamid.online.stream_config import ENGINE_RESERVED, StreamConfig
@@ -128,6 +133,9 @@ class DaemonConfig:
         Settings of every stream.
     overrides
         ``(stream, settings)`` pairs for streams with their own table.
+    ros2
+        ``(stream, source)`` pairs of the streams whose signals are ROS 2 topics (``[streams.X.ros2]``,
+        :mod:`streamid.daemon.ros2_config`); each is served from the start, as if listed in ``streams``.
     """
 
     streams: tuple[str, ...] = ()
@@ -148,8 +156,10 @@ class DaemonConfig:
     join_after_s: float = 10.0
     defaults: StreamConfig = field(default_factory=StreamConfig)
     overrides: tuple[tuple[str, StreamConfig], ...] = ()
+    ros2: tuple[tuple[str, Ros2Source], ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "streams", tuple(dict.fromkeys((*self.streams, *(n for n, _ in self.ros2)))))
         for s in self.streams:
             if not is_valid_stream_name(s):
                 raise ConfigError(f"daemon.streams entries must be stream names ({STREAM_NAME_RULE}); got {s!r}")
@@ -177,6 +187,10 @@ class DaemonConfig:
     def with_streams(self, streams: tuple[str, ...]) -> DaemonConfig:
         """Serve exactly ``streams`` (no discovery), e.g. from ``--stream``."""
         return dataclasses.replace(self, streams=tuple(dict.fromkeys(streams)), discover=False)
+
+    def ros2_of(self, stream: str) -> Ros2Source | None:
+        """Where ``stream``'s signals come from when they are ROS 2 topics (None: streamid's own keys)."""
+        return dict(self.ros2).get(stream)
 
 
 # ----------------------------------------------------------------------------- loading
@@ -337,12 +351,16 @@ def _from_mapping(data: Mapping[str, Any]) -> DaemonConfig:
     if "defaults" in data:
         defaults = stream_table_config("defaults", data["defaults"], defaults)
     overrides: list[tuple[str, StreamConfig]] = []
+    ros2: list[tuple[str, Ros2Source]] = []
     streams_tab = data.get("streams", {})
     if not isinstance(streams_tab, dict):
         raise ConfigError(f"[streams] must be a table of [streams.NAME] tables; got {streams_tab!r}")
     for name, tab in streams_tab.items():
         if not is_valid_stream_name(name):
             raise ConfigError(f"[streams.{name}]: the table name must be a stream name ({STREAM_NAME_RULE})")
+        if isinstance(tab, dict) and "ros2" in tab:
+            tab = dict(tab)
+            ros2.append((name, ros2_from_table(f"streams.{name}.ros2", tab.pop("ros2"))))
         overrides.append((name, stream_table_config(f"streams.{name}", tab, defaults)))
     dkw: dict[str, Any] = {}
     dtab = data.get("daemon", {})
@@ -354,8 +372,8 @@ def _from_mapping(data: Mapping[str, Any]) -> DaemonConfig:
         dkw[key] = _typed("daemon", key, value, kind, form)
     streams = tuple(dict.fromkeys(dkw.pop("streams", ())))
     if "discover" not in dkw:
-        dkw["discover"] = not streams
-    return DaemonConfig(streams=streams, defaults=defaults, overrides=tuple(overrides), **dkw)
+        dkw["discover"] = not streams and not ros2  # a ROS 2 stream counts as listed
+    return DaemonConfig(streams=streams, defaults=defaults, overrides=tuple(overrides), ros2=tuple(ros2), **dkw)
 
 
 def load_config(path: str | Path | None) -> DaemonConfig:
@@ -414,7 +432,7 @@ def to_toml(config: DaemonConfig) -> str:
     """Every effective setting as a TOML file that :func:`load_config` reads back to the same configuration."""
     lines = ["# streamid daemon: every effective setting (paste into a --config file)", "", "[daemon]"]
     for f in fields(DaemonConfig):
-        if f.name not in ("defaults", "overrides"):
+        if f.name not in ("defaults", "overrides", "ros2"):
             lines.append(f"{f.name} = {_toml_value(getattr(config, f.name))}")
     tables = [("defaults", config.defaults), *((f"streams.{n}", c) for n, c in config.overrides)]
     for name, cfg in tables:
@@ -425,4 +443,6 @@ def to_toml(config: DaemonConfig) -> str:
             lines.append("# search_rows: the default bound, max(4096, 128 (neurons + D + 1)) rows, "
                          "D = max_lag_y + inputs x max_lag_u (0: every row)")
         lines += ["", f"[{name}.refresh]", *(f"{k} = {_toml_value(v)}" for k, v in cfg.refresh.to_dict().items())]
+        if (src := config.ros2_of(name.removeprefix("streams."))) is not None and name.startswith("streams."):
+            lines += ["", *ros2_toml(f"{name}.ros2", src)]
     return "\n".join(lines) + "\n"

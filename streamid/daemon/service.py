@@ -48,7 +48,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from streamid.wire.codec import decode
+from streamid.wire.codec import SampleBatch, decode
 from streamid.daemon.config import DaemonConfig
 from streamid.wire.documents import encode_json
 from streamid.daemon.admission import STREAM_FAULTS, check_batch, known_channels
@@ -60,6 +60,7 @@ from streamid.daemon.slots import EVICT_GRACE_S, evictable, forward_events
 from streamid.daemon.state_store import StateStore
 from streamid.daemon.identity import daemon_origin
 from streamid.daemon.intake_budget import IntakeBudget
+from streamid.daemon.ros2_intake import Ros2Intake, subscribe_ros2
 from streamid.daemon.share_link import ShareLink
 from streamid.daemon.sharing import Life, Shares
 from streamid.daemon.versions import VersionKeeper
@@ -137,6 +138,7 @@ class Daemon(SlotKeeping):
         self.link = ShareLink(self.shares, join_after_s=config.join_after_s, max_streams=config.max_streams,
                               max_payload_bytes=config.max_payload_bytes)
         self._budget = IntakeBudget(config.max_batches_per_s)  # fair intake: checked before decoding
+        self._ros2: dict[str, Ros2Intake] = {}  # stream -> its ROS 2 topics (streamid.daemon.ros2_intake)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> Daemon:
@@ -163,6 +165,8 @@ class Daemon(SlotKeeping):
             for key in keys:
                 self._subs.append(self.bus.subscribe(key, self._on_sample, max_payload_bytes=limit,
                                                      on_too_large=self._on_too_large))
+            self._ros2 = subscribe_ros2(self.bus, self.config, self._subs, self._ros2_take, self._ros2_bad,
+                                        self._ros2_admit)  # [streams.X.ros2]: ROS 2 topics, gridded, into _take
             self.link.start(self.bus)  # a stream's publishers are declared once it is served (housekeeping)
         except Exception:
             self.bus.close()
@@ -327,6 +331,8 @@ class Daemon(SlotKeeping):
             if st.latency_s is not None:
                 doc["last"]["latency_s"] = st.latency_s
             doc.update(st.counters())
+        if (ros2 := self._ros2.get(st.ident.stream)) is not None:
+            doc["ros2"] = ros2.status()
         doc["daemon"] = self._daemon_info()
         return doc
 
@@ -386,9 +392,13 @@ class Daemon(SlotKeeping):
                 st.ident.count_bad("decode", str(exc)[:300], now_ns=now_ns)
             return
         del payload
+        self._take(st, stream, kind, batch, now_ns)
+
+    def _take(self, st: _Stream, stream: str, kind: str, batch: SampleBatch, now_ns: int) -> None:
+        """A decoded batch into its stream: streamid's own keys and ROS 2 topics (:mod:`streamid.daemon.ros2_intake`)."""
         with st.lock:
             if batch.stream != stream:
-                st.ident.count_bad("stream_mismatch", f"batch names stream {batch.stream!r} but came on {key!r}",
+                st.ident.count_bad("stream_mismatch", f"batch names stream {batch.stream!r} but came on {f'{PREFIX}/{stream}/{kind}'!r}",
                                    now_ns=now_ns)
                 return
             refused = check_batch(batch, st.ident.config, max_channels=self.config.max_channels,
@@ -410,6 +420,27 @@ class Daemon(SlotKeeping):
                 due = False  # (a claimed stream's windows wait until it is served)
         if due and self.identify:
             self._runner.wake(stream)
+
+    def _ros2_admit(self, stream: str) -> bool:
+        """Whether one ROS 2 message of ``stream`` is taken: served here, and within its intake budget share."""
+        st = self._streams.get(stream)
+        if st is None or self.shares.role(stream) == "none":
+            return False
+        if self._budget.admit(stream):
+            return True
+        self._global["intake_dropped"] += 1
+        with st.lock:
+            st.intake_dropped += 1
+        return False
+
+    def _ros2_take(self, batch: SampleBatch) -> None:
+        if (st := self._streams.get(batch.stream)) is not None:
+            self._take(st, batch.stream, "samples", batch, time.time_ns())
+
+    def _ros2_bad(self, stream: str, kind: str, message: str) -> None:
+        if (st := self._streams.get(stream)) is not None:
+            with st.lock:
+                st.ident.count_bad(kind, message, now_ns=time.time_ns())
 
     # ------------------------------------------------------------------ results
     def _finish(self, st: _Stream, job: UpdateJob, out: Outcome) -> None:

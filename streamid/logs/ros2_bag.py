@@ -8,7 +8,8 @@ messages (:data:`TYPESTORE`: std_msgs, geometry_msgs, sensor_msgs ...); a type i
 Signals are ``/topic:field.path[index]`` (:mod:`streamid.logs.ros2_fields`); a sample's time is the time the bag
 recorded the message (its log time, ns), and the topics are put on the output's own timestamps by
 :mod:`streamid.logs.timed`'s rule.  :class:`CdrDecoder` decodes single CDR payloads of the same types (the
-payloads ROS 2 puts on Zenoh; the daemon does not subscribe to ROS 2 topics yet).
+payloads ROS 2 puts on Zenoh, which the daemon's ``[streams.X.ros2]`` streams decode:
+:mod:`streamid.daemon.ros2_intake`).
 """
 
 from __future__ import annotations

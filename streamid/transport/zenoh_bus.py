@@ -29,17 +29,8 @@ from streamid.errors import ConfigError, TransportError
 from streamid.transport.endpoints import check_endpoint, explain_open_error
 from streamid.transport.replies import GET_MAX_BYTES, GET_MAX_REPLIES, GET_QUEUE, Replies
 
-__all__ = [
-    "DEFAULT_ENDPOINT",
-    "MODES",
-    "ZenohSettings",
-    "Bus",
-    "BusPublisher",
-    "CONNECT_RETRY_S",
-    "GET_MAX_BYTES",
-    "GET_MAX_REPLIES",
-    "Replies",
-]
+__all__ = ["DEFAULT_ENDPOINT", "MODES", "ZenohSettings", "Bus", "BusPublisher", "CONNECT_RETRY_S", "GET_MAX_BYTES",
+           "GET_MAX_REPLIES", "MAX_ATTACHMENT_BYTES", "Replies"]
 
 _log = logging.getLogger(__name__)
 
@@ -104,14 +95,10 @@ class ZenohSettings:
         if self.connect_wait_s is not None and not (
             isinstance(self.connect_wait_s, (int, float)) and 0 <= self.connect_wait_s < float("inf")
         ):
-            raise ConfigError(
-                f"connect_wait_s must be a finite number of seconds >= 0 or None (wait until stopped); "
-                f"got {self.connect_wait_s!r}"
-            )
+            raise ConfigError(f"connect_wait_s must be a finite number of seconds >= 0 or None (wait until "
+                              f"stopped); got {self.connect_wait_s!r}")
         if self.config_file is not None and not Path(self.config_file).is_file():
-            raise ConfigError(
-                f"zenoh config file must be an existing JSON5 file; got {self.config_file!r}"
-            )
+            raise ConfigError(f"zenoh config file must be an existing JSON5 file; got {self.config_file!r}")
 
     def resolved_mode(self) -> str | None:
         """The mode the session opens in (None: the config file's)."""
@@ -175,13 +162,15 @@ class ZenohSettings:
             for key, value in self.extra:
                 conf.insert_json5(key, value)
         except zenoh.ZError as exc:
-            raise TransportError(
-                f"zenoh configuration refused ({exc}); settings: {self}"
-            ) from exc
+            raise TransportError(f"zenoh configuration refused ({exc}); settings: {self}") from exc
         return conf
 
 
 Callback = Callable[[str, bytes], None]
+#: ``(key, payload, timestamp_ns or None, attachment or None)``: :meth:`Bus.subscribe_meta`'s callback.
+MetaCallback = Callable[[str, bytes, "int | None", "bytes | None"], None]
+#: A sample's attachment longer than this is not copied out of Zenoh (given as None).
+MAX_ATTACHMENT_BYTES = 256
 QueryHandler = Callable[[str], "bytes | Sequence[bytes] | None"]
 
 
@@ -300,12 +289,8 @@ class Bus:
     def __enter__(self) -> Bus:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         self.close()
 
     @property
@@ -343,6 +328,24 @@ class Bus:
         given to ``callback``: ``on_too_large(key, length)`` is called instead.
         Returns a handle whose ``close()`` undeclares the subscription.
         """
+        return self._declare_sub(key_expr, lambda key, sample: callback(key, sample.payload.to_bytes()),
+                                 max_payload_bytes, on_too_large)
+
+    def subscribe_meta(self, key_expr: str, callback: MetaCallback, *, max_payload_bytes: int | None = None,
+                       on_too_large: Callable[[str, int], None] | None = None) -> _Handle:
+        """:meth:`subscribe`, the callback also given the sample's Zenoh timestamp (int ns since the UNIX epoch, None
+        when the publishing side set none) and its attachment (None: none, or over :data:`MAX_ATTACHMENT_BYTES`)."""
+
+        def deliver(key: str, sample: Any) -> None:
+            ts, att = sample.timestamp, sample.attachment
+            t_ns = None if ts is None else _ntp64_ns(ts.get_time_as_ntp64())
+            keep = att is not None and len(att) <= MAX_ATTACHMENT_BYTES
+            callback(key, sample.payload.to_bytes(), t_ns, att.to_bytes() if keep else None)
+
+        return self._declare_sub(key_expr, deliver, max_payload_bytes, on_too_large)
+
+    def _declare_sub(self, key_expr: str, deliver: Callable[[str, Any], None], max_payload_bytes: int | None,
+                     on_too_large: Callable[[str, int], None] | None) -> _Handle:
         self._check_open()
 
         def _on_sample(sample: Any) -> None:
@@ -356,17 +359,15 @@ class Bus:
                         if on_too_large is not None:
                             on_too_large(key, size)
                         return
-                callback(key, sample.payload.to_bytes())
+                deliver(key, sample)
             except Exception:  # noqa: BLE001 - a callback must not kill zenoh's thread
                 _log.exception("subscriber callback failed on key %s", key)
 
         try:
             sub = self._session.declare_subscriber(key_expr, _on_sample)
         except zenoh.ZError as exc:
-            raise TransportError(
-                f"cannot subscribe: key expression must be a valid Zenoh key expression "
-                f"such as 'streamid/**'; got {key_expr!r} ({exc})"
-            ) from exc
+            raise TransportError(f"cannot subscribe: key expression must be a valid Zenoh key expression such as "
+                                 f"'streamid/**'; got {key_expr!r} ({exc})") from exc
         self._keep(sub)
         return _Handle(sub, self._drop)
 
@@ -417,19 +418,17 @@ class Bus:
         try:
             pub = self._session.declare_publisher(key, congestion_control=cc, express=express)
         except zenoh.ZError as exc:
-            raise TransportError(
-                f"cannot declare publisher: key must be a Zenoh key without wildcards such "
-                f"as 'streamid/demo/samples'; got {key!r} ({exc})"
-            ) from exc
+            raise TransportError(f"cannot declare publisher: key must be a Zenoh key without wildcards such "
+                                 f"as 'streamid/demo/samples'; got {key!r} ({exc})") from exc
         self._keep(pub)
         return BusPublisher(pub, key, self._drop)
 
-    def put(self, key: str, payload: bytes, block: bool = True) -> None:
-        """One-off put of ``payload`` on ``key`` (prefer :meth:`publisher` for streams)."""
+    def put(self, key: str, payload: bytes, block: bool = True, *, attachment: bytes | None = None) -> None:
+        """One-off put of ``payload`` (and ``attachment``) on ``key`` (prefer :meth:`publisher` for streams)."""
         self._check_open()
         cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
         try:
-            self._session.put(key, bytes(payload), congestion_control=cc)
+            self._session.put(key, bytes(payload), congestion_control=cc, attachment=attachment)
         except zenoh.ZError as exc:
             raise TransportError(f"put on {key!r} failed ({exc})") from exc
 
@@ -541,3 +540,8 @@ class Bus:
             self._session.close()
         except zenoh.ZError:
             pass
+
+
+def _ntp64_ns(ntp: int) -> int:
+    """A Zenoh (NTP64) time as int ns since the UNIX epoch: 32 bits of seconds, 32 bits of fraction."""
+    return (ntp >> 32) * 1_000_000_000 + (((ntp & 0xFFFFFFFF) * 1_000_000_000) >> 32)
