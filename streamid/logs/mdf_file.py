@@ -46,7 +46,9 @@ def _open(path: Path) -> Any:
         try:
             return asammdf.MDF(str(path))
         except Exception as exc:  # noqa: BLE001 - asammdf raises many kinds on a damaged file: the file's fault
-            why = f"{type(exc).__name__}: {str(exc)[:200]}"
+            from streamid.logs.timed import why_text
+
+            why = why_text(exc)
         gc.collect()  # the half-built reader's __del__ fails (asammdf 8.x) while its error is still quieted
     finally:
         sys.unraisablehook = hook
@@ -112,7 +114,7 @@ def read_mdf_table(path: Path, signals: Sequence[str] | None) -> Table:
         No signals named (the message lists the file's channels), unknown or ambiguous channel, text values,
         a damaged file, asammdf missing, or the grid rule's refusals (:mod:`streamid.logs.timed`).
     """
-    from streamid.logs.timed import Signal, names_line, on_output_grid
+    from streamid.logs.timed import Signal, names_line, on_output_grid, why_text
 
     mdf = _open(path)
     try:
@@ -126,8 +128,8 @@ def read_mdf_table(path: Path, signals: Sequence[str] | None) -> Table:
             try:
                 s = mdf.get(group=group, index=index)
             except Exception as exc:  # noqa: BLE001 - a damaged data block: the file's fault, said in one line
-                raise DataError(f"{path}: the channel {wanted!r} cannot be read ({type(exc).__name__}: "
-                                f"{str(exc)[:200]}): a cut or damaged file?") from None
+                raise DataError(f"{path}: the channel {wanted!r} cannot be read ({why_text(exc)}): a cut or "
+                                "damaged file?") from None
             values = np.asarray(s.samples)
             if values.dtype.kind not in "biuf" or values.ndim != 1:
                 kind = "text" if values.dtype.kind in "SUO" else f"{values.dtype} of shape {values.shape[1:]}"
