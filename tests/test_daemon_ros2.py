@@ -283,3 +283,79 @@ def test_the_example_runs_unchanged_but_for_the_engine() -> None:
     fast = config_from_mapping({"streams": {"arm": {**doc_example()["streams"]["arm"], **FAST}}})
     assert dataclasses.replace(fast, overrides=cfg.overrides) == cfg
 
+
+
+# ------------------------------------------------------------------- the time-stamp fallbacks, live
+def float64(x: float) -> bytes:
+    return bytes(STORE.serialize_cdr(TY["std_msgs/msg/Float64"](data=x), "std_msgs/msg/Float64"))
+
+
+F64 = f"std_msgs::msg::dds_::Float64_/{HASH}"
+
+
+@pytest.fixture(scope="module")
+def unstamped() -> dict[str, Any]:
+    """Two streams of std_msgs/Float64 (no header.stamp) without rmw_zenoh's attachment, over real Zenoh: "zts" on
+    rmw_zenoh keys from a session that timestamps its samples (Zenoh's ``timestamping/enabled``), "arr" on the
+    bridge's keys from one that does not. A session of the test's own records the Zenoh timestamps it receives."""
+    from streamid.daemon.service import Daemon
+    from streamid.transport import Bus, ZenohSettings
+    from streamid.transport.client import latest_status
+
+    types = {"/u": "std_msgs/msg/Float64", "/y": "std_msgs/msg/Float64"}
+    cfg = config_from_mapping({
+        "daemon": {"workers": 1, "helper": False, "status_every_s": 0.2},
+        "streams": {"zts": {**FAST, "ros2": {"inputs": ["/u:data"], "output": "/y:data", "domain_id": 7}},
+                    "arr": {**FAST, "ros2": {"layout": "bridge", "key_prefix": "plain", "inputs": ["/u:data"],
+                                             "output": "/y:data", "types": types}}}})
+    ep = endpoint()
+    n = 150
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,))).start()
+    out: dict[str, Any] = {"n": n, "seen": []}
+    try:
+        with Bus(ZenohSettings(connect=(ep,))) as plain, \
+                Bus(ZenohSettings(connect=(ep,), extra=(("timestamping/enabled", "true"),))) as timed:
+            assert plain.wait_connected(10) and timed.wait_connected(10)
+            plain.subscribe_meta(f"7/y/{F64}", lambda k, p, t, a: out["seen"].append(t))
+            time.sleep(0.3)  # the daemon's subscriptions reach these sessions
+            y = 0.0
+            for k in range(n):
+                u = float(np.sin(0.3 * k))
+                timed.put(f"7/u/{F64}", float64(u))
+                plain.put("plain/u", float64(u))
+                out["t_before_last_put_ns"] = time.time_ns()
+                timed.put(f"7/y/{F64}", float64(y))
+                plain.put("plain/y", float64(y))
+                y = 0.9 * y + 0.5 * u
+                time.sleep(0.005)  # about 200 Hz (nothing here depends on how steady)
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                docs = {s: latest_status(plain, s, timeout_s=1.0) for s in ("zts", "arr")}
+                if all(d and d["ros2"]["topics"]["/y"]["received"] == n and d["ros2"]["samples_taken"] >= n - 1
+                       for d in docs.values()):
+                    break
+                time.sleep(0.2)
+            out["status"] = docs
+            out["t_status_ns"] = time.time_ns()
+    finally:
+        daemon.stop()
+    return out
+
+
+@pytest.mark.parametrize(("stream", "clock"), [("zts", "zenoh timestamp"), ("arr", "arrival")])
+def test_a_message_without_header_or_attachment_is_timed_by_zenoh_or_by_arrival(unstamped: dict[str, Any],
+                                                                                stream: str, clock: str) -> None:
+    ros2 = unstamped["status"][stream]["ros2"]
+    n = unstamped["n"]
+    assert ros2["bad_total"] == 0, ros2
+    assert ros2["samples_taken"] == n - 1  # every output sample but the last (no input after it yet)
+    for topic in ("/u", "/y"):
+        tp = ros2["topics"][topic]
+        assert tp["clock"] == clock and tp["received"] == n, (topic, tp)
+    # the output's last time is when its last message was sent (Zenoh's timestamp) or received (arrival): after the
+    # test's clock read just before that put, before the status was read (one host: one UNIX-epoch clock)
+    assert unstamped["t_before_last_put_ns"] <= ros2["topics"]["/y"]["last_t_ns"] <= unstamped["t_status_ns"]
+    if stream == "zts":  # exactly the publisher's Zenoh timestamp, as another subscriber receives it
+        seen = unstamped["seen"]
+        assert len(seen) == n and all(t is not None for t in seen)
+        assert ros2["topics"]["/y"]["last_t_ns"] == seen[-1]
