@@ -331,8 +331,7 @@ def unstamped() -> dict[str, Any]:
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline:
                 docs = {s: latest_status(plain, s, timeout_s=1.0) for s in ("zts", "arr")}
-                if all(d and d["ros2"]["topics"]["/y"]["received"] == n and d["ros2"]["samples_taken"] >= n - 1
-                       for d in docs.values()):
+                if all(d and all(d["ros2"]["topics"][t]["received"] == n for t in ("/u", "/y")) for d in docs.values()):
                     break
                 time.sleep(0.2)
             out["status"] = docs
@@ -348,7 +347,10 @@ def test_a_message_without_header_or_attachment_is_timed_by_zenoh_or_by_arrival(
     ros2 = unstamped["status"][stream]["ros2"]
     n = unstamped["n"]
     assert ros2["bad_total"] == 0, ros2
-    assert ros2["samples_taken"] == n - 1  # every output sample but the last (no input after it yet)
+    if stream == "zts":  # stamped when put, each input before its output: all but the last (no input after it)
+        assert ros2["samples_taken"] == n - 1 and ros2["cut_before_inputs"] == 0, ros2
+    else:  # two topics' callbacks run on Zenoh's threads: the first and last messages' arrival order may swap
+        assert n - 2 <= ros2["samples_taken"] <= n and ros2["samples_taken"] + ros2["cut_before_inputs"] >= n - 1, ros2
     for topic in ("/u", "/y"):
         tp = ros2["topics"][topic]
         assert tp["clock"] == clock and tp["received"] == n, (topic, tp)

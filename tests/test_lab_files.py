@@ -46,6 +46,24 @@ def test_mf4_two_groups_and_a_conversion_on_the_output_grid(files: dict[str, Pat
     np.testing.assert_allclose(b, 21 + np.cos(np.arange(N) * 0.01), atol=1e-9)
 
 
+def test_an_mdf3_file_reads_as_its_mf4(files: dict[str, Path], tmp_path: Path) -> None:
+    """``.mdf`` (MDF 3, CANape's and INCA's older format): the same channels, values and times as the MDF 4 file."""
+    from asammdf import MDF
+
+    mdf = MDF(str(files["mf4"]))
+    mdf3 = mdf.convert("3.30")
+    mdf3.save(str(tmp_path / "bench.mdf"), overwrite=True)
+    mdf.close()
+    mdf3.close()
+    with open(tmp_path / "bench.mdf", "rb") as fh:
+        assert fh.read(8) == b"MDF     " and b"3.30" in fh.read(16)
+    a, b = load_record(tmp_path / "bench.mdf", ["throttle_V"], "speed_rpm"), load_record(files["mf4"], ["throttle_V"],
+                                                                                         "speed_rpm")
+    assert np.array_equal(a.t_ns, b.t_ns) and np.array_equal(a.y, b.y) and np.array_equal(a.u, b.u)
+    assert np.array_equal(load_record(tmp_path / "bench.mdf", ["temp_C@1"], "speed_rpm").u,
+                          load_record(files["mf4"], ["temp_C@1"], "speed_rpm").u)
+
+
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_ros2_bag_directory_and_its_file(files: dict[str, Path], storage: str) -> None:
     bag = files[storage]
