@@ -192,10 +192,11 @@ def test_bad_messages_are_counted_per_topic_and_every_queue_is_bounded() -> None
 
 # ------------------------------------------------------------------------------------- the daemon, live
 @pytest.fixture(scope="module")
-def live() -> dict[str, Any]:
+def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     from streamid.daemon.service import Daemon
     from streamid.transport import Bus, ZenohSettings
     from streamid.transport.client import latest_model, latest_status
+    from streamid.viz.rerun_view import Viz, VizSettings
 
     data = doc_example()
     data["streams"]["arm"].update(FAST)
@@ -210,8 +211,9 @@ def live() -> dict[str, Any]:
     cfg: DaemonConfig = config_from_mapping(data)
     assert isinstance(cfg.for_stream("arm"), StreamConfig)
     ep = endpoint()
-    daemon = Daemon(cfg, ZenohSettings(listen=(ep,))).start()
-    out: dict[str, Any] = {"n_out": 600}
+    rrd = tmp_path_factory.mktemp("ros2_rrd") / "diag.rrd"
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,)), viz=Viz(VizSettings(rrd=str(rrd)))).start()
+    out: dict[str, Any] = {"n_out": 600, "rrd": rrd}
     try:
         with Bus(ZenohSettings(connect=(ep,))) as bus:
             assert bus.wait_connected(10)
@@ -266,6 +268,26 @@ def test_a_corrupt_payload_is_counted_and_the_stream_goes_on(live: dict[str, Any
     in_topic = st["ros2"]["topics"]["/cmd_vel" if stream == "arm" else "/cmd"]
     assert in_topic["clock"] == ("rmw_zenoh source timestamp" if stream == "arm" else "header.stamp")
     assert in_topic["period_ns"] == 5_000_000 and topic["period_ns"] == 10_000_000  # each topic at its own rate
+
+
+@pytest.mark.parametrize("stream", ["arm", "rig"])
+def test_a_ros2_streams_rerun_diagnostics_are_any_streams(live: dict[str, Any], stream: str) -> None:
+    """The .rrd the daemon wrote, read back with rerun's reader: the stream's tab holds the views every stream gets,
+    the measured output there being the ROS 2 field's values."""
+    from rerun.chunk import RrdReader
+
+    base = f"/streams/{stream}"
+    chunks = RrdReader(live["rrd"]).stream().filter(content=f"{base}/**").to_chunks()
+    paths = {c.entity_path for c in chunks}
+    for view in ("validation/measured", "residual/osa", "residual/free_run", "fitness", "correlation/ee/value",
+                 "history/r2_fr", "model"):
+        assert f"{base}/{view}" in paths, (view, sorted(paths))
+    measured = [c for c in chunks if c.entity_path == f"{base}/validation/measured"]
+    batches = [c.to_record_batch() for c in measured]
+    shown = [v for b in batches if "Scalars:scalars" in b.schema.names
+             for row in b.column("Scalars:scalars").to_pylist() for v in row]
+    sent = {v for _, v in first_order(live["n_out"], 11 if stream == "arm" else 12)[1]}
+    assert len(shown) >= 100 and set(shown) <= sent  # the validation part of a window: the published field's values
 
 
 def test_streamid_status_shows_each_topics_counters(live: dict[str, Any]) -> None:
