@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import subprocess
+import sys
 import time
 import tomllib
 from pathlib import Path
@@ -127,6 +128,25 @@ def test_a_bad_table_is_refused_in_one_line_naming_it(table: dict[str, Any], sai
         config_from_mapping({"streams": {"s": {"ros2": table}}}, "d.toml")
     text = str(err.value)
     assert said in text and "\n" not in text and text.startswith("d.toml: ")
+
+
+@pytest.mark.parametrize(("prelude", "said"), [
+    ("", "[streams.arm.ros2.types]: /u's type lab_msgs/msg/Nope is not among the standard ROS 2 messages"),
+    ("sys.modules['rosbags'] = None; ", "needs the Python library 'rosbags', which is not installed: it comes with "
+                                        "streamid's extra 'lab' (pip install '.[lab]'"),
+])
+def test_streamid_daemon_refuses_what_it_cannot_decode_in_one_line(tmp_path: Path, prelude: str, said: str) -> None:
+    """At start, before any message: a configured type without a definition, and rosbags not installed."""
+    cfg = tmp_path / "d.toml"
+    cfg.write_text('[streams.arm.ros2]\ninputs = ["/u:data"]\noutput = "/y:data"\n[streams.arm.ros2.types]\n'
+                   '"/u" = "lab_msgs/msg/Nope"\n"/y" = "std_msgs/msg/Float64"\n' if not prelude else
+                   '[streams.arm.ros2]\ninputs = ["/u:data"]\noutput = "/y:data"\n')
+    code = (f"import sys; {prelude}from streamid.commands.main import main; sys.exit(main(['daemon', '--config', "
+            f"{str(cfg)!r}, '--listen', 'tcp/127.0.0.1:0', '--no-rerun', '--duration', '5']))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    (line,) = p.stderr.strip().splitlines()
+    assert line.startswith("streamid daemon: error: ") and said in line, line
 
 
 # ---------------------------------------------------------------------------------- the grid, without Zenoh
