@@ -543,6 +543,5 @@ class Bus:
 
 
 def _timestamp_ns(ts: Any) -> int:
-    """A Zenoh timestamp's time as int ns since the UNIX epoch (its NTP64: ``as_nanos``, eclipse-zenoh 1.x; it is an
-    object, not an int: shifting it raised in every sample's callback, so the sample was lost)."""
+    """A Zenoh timestamp's time as int ns since the UNIX epoch (eclipse-zenoh 1.x: an NTP64 object's ``as_nanos``)."""
     return int(ts.get_time_as_ntp64().as_nanos())
