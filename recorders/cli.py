@@ -62,6 +62,11 @@ def run_convert(args: argparse.Namespace) -> int:
     from streamid.logs.as_log import convert_to_log
     from streamid.logs.bundled import data_file
 
+    if len(args.convert_files) == 2 and (not args.signal_inputs or not args.signal_output):
+        from streamid.logs.as_log import signals_wanted
+
+        raise signals_wanted(data_file(args.convert_files[0]), "streamid record convert takes DATA OUT.mcap --input "
+                             "SIGNAL (once per input) --output SIGNAL")
     if len(args.convert_files) != 2 or not args.signal_inputs or not args.signal_output:
         raise ConfigError("streamid record convert takes DATA OUT.mcap --input SIGNAL (once per input) --output "
                           f"SIGNAL; got files {args.convert_files}, inputs {args.signal_inputs}, output "

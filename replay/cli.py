@@ -102,8 +102,10 @@ def _as_log(args: argparse.Namespace, path: Path, tmp: Path, config: ReplayConfi
                               "of a data file (MF4, ROS 2 bag, .mat, CSV)")
         return path, config
     if not args.signal_inputs or not args.signal_output:
-        raise ConfigError(f"{path} is a data file, not a streamid log: name the signals to play, --input SIGNAL "
-                          "(once per input) --output SIGNAL, as streamid identify takes them")
+        from streamid.logs.as_log import signals_wanted
+
+        raise signals_wanted(path, f"{path} is a data file, not a streamid log: name the signals to play, --input "
+                             "SIGNAL (once per input) --output SIGNAL, as streamid identify takes them")
     stream = None
     if config.stream_map:
         if len(config.stream_map) != 1 or config.stream_map[0][0] != "*":

@@ -114,6 +114,11 @@ def write_mat73(path: Path, n: int = 2000, seed: int = 0) -> Path:
             d.attrs["MATLAB_class"] = np.bytes_("double")
         c = f.create_dataset("label", data=np.frombuffer(b"bench", dtype=np.uint8).astype(np.uint16)[None, :])
         c.attrs["MATLAB_class"] = np.bytes_("char")
+    return matlab_header(path)
+
+
+def matlab_header(path: Path) -> Path:
+    """MATLAB's 128-byte v7.3 header written into the 512-byte user block of an HDF5 file (``userblock_size=512``)."""
     head = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
     with open(path, "r+b") as fh:
         fh.write(head.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM" + b"\x00" * (512 - 128))

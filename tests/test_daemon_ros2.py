@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import subprocess
+import sys
 import time
 import tomllib
 from pathlib import Path
@@ -129,6 +130,25 @@ def test_a_bad_table_is_refused_in_one_line_naming_it(table: dict[str, Any], sai
     assert said in text and "\n" not in text and text.startswith("d.toml: ")
 
 
+@pytest.mark.parametrize(("prelude", "said"), [
+    ("", "[streams.arm.ros2.types]: /u's type lab_msgs/msg/Nope is not among the standard ROS 2 messages"),
+    ("sys.modules['rosbags'] = None; ", "needs the Python library 'rosbags', which is not installed: it comes with "
+                                        "streamid's extra 'lab' (pip install '.[lab]'"),
+])
+def test_streamid_daemon_refuses_what_it_cannot_decode_in_one_line(tmp_path: Path, prelude: str, said: str) -> None:
+    """At start, before any message: a configured type without a definition, and rosbags not installed."""
+    cfg = tmp_path / "d.toml"
+    cfg.write_text('[streams.arm.ros2]\ninputs = ["/u:data"]\noutput = "/y:data"\n[streams.arm.ros2.types]\n'
+                   '"/u" = "lab_msgs/msg/Nope"\n"/y" = "std_msgs/msg/Float64"\n' if not prelude else
+                   '[streams.arm.ros2]\ninputs = ["/u:data"]\noutput = "/y:data"\n')
+    code = (f"import sys; {prelude}from streamid.commands.main import main; sys.exit(main(['daemon', '--config', "
+            f"{str(cfg)!r}, '--listen', 'tcp/127.0.0.1:0', '--no-rerun', '--duration', '5']))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    (line,) = p.stderr.strip().splitlines()
+    assert line.startswith("streamid daemon: error: ") and said in line, line
+
+
 # ---------------------------------------------------------------------------------- the grid, without Zenoh
 def _intake(source: Ros2Source) -> tuple[Ros2Intake, list[SampleBatch], list[tuple[str, str]]]:
     batches: list[SampleBatch] = []
@@ -192,10 +212,11 @@ def test_bad_messages_are_counted_per_topic_and_every_queue_is_bounded() -> None
 
 # ------------------------------------------------------------------------------------- the daemon, live
 @pytest.fixture(scope="module")
-def live() -> dict[str, Any]:
+def live(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     from streamid.daemon.service import Daemon
     from streamid.transport import Bus, ZenohSettings
     from streamid.transport.client import latest_model, latest_status
+    from streamid.viz.rerun_view import Viz, VizSettings
 
     data = doc_example()
     data["streams"]["arm"].update(FAST)
@@ -210,8 +231,9 @@ def live() -> dict[str, Any]:
     cfg: DaemonConfig = config_from_mapping(data)
     assert isinstance(cfg.for_stream("arm"), StreamConfig)
     ep = endpoint()
-    daemon = Daemon(cfg, ZenohSettings(listen=(ep,))).start()
-    out: dict[str, Any] = {"n_out": 600}
+    rrd = tmp_path_factory.mktemp("ros2_rrd") / "diag.rrd"
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,)), viz=Viz(VizSettings(rrd=str(rrd)))).start()
+    out: dict[str, Any] = {"n_out": 600, "rrd": rrd}
     try:
         with Bus(ZenohSettings(connect=(ep,))) as bus:
             assert bus.wait_connected(10)
@@ -268,6 +290,26 @@ def test_a_corrupt_payload_is_counted_and_the_stream_goes_on(live: dict[str, Any
     assert in_topic["period_ns"] == 5_000_000 and topic["period_ns"] == 10_000_000  # each topic at its own rate
 
 
+@pytest.mark.parametrize("stream", ["arm", "rig"])
+def test_a_ros2_streams_rerun_diagnostics_are_any_streams(live: dict[str, Any], stream: str) -> None:
+    """The .rrd the daemon wrote, read back with rerun's reader: the stream's tab holds the views every stream gets,
+    the measured output there being the ROS 2 field's values."""
+    from rerun.chunk import RrdReader
+
+    base = f"/streams/{stream}"
+    chunks = RrdReader(live["rrd"]).stream().filter(content=f"{base}/**").to_chunks()
+    paths = {c.entity_path for c in chunks}
+    for view in ("validation/measured", "residual/osa", "residual/free_run", "fitness", "correlation/ee/value",
+                 "history/r2_fr", "model"):
+        assert f"{base}/{view}" in paths, (view, sorted(paths))
+    measured = [c for c in chunks if c.entity_path == f"{base}/validation/measured"]
+    batches = [c.to_record_batch() for c in measured]
+    shown = [v for b in batches if "Scalars:scalars" in b.schema.names
+             for row in b.column("Scalars:scalars").to_pylist() for v in row]
+    sent = {v for _, v in first_order(live["n_out"], 11 if stream == "arm" else 12)[1]}
+    assert len(shown) >= 100 and set(shown) <= sent  # the validation part of a window: the published field's values
+
+
 def test_streamid_status_shows_each_topics_counters(live: dict[str, Any]) -> None:
     table = live["table"]
     assert table.returncode == 0, table.stderr
@@ -283,3 +325,81 @@ def test_the_example_runs_unchanged_but_for_the_engine() -> None:
     fast = config_from_mapping({"streams": {"arm": {**doc_example()["streams"]["arm"], **FAST}}})
     assert dataclasses.replace(fast, overrides=cfg.overrides) == cfg
 
+
+
+# ------------------------------------------------------------------- the time-stamp fallbacks, live
+def float64(x: float) -> bytes:
+    return bytes(STORE.serialize_cdr(TY["std_msgs/msg/Float64"](data=x), "std_msgs/msg/Float64"))
+
+
+F64 = f"std_msgs::msg::dds_::Float64_/{HASH}"
+
+
+@pytest.fixture(scope="module")
+def unstamped() -> dict[str, Any]:
+    """Two streams of std_msgs/Float64 (no header.stamp) without rmw_zenoh's attachment, over real Zenoh: "zts" on
+    rmw_zenoh keys from a session that timestamps its samples (Zenoh's ``timestamping/enabled``), "arr" on the
+    bridge's keys from one that does not. A session of the test's own records the Zenoh timestamps it receives."""
+    from streamid.daemon.service import Daemon
+    from streamid.transport import Bus, ZenohSettings
+    from streamid.transport.client import latest_status
+
+    types = {"/u": "std_msgs/msg/Float64", "/y": "std_msgs/msg/Float64"}
+    cfg = config_from_mapping({
+        "daemon": {"workers": 1, "helper": False, "status_every_s": 0.2},
+        "streams": {"zts": {**FAST, "ros2": {"inputs": ["/u:data"], "output": "/y:data", "domain_id": 7}},
+                    "arr": {**FAST, "ros2": {"layout": "bridge", "key_prefix": "plain", "inputs": ["/u:data"],
+                                             "output": "/y:data", "types": types}}}})
+    ep = endpoint()
+    n = 150
+    daemon = Daemon(cfg, ZenohSettings(listen=(ep,))).start()
+    out: dict[str, Any] = {"n": n, "seen": []}
+    try:
+        with Bus(ZenohSettings(connect=(ep,))) as plain, \
+                Bus(ZenohSettings(connect=(ep,), extra=(("timestamping/enabled", "true"),))) as timed:
+            assert plain.wait_connected(10) and timed.wait_connected(10)
+            plain.subscribe_meta(f"7/y/{F64}", lambda k, p, t, a: out["seen"].append(t))
+            time.sleep(0.3)  # the daemon's subscriptions reach these sessions
+            y = 0.0
+            for k in range(n):
+                u = float(np.sin(0.3 * k))
+                timed.put(f"7/u/{F64}", float64(u))
+                plain.put("plain/u", float64(u))
+                out["t_before_last_put_ns"] = time.time_ns()
+                timed.put(f"7/y/{F64}", float64(y))
+                plain.put("plain/y", float64(y))
+                y = 0.9 * y + 0.5 * u
+                time.sleep(0.005)  # about 200 Hz (nothing here depends on how steady)
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                docs = {s: latest_status(plain, s, timeout_s=1.0) for s in ("zts", "arr")}
+                if all(d and all(d["ros2"]["topics"][t]["received"] == n for t in ("/u", "/y")) for d in docs.values()):
+                    break
+                time.sleep(0.2)
+            out["status"] = docs
+            out["t_status_ns"] = time.time_ns()
+    finally:
+        daemon.stop()
+    return out
+
+
+@pytest.mark.parametrize(("stream", "clock"), [("zts", "zenoh timestamp"), ("arr", "arrival")])
+def test_a_message_without_header_or_attachment_is_timed_by_zenoh_or_by_arrival(unstamped: dict[str, Any],
+                                                                                stream: str, clock: str) -> None:
+    ros2 = unstamped["status"][stream]["ros2"]
+    n = unstamped["n"]
+    assert ros2["bad_total"] == 0, ros2
+    if stream == "zts":  # stamped when put, each input before its output: all but the last (no input after it)
+        assert ros2["samples_taken"] == n - 1 and ros2["cut_before_inputs"] == 0, ros2
+    else:  # two topics' callbacks run on Zenoh's threads: the first and last messages' arrival order may swap
+        assert n - 2 <= ros2["samples_taken"] <= n and ros2["samples_taken"] + ros2["cut_before_inputs"] >= n - 1, ros2
+    for topic in ("/u", "/y"):
+        tp = ros2["topics"][topic]
+        assert tp["clock"] == clock and tp["received"] == n, (topic, tp)
+    # the output's last time is when its last message was sent (Zenoh's timestamp) or received (arrival): after the
+    # test's clock read just before that put, before the status was read (one host: one UNIX-epoch clock)
+    assert unstamped["t_before_last_put_ns"] <= ros2["topics"]["/y"]["last_t_ns"] <= unstamped["t_status_ns"]
+    if stream == "zts":  # exactly the publisher's Zenoh timestamp, as another subscriber receives it
+        seen = unstamped["seen"]
+        assert len(seen) == n and all(t is not None for t in seen)
+        assert ros2["topics"]["/y"]["last_t_ns"] == seen[-1]

@@ -174,7 +174,8 @@ def validate_command(args: argparse.Namespace) -> int:
     try:
         rec = load_record(data_file(args.data), inputs, output, stream=args.stream, **reading(args))
     except DataError as exc:
-        if args.input and args.output or "unknown column" not in str(exc):
+        unknown = ("unknown column", "no channel", "no topic")  # (a table's, an MDF file's, a ROS 2 bag's)
+        if args.input and args.output or not any(u in str(exc) for u in unknown):
             raise
         raise DataError(f"{exc}; the columns default to the model's signal names ({', '.join(model.input_names)} -> "
                         f"{model.output_name}): map the record's own with --input COL (once per model input, in its "

@@ -62,7 +62,7 @@ class _Topic:
             period = (self.last_t_ns - self.t_first_ns) // (self.timed - 1)  # the mean step
         return {"received": self.received, "bad": dict(self.bad), "bad_total": sum(self.bad.values()),
                 "pending": pending, "pending_dropped": dropped, "clock": self.clock or None,
-                "keys": sorted(self.keys), "period_ns": period}
+                "keys": sorted(self.keys), "period_ns": period, "last_t_ns": self.last_t_ns}
 
 
 class Ros2Intake:

@@ -57,6 +57,19 @@ def is_streamid_log(path: str | os.PathLike[str]) -> bool:
     return p.is_file() and p.suffix.lower() == ".mcap" and not is_ros2_mcap(p)
 
 
+def signals_wanted(path: str | os.PathLike[str], said: str) -> ConfigError | DataError:
+    """The error for a data file given without ``--input``/``--output``: ``said`` (the accepted form) and what the
+    file holds (an MDF file's channels, a bag's topics, a table's columns: the first 20), or why it cannot be read."""
+    from streamid.logs.datafile import load_table
+    from streamid.logs.timed import names_line
+
+    try:
+        table = load_table(path)
+    except DataError as exc:  # an MDF file or a ROS 2 bag names its channels or topics (or says it is damaged)
+        return DataError(f"{said}; {str(exc).split('; ', 1)[1]}" if "; it holds " in str(exc) else str(exc))
+    return ConfigError(f"{said}; " + names_line(sorted(table.columns), "columns"))
+
+
 def convert_to_log(
     data: str | os.PathLike[str],
     out: str | os.PathLike[str],

@@ -86,8 +86,10 @@ def read_mat73_table(path: Path) -> Table:
     except DataError:
         raise
     except Exception as exc:  # noqa: BLE001 - h5py raises OSError, KeyError, ValueError... on a damaged file
-        raise DataError(f"{path}: not a readable MATLAB v7.3 (HDF5) .mat file ({type(exc).__name__}: "
-                        f"{str(exc)[:200]}); a cut or damaged file is not read") from None
+        from streamid.logs.timed import why_text
+
+        raise DataError(f"{path}: not a readable MATLAB v7.3 (HDF5) .mat file ({why_text(exc)}); a cut or damaged "
+                        "file is not read") from None
     usable = {k: v for k, v in cols.items() if k not in unreadable}
     if not usable:
         raise DataError(f"{path}: no numeric vector variables found (MATLAB v7.3 file"

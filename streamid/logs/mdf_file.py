@@ -46,7 +46,9 @@ def _open(path: Path) -> Any:
         try:
             return asammdf.MDF(str(path))
         except Exception as exc:  # noqa: BLE001 - asammdf raises many kinds on a damaged file: the file's fault
-            why = f"{type(exc).__name__}: {str(exc)[:200]}"
+            from streamid.logs.timed import why_text
+
+            why = why_text(exc)
         gc.collect()  # the half-built reader's __del__ fails (asammdf 8.x) while its error is still quieted
     finally:
         sys.unraisablehook = hook
@@ -65,42 +67,61 @@ def _quiet_asammdf(hook: Callable[[Any], object]) -> Callable[[Any], object]:
     return quiet
 
 
-def _names(mdf: Any) -> dict[str, list[int]]:
-    """Every data channel's name and the groups that hold it (time/master channels left out)."""
+Where = list[tuple[int, int]]  # (channel group, channel index) of each channel a name stands for
+
+
+def _names(mdf: Any) -> tuple[dict[str, Where], dict[str, Where]]:
+    """The data channels (time/master channels left out): by their own names, and by their display names (aliases
+    a measurement tool shows, which asammdf also indexes; a display name can stand for several channels)."""
     masters = dict(mdf.masters_db)
-    out: dict[str, list[int]] = {}
+    own: dict[str, Where] = {}
+    for g, group in enumerate(mdf.groups):
+        for i, ch in enumerate(group.channels):
+            if masters.get(g) != i:
+                own.setdefault(str(ch.name), []).append((g, i))
+    alias: dict[str, Where] = {}
     for name, where in mdf.channels_db.items():
-        groups = [int(g) for g, i in where if masters.get(g) != i]
-        if groups:
-            out[str(name)] = groups
-    return out
+        if str(name) not in own:
+            found = [(int(g), int(i)) for g, i in where if masters.get(g) != i]
+            if found:
+                alias[str(name)] = found
+    return own, alias
 
 
-def _listed(names: dict[str, list[int]]) -> list[str]:
-    return [n if len(g) == 1 else f"{n}@{{{','.join(map(str, g))}}}" for n, g in names.items()]
+def _listed(names: dict[str, Where]) -> list[str]:
+    return [n if len(w) == 1 else f"{n}@{{{','.join(str(g) for g, _ in w)}}}" for n, w in names.items()]
 
 
-def _locate(path: Path, mdf: Any, names: dict[str, list[int]], wanted: str) -> tuple[int, int]:
-    """(group, index) of the channel ``NAME`` or ``NAME@GROUP``."""
+def _locate(path: Path, mdf: Any, names: tuple[dict[str, Where], dict[str, Where]], wanted: str) -> tuple[int, int]:
+    """(group, index) of the channel ``NAME`` or ``NAME@GROUP`` (a display name where it names one channel)."""
+    own, alias = names
     m = _GROUP.match(wanted)
-    name, group = (wanted, None) if wanted in names or m is None else (m.group(1), int(m.group(2)))
-    if name not in names:
+    name, group = (wanted, None) if wanted in own or wanted in alias or m is None else (m.group(1), int(m.group(2)))
+    if name not in own and name in alias:
+        channels = sorted({str(mdf.groups[g].channels[i].name) for g, i in alias[name]})
+        if len(alias[name]) > 1:
+            raise DataError(f"{path}: {name!r} is the display name of {len(alias[name])} channels "
+                            f"({', '.join(channels)}): name one of them by its own name")
+        name = channels[0]
+    if name not in own:
         from streamid.logs.timed import names_line
 
         raise DataError(f"{path}: no channel {wanted!r} (a channel is NAME, or NAME@GROUP where a name repeats); "
-                        + names_line(_listed(names), "channels"))
-    groups = names[name]
+                        + names_line(_listed(own), "channels"))
+    where = own[name]
+    groups = [g for g, _ in where]
     if group is None:
-        if len(groups) > 1:
+        if len(where) > 1:
             raise DataError(f"{path}: the channel name {name!r} is in {len(groups)} channel groups ({groups}): name one "
                             f"as {name}@GROUP, e.g. {name}@{groups[0]}")
         group = groups[0]
     elif group not in groups:
         raise DataError(f"{path}: the channel {name!r} is in the channel groups {groups}, not in group {group}: "
                         f"name it as {name}@{groups[0]}")
-    masters = dict(mdf.masters_db)
-    index = next(int(i) for g, i in mdf.channels_db[name] if g == group and masters.get(g) != i)
-    return group, index
+    if groups.count(group) > 1:
+        raise DataError(f"{path}: the channel name {name!r} is {groups.count(group)} times in channel group {group}: "
+                        "the channels cannot be told apart by name (rename one in the measurement tool)")
+    return group, next(i for g, i in where if g == group)
 
 
 def read_mdf_table(path: Path, signals: Sequence[str] | None) -> Table:
@@ -112,22 +133,22 @@ def read_mdf_table(path: Path, signals: Sequence[str] | None) -> Table:
         No signals named (the message lists the file's channels), unknown or ambiguous channel, text values,
         a damaged file, asammdf missing, or the grid rule's refusals (:mod:`streamid.logs.timed`).
     """
-    from streamid.logs.timed import Signal, names_line, on_output_grid
+    from streamid.logs.timed import Signal, names_line, on_output_grid, why_text
 
     mdf = _open(path)
     try:
         names = _names(mdf)
         if not signals:
             raise DataError(f"{path}: give the channels to use, --input NAME (once per input) and --output NAME; "
-                            + names_line(_listed(names), "channels"))
+                            + names_line(_listed(names[0]), "channels"))
         got = []
         for wanted in signals:
             group, index = _locate(path, mdf, names, wanted)
             try:
                 s = mdf.get(group=group, index=index)
             except Exception as exc:  # noqa: BLE001 - a damaged data block: the file's fault, said in one line
-                raise DataError(f"{path}: the channel {wanted!r} cannot be read ({type(exc).__name__}: "
-                                f"{str(exc)[:200]}): a cut or damaged file?") from None
+                raise DataError(f"{path}: the channel {wanted!r} cannot be read ({why_text(exc)}): a cut or "
+                                "damaged file?") from None
             values = np.asarray(s.samples)
             if values.dtype.kind not in "biuf" or values.ndim != 1:
                 kind = "text" if values.dtype.kind in "SUO" else f"{values.dtype} of shape {values.shape[1:]}"

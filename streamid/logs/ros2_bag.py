@@ -60,7 +60,9 @@ def is_ros2_mcap(path: Path) -> bool:
 
 
 def _damaged(path: Path, exc: BaseException, doing: str) -> DataError:
-    return DataError(f"{path}: not a readable ROS 2 bag while {doing} ({type(exc).__name__}: {str(exc)[:200]}); a "
+    from streamid.logs.timed import why_text
+
+    return DataError(f"{path}: not a readable ROS 2 bag while {doing} ({why_text(exc)}); a "
                      "bag is a rosbag2 directory (metadata.yaml and its .mcap/.db3) or one of its files; a cut or "
                      "damaged file is not read")
 
@@ -76,7 +78,7 @@ def read_bag_table(path: Path, signals: Sequence[str] | None) -> Table:
         or the grid rule's refusals (:mod:`streamid.logs.timed`).
     """
     from streamid.logs.ros2_fields import parse_signal
-    from streamid.logs.timed import Signal, names_line, on_output_grid
+    from streamid.logs.timed import Signal, names_line, on_output_grid, why_text
 
     rb = _rosbags()
     try:
@@ -109,7 +111,7 @@ def read_bag_table(path: Path, signals: Sequence[str] | None) -> Table:
                     msg = stores[conn.msgtype].deserialize_cdr(raw, conn.msgtype)
                 except Exception as exc:  # noqa: BLE001 - a payload that is not its type's CDR
                     raise DataError(f"{path}: a message of {conn.topic} ({conn.msgtype}) logged at {t_ns} ns does not "
-                                    f"decode ({type(exc).__name__}: {str(exc)[:120]}): a damaged bag?") from None
+                                    f"decode ({why_text(exc, 120)}): a damaged bag?") from None
                 for f in fields:
                     if f.topic == conn.topic:
                         try:
@@ -159,7 +161,9 @@ class CdrDecoder:
             try:
                 extra.update(rb.typesys.get_types_from_msg(text, name))
             except Exception as exc:  # noqa: BLE001 - a definition that does not parse: the configuration's fault
-                raise DataError(f"the message definition of {name} does not parse: {str(exc)[:200]}") from None
+                from streamid.logs.timed import why_text
+
+                raise DataError(f"the message definition of {name} does not parse: {why_text(exc)}") from None
         if extra:
             self._store.register(extra)
 

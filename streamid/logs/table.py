@@ -12,7 +12,10 @@ from numpy.typing import NDArray
 
 from streamid.errors import DataError
 
-__all__ = ["Table"]
+__all__ = ["Table", "SHOWN_NAMES"]
+
+#: Names a message lists of what a file holds (its first ones: a file of thousands of variables stays one line).
+SHOWN_NAMES = 20
 
 
 @dataclass(frozen=True)
@@ -33,10 +36,9 @@ class Table:
     def column(self, name: str) -> NDArray[np.float64]:
         """One column; :class:`DataError` naming the available ones if unknown."""
         if name not in self.columns and name not in self.unreadable:
-            raise DataError(
-                f"unknown column {name!r} in {self.path}; available columns: "
-                f"{sorted(self.meta.get('columns', self.columns))}"
-            )
+            names = sorted(self.meta.get("columns", self.columns))
+            more = f" and {len(names) - SHOWN_NAMES} more" if len(names) > SHOWN_NAMES else ""
+            raise DataError(f"unknown column {name!r} in {self.path}; available columns: {names[:SHOWN_NAMES]}{more}")
         if name in self.unreadable:
             raise DataError(self.unreadable[name])
         return self.columns[name]

@@ -20,6 +20,7 @@ The rule (the same for files and for live ROS 2 topics)
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -27,15 +28,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.errors import DataError
-from streamid.logs.table import Table
+from streamid.logs.table import SHOWN_NAMES, Table
 
 __all__ = ["MIN_SAMPLES", "SHOWN_NAMES", "Signal", "names_line", "needs_library", "on_output_grid", "rate_text",
-           "held_at"]
+           "held_at", "why_text"]
 
 #: Fewest samples a record on the grid may hold.
 MIN_SAMPLES = 10
-#: Names a message lists of what a file holds.
-SHOWN_NAMES = 20
 
 
 @dataclass(frozen=True)
@@ -60,8 +59,16 @@ def names_line(names: Sequence[str], what: str = "signals") -> str:
 
 def needs_library(module: str, what: str) -> DataError:
     """The error for a missing optional reader: which library, and the extra that installs it."""
-    return DataError(f"reading {what} needs the Python library {module!r}, which is not installed: "
-                     "pip install 'streamid[lab]' (or pip install " + module + ")")
+    return DataError(f"reading {what} needs the Python library {module!r}, which is not installed: it comes with "
+                     "streamid's extra 'lab' (pip install '.[lab]' in streamid's source tree, as the README's "
+                     f"journey 4 says; pip install 'streamid[lab]' from a package index) or alone: pip install {module}")
+
+
+def why_text(exc: BaseException, limit: int = 200) -> str:
+    """A foreign library's exception as a short clause of a one-line message: its kind and its text on one line
+    (a YAML or HDF5 error spans several; a reader's repr of its own buffer is not the user's file name)."""
+    text = re.sub(r"'?<mmap\.mmap [^>]*>'?", "the file", " ".join(str(exc).split()))
+    return f"{type(exc).__name__}: {text[:limit]}" if text else type(exc).__name__
 
 
 def rate_text(period_ns: int) -> str:

@@ -338,7 +338,7 @@ class Bus:
 
         def deliver(key: str, sample: Any) -> None:
             ts, att = sample.timestamp, sample.attachment
-            t_ns = None if ts is None else _ntp64_ns(ts.get_time_as_ntp64())
+            t_ns = None if ts is None else _timestamp_ns(ts)
             keep = att is not None and len(att) <= MAX_ATTACHMENT_BYTES
             callback(key, sample.payload.to_bytes(), t_ns, att.to_bytes() if keep else None)
 
@@ -542,6 +542,6 @@ class Bus:
             pass
 
 
-def _ntp64_ns(ntp: int) -> int:
-    """A Zenoh (NTP64) time as int ns since the UNIX epoch: 32 bits of seconds, 32 bits of fraction."""
-    return (ntp >> 32) * 1_000_000_000 + (((ntp & 0xFFFFFFFF) * 1_000_000_000) >> 32)
+def _timestamp_ns(ts: Any) -> int:
+    """A Zenoh timestamp's time as int ns since the UNIX epoch (eclipse-zenoh 1.x: an NTP64 object's ``as_nanos``)."""
+    return int(ts.get_time_as_ntp64().as_nanos())
