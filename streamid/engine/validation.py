@@ -35,6 +35,7 @@ term, is not excused by the 5 % allowance; a white residual exceeds it at one of
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -42,6 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.domain import outside_share
+from streamid.model.limits import CHUNK_ROWS
 from streamid.model.regressors import as_data
 from streamid.model.uncertainty import interval_report
 from streamid.errors import DataError
@@ -154,6 +156,44 @@ def ccf(a: NDArray[np.float64], b: NDArray[np.float64], lags: NDArray[np.int64])
         if abs(t) >= n:
             continue
         out[i] = (da[: n - t] @ db[t:]) / den if t >= 0 else (db[: n + t] @ da[-t:]) / den
+    return out
+
+
+#: A sequence of a correlation test by ranges: ``part(a, b)`` is its samples ``a..b-1`` (made on demand, so a test
+#: of a long record holds one chunk of each sequence, never the record's).
+Part = Callable[[int, int], NDArray[np.float64]]
+
+
+def streamed_ccf(a: Part, b: Part, n: int, lags: NDArray[np.int64], chunk: int | None = None) -> NDArray[np.float64]:
+    """:func:`ccf` of two sequences of ``n`` samples given by ranges, ``chunk`` rows at a time (default
+    :data:`~streamid.model.limits.CHUNK_ROWS`): the means, then the variances, then the lagged cross-products
+    accumulated chunk by chunk, each chunk of ``a`` against the chunk of ``b`` it reaches (the overlap of the
+    largest lag on either side). The same values as :func:`ccf` on the whole sequences, to rounding; memory a few
+    chunks whatever ``n``."""
+    step = int(CHUNK_ROWS if chunk is None else chunk)
+    spans = [(s, min(n, s + step)) for s in range(0, n, step)]
+    ma = sum(float(np.sum(a(s, e))) for s, e in spans) / n
+    mb = sum(float(np.sum(b(s, e))) for s, e in spans) / n
+    va = sum(float(np.dot(d := a(s, e) - ma, d)) for s, e in spans)
+    vb = sum(float(np.dot(d := b(s, e) - mb, d)) for s, e in spans)
+    den = np.sqrt(va * vb)
+    out = np.zeros(len(lags))
+    if den == 0.0:
+        return out
+    lo, hi = min(0, int(np.min(lags))), max(0, int(np.max(lags)))
+    acc = np.zeros(len(lags))
+    for s, e in spans:  # sum over t in [s, e) of da[t] db[t + tau], 0 <= t + tau < n
+        da = a(s, e) - ma
+        w0, w1 = max(0, s + lo), min(n, e + hi)
+        db = b(w0, w1) - mb
+        for i, tau in enumerate(lags):
+            t = int(tau)
+            t0, t1 = max(s, -t), min(e, n - t)  # the rows of this chunk whose partner is in the record
+            if t1 > t0:
+                acc[i] += float(da[t0 - s : t1 - s] @ db[t0 + t - w0 : t1 + t - w0])
+    for i, tau in enumerate(lags):
+        if abs(int(tau)) < n:
+            out[i] = acc[i] / den
     return out
 
 
@@ -303,17 +343,31 @@ def correlation_tests(
         nm = correlation_test_name(kind, None if i is None or n_in == 1 else names[i])
         return CorrelationTest(nm, TESTS[kind][0], tuple(lags.tolist()), tuple(values.tolist()), band)
 
-    tests = [mk("ee", None, pos, ccf(e, e, pos))]
+    def res(a: int, b: int) -> NDArray[np.float64]:
+        return e[a:b]
+
+    def res2(a: int, b: int) -> NDArray[np.float64]:
+        return e[a:b] ** 2
+
+    tests = [mk("ee", None, pos, streamed_ccf(res, res, n, pos))]
     for i in range(n_in):
         ui = ua[:, i]
-        eu = np.zeros(n)
-        eu[:-1] = e[1:] * ui[1:]  # (eu)(t) = e(t+1) u(t+1)
-        u2 = ui**2 - ui.mean() ** 2
+        mean_sq = float(ui.mean()) ** 2
+
+        def inp(a: int, b: int, ui: NDArray[np.float64] = ui) -> NDArray[np.float64]:
+            return ui[a:b]
+
+        def eu(a: int, b: int, ui: NDArray[np.float64] = ui) -> NDArray[np.float64]:
+            return e[a + 1 : b + 1] * ui[a + 1 : b + 1]  # (eu)(t) = e(t+1) u(t+1), t < n - 1
+
+        def u2(a: int, b: int, ui: NDArray[np.float64] = ui, m2: float = mean_sq) -> NDArray[np.float64]:
+            return ui[a:b] ** 2 - m2
+
         tests += [
-            mk("ue", i, both, ccf(ui, e, both)),
-            mk("e_eu", i, nonneg, ccf(e[:-1], eu[:-1], nonneg)),
-            mk("u2_e", i, both, ccf(u2, e, both)),
-            mk("u2_e2", i, both, ccf(u2, e**2, both)),
+            mk("ue", i, both, streamed_ccf(inp, res, n, both)),
+            mk("e_eu", i, nonneg, streamed_ccf(res, eu, n - 1, nonneg)),
+            mk("u2_e", i, both, streamed_ccf(u2, res, n, both)),
+            mk("u2_e2", i, both, streamed_ccf(u2, res2, n, both)),
         ]
     return CorrelationReport(n, float(band), tuple(tests))
 
