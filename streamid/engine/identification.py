@@ -200,6 +200,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "score": score,
         "path": path,  # the model's estimation free run (output units) when the choice made one
         "lag_rule": lag_rule,
+        "search_rows": None if sample is None else sample.evidence(),
         "neurons": cfg.neurons,
         "max_lag": cfg.max_lag,
     }
@@ -421,6 +422,7 @@ def identify(
         evaluations=int(sum(o["evaluations"] for o in outs)),
         max_lag_choice=lag_evidence,
         **({"feedthrough": feed} if feed is not None else {}),
+        **({"search_rows": outs[chosen]["search_rows"]} if outs[chosen].get("search_rows") else {}),
         complexity=complexity,
     )
     runs = tuple(
