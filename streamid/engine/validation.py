@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -159,17 +160,14 @@ def ccf(a: NDArray[np.float64], b: NDArray[np.float64], lags: NDArray[np.int64])
     return out
 
 
-#: A sequence of a correlation test by ranges: ``part(a, b)`` is its samples ``a..b-1`` (made on demand, so a test
-#: of a long record holds one chunk of each sequence, never the record's).
+#: A test's sequence by ranges: ``part(a, b)`` its samples ``a..b-1``, made on demand (one chunk held, not the record)
 Part = Callable[[int, int], NDArray[np.float64]]
 
 
 def streamed_ccf(a: Part, b: Part, n: int, lags: NDArray[np.int64], chunk: int | None = None) -> NDArray[np.float64]:
-    """:func:`ccf` of two sequences of ``n`` samples given by ranges, ``chunk`` rows at a time (default
-    :data:`~streamid.model.limits.CHUNK_ROWS`): the means, then the variances, then the lagged cross-products
-    accumulated chunk by chunk, each chunk of ``a`` against the chunk of ``b`` it reaches (the overlap of the
-    largest lag on either side). The same values as :func:`ccf` on the whole sequences, to rounding; memory a few
-    chunks whatever ``n``."""
+    """:func:`ccf` of two sequences of ``n`` samples given by ranges, ``chunk`` rows at a time (default ``CHUNK_ROWS``):
+    means, variances, then the lagged cross-products accumulated chunk by chunk, each chunk of ``a`` against the part
+    of ``b`` its lags reach (the overlap). :func:`ccf`'s values to rounding (to the bit in one chunk)."""
     step = int(CHUNK_ROWS if chunk is None else chunk)
     spans = [(s, min(n, s + step)) for s in range(0, n, step)]
     ma = sum(float(np.sum(a(s, e))) for s, e in spans) / n
@@ -195,6 +193,13 @@ def streamed_ccf(a: Part, b: Part, n: int, lags: NDArray[np.int64], chunk: int |
         if abs(int(tau)) < n:
             out[i] = acc[i] / den
     return out
+
+
+def _piece(x: NDArray[np.float64], times: NDArray[np.float64] | None, shift: int, power: int, minus: float, a: int,
+           b: int) -> NDArray[np.float64]:
+    """Samples ``a..b-1`` of ``x(t + shift) ** power (* times(t + shift)) - minus`` (a correlation test's sequence)."""
+    p = x[a + shift : b + shift] ** power  # (x ** 1 and - 0.0 leave every value as it was)
+    return (p if times is None else p * times[a + shift : b + shift]) - minus
 
 
 @dataclass(frozen=True)
@@ -343,31 +348,16 @@ def correlation_tests(
         nm = correlation_test_name(kind, None if i is None or n_in == 1 else names[i])
         return CorrelationTest(nm, TESTS[kind][0], tuple(lags.tolist()), tuple(values.tolist()), band)
 
-    def res(a: int, b: int) -> NDArray[np.float64]:
-        return e[a:b]
-
-    def res2(a: int, b: int) -> NDArray[np.float64]:
-        return e[a:b] ** 2
-
+    res: Part = partial(_piece, e, None, 0, 1, 0.0)  # chunks of the residual and its products, made on demand
     tests = [mk("ee", None, pos, streamed_ccf(res, res, n, pos))]
     for i in range(n_in):
-        ui = ua[:, i]
-        mean_sq = float(ui.mean()) ** 2
-
-        def inp(a: int, b: int, ui: NDArray[np.float64] = ui) -> NDArray[np.float64]:
-            return ui[a:b]
-
-        def eu(a: int, b: int, ui: NDArray[np.float64] = ui) -> NDArray[np.float64]:
-            return e[a + 1 : b + 1] * ui[a + 1 : b + 1]  # (eu)(t) = e(t+1) u(t+1), t < n - 1
-
-        def u2(a: int, b: int, ui: NDArray[np.float64] = ui, m2: float = mean_sq) -> NDArray[np.float64]:
-            return ui[a:b] ** 2 - m2
-
+        ui, m2 = ua[:, i], float(ua[:, i].mean()) ** 2  # (eu)(t) = e(t+1) u(t+1), t < n - 1; (u^2)' = u^2 - mean(u)^2
+        u2: Part = partial(_piece, ui, None, 0, 2, m2)
         tests += [
-            mk("ue", i, both, streamed_ccf(inp, res, n, both)),
-            mk("e_eu", i, nonneg, streamed_ccf(res, eu, n - 1, nonneg)),
+            mk("ue", i, both, streamed_ccf(partial(_piece, ui, None, 0, 1, 0.0), res, n, both)),
+            mk("e_eu", i, nonneg, streamed_ccf(res, partial(_piece, e, ui, 1, 1, 0.0), n - 1, nonneg)),
             mk("u2_e", i, both, streamed_ccf(u2, res, n, both)),
-            mk("u2_e2", i, both, streamed_ccf(u2, res2, n, both)),
+            mk("u2_e2", i, both, streamed_ccf(u2, partial(_piece, e, None, 0, 2, 0.0), n, both)),
         ]
     return CorrelationReport(n, float(band), tuple(tests))
 
