@@ -29,10 +29,11 @@ BUILTIN_PROVIDERS: dict[str, str] = {
     "suite": "benchmarks.suite:bench",
     "capacity": "benchmarks.capacity:bench",
     "reading": "benchmarks.reading:bench",
+    "long": "benchmarks.long_records:bench",
 }
 
 #: Sections that take many minutes: run only when named (``--only``; ``--suite`` for the suite).
-ON_REQUEST = ("suite", "capacity")
+ON_REQUEST = ("suite", "capacity", "long")
 
 ENTRY_POINT_GROUP = "streamid.benchmarks"
 

@@ -76,7 +76,7 @@ from collections.abc import Callable, Mapping, Sized
 from streamid.engine.choice.scores import SCORE_CHUNK_ROWS
 from streamid.engine.choice.longlinear import ROWS_PER_PARAMETER
 from streamid.engine.fit.rbf import BLOCK_ROWS, FIT_BLOCK_ROWS
-from streamid.engine.choice.refine import CHUNK_ROWS
+from streamid.model.limits import CHUNK_ROWS
 from streamid.online.rows import search_row_bound
 from streamid.online.stream_config import ONLINE_LONG_LINEAR, ONLINE_REFINE, ONLINE_SELECTION, StreamConfig
 from streamid.online.update import LONG_LINEAR_DESIGN_BYTES

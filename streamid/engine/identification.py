@@ -55,6 +55,7 @@ from streamid.engine.restarts import report_after, wants_more
 from streamid.engine.search.fanout import fan_out
 from streamid.engine.search.feedthrough import direct_terms
 from streamid.engine.search.lagspace import memory_lag, with_input_term
+from streamid.engine.search.rows import long_record_rows
 from streamid.engine.choice.longlinear import long_linear_choice
 from streamid.model.narx import Model
 from streamid.engine.search.parallel import EvalHelper
@@ -162,9 +163,11 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "normalisation": norm,
         "helper": helper,
     }
-    n_rows = len(y) - cfg.max_lag
-    if cfg.search_rows and n_rows > cfg.search_rows:  # a large record: the search sees a random sample of rows
-        common["rows"] = np.sort(rng.choice(n_rows, cfg.search_rows, replace=False))
+    sample = long_record_rows(len(y) - cfg.max_lag, cfg, u.shape[1], rng)  # beyond one chunk: the online rule
+    if sample is not None:
+        common["rows"] = sample.rows
+    elif cfg.search_rows and len(y) - cfg.max_lag > cfg.search_rows:  # the search sees a random sample of rows
+        common["rows"] = np.sort(rng.choice(len(y) - cfg.max_lag, cfg.search_rows, replace=False))
     evaluations, lag_rule = 0, "search"
     if cfg.lag_search_neurons and warm is None:
         # Two-stage run: a small network's coevolution chooses the lags...
@@ -180,7 +183,11 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     else:
         run = Coevolution(u, y, cfg, rng, warm_start=warm, **common).solve(_stage(tick, 0, 0))
     evaluations += run.evaluations
-    model, score, path = select_model_path(run, u, y, cfg.selection, threads=_threads(helper))
+    # beyond one chunk the candidates are screened on the search's rows and only the chosen one fitted on every row
+    model, score, path = select_model_path(run, u, y, cfg.selection, threads=_threads(helper),
+                                           screen_rows=sample is not None)
+    if sample is not None:
+        model = model.with_metrics(search_rows=sample.evidence())
     return {
         "seed": job["seed"],
         # A run made in this process hands back its objects; a worker's go back as JSON.
@@ -193,6 +200,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         "score": score,
         "path": path,  # the model's estimation free run (output units) when the choice made one
         "lag_rule": lag_rule,
+        "search_rows": None if sample is None else sample.evidence(),
         "neurons": cfg.neurons,
         "max_lag": cfg.max_lag,
     }
@@ -414,6 +422,7 @@ def identify(
         evaluations=int(sum(o["evaluations"] for o in outs)),
         max_lag_choice=lag_evidence,
         **({"feedthrough": feed} if feed is not None else {}),
+        **({"search_rows": outs[chosen]["search_rows"]} if outs[chosen].get("search_rows") else {}),
         complexity=complexity,
     )
     runs = tuple(

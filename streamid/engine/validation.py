@@ -35,13 +35,16 @@ term, is not excused by the 5 % allowance; a white residual exceeds it at one of
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.domain import outside_share
+from streamid.model.limits import CHUNK_ROWS
 from streamid.model.regressors import as_data
 from streamid.model.uncertainty import interval_report
 from streamid.errors import DataError
@@ -155,6 +158,48 @@ def ccf(a: NDArray[np.float64], b: NDArray[np.float64], lags: NDArray[np.int64])
             continue
         out[i] = (da[: n - t] @ db[t:]) / den if t >= 0 else (db[: n + t] @ da[-t:]) / den
     return out
+
+
+#: A test's sequence by ranges: ``part(a, b)`` its samples ``a..b-1``, made on demand (one chunk held, not the record)
+Part = Callable[[int, int], NDArray[np.float64]]
+
+
+def streamed_ccf(a: Part, b: Part, n: int, lags: NDArray[np.int64], chunk: int | None = None) -> NDArray[np.float64]:
+    """:func:`ccf` of two sequences of ``n`` samples given by ranges, ``chunk`` rows at a time (default ``CHUNK_ROWS``):
+    means, variances, then the lagged cross-products accumulated chunk by chunk, each chunk of ``a`` against the part
+    of ``b`` its lags reach (the overlap). :func:`ccf`'s values to rounding (to the bit in one chunk)."""
+    step = int(CHUNK_ROWS if chunk is None else chunk)
+    spans = [(s, min(n, s + step)) for s in range(0, n, step)]
+    ma = sum(float(np.sum(a(s, e))) for s, e in spans) / n
+    mb = sum(float(np.sum(b(s, e))) for s, e in spans) / n
+    va = sum(float(np.dot(d := a(s, e) - ma, d)) for s, e in spans)
+    vb = sum(float(np.dot(d := b(s, e) - mb, d)) for s, e in spans)
+    den = np.sqrt(va * vb)
+    out = np.zeros(len(lags))
+    if den == 0.0:
+        return out
+    lo, hi = min(0, int(np.min(lags))), max(0, int(np.max(lags)))
+    acc = np.zeros(len(lags))
+    for s, e in spans:  # sum over t in [s, e) of da[t] db[t + tau], 0 <= t + tau < n
+        da = a(s, e) - ma
+        w0, w1 = max(0, s + lo), min(n, e + hi)
+        db = b(w0, w1) - mb
+        for i, tau in enumerate(lags):
+            t = int(tau)
+            t0, t1 = max(s, -t), min(e, n - t)  # the rows of this chunk whose partner is in the record
+            if t1 > t0:
+                acc[i] += float(da[t0 - s : t1 - s] @ db[t0 + t - w0 : t1 + t - w0])
+    for i, tau in enumerate(lags):
+        if abs(int(tau)) < n:
+            out[i] = acc[i] / den
+    return out
+
+
+def _piece(x: NDArray[np.float64], times: NDArray[np.float64] | None, shift: int, power: int, minus: float, a: int,
+           b: int) -> NDArray[np.float64]:
+    """Samples ``a..b-1`` of ``x(t + shift) ** power (* times(t + shift)) - minus`` (a correlation test's sequence)."""
+    p = x[a + shift : b + shift] ** power  # (x ** 1 and - 0.0 leave every value as it was)
+    return (p if times is None else p * times[a + shift : b + shift]) - minus
 
 
 @dataclass(frozen=True)
@@ -303,17 +348,16 @@ def correlation_tests(
         nm = correlation_test_name(kind, None if i is None or n_in == 1 else names[i])
         return CorrelationTest(nm, TESTS[kind][0], tuple(lags.tolist()), tuple(values.tolist()), band)
 
-    tests = [mk("ee", None, pos, ccf(e, e, pos))]
+    res: Part = partial(_piece, e, None, 0, 1, 0.0)  # chunks of the residual and its products, made on demand
+    tests = [mk("ee", None, pos, streamed_ccf(res, res, n, pos))]
     for i in range(n_in):
-        ui = ua[:, i]
-        eu = np.zeros(n)
-        eu[:-1] = e[1:] * ui[1:]  # (eu)(t) = e(t+1) u(t+1)
-        u2 = ui**2 - ui.mean() ** 2
+        ui, m2 = ua[:, i], float(ua[:, i].mean()) ** 2  # (eu)(t) = e(t+1) u(t+1), t < n - 1; (u^2)' = u^2 - mean(u)^2
+        u2: Part = partial(_piece, ui, None, 0, 2, m2)
         tests += [
-            mk("ue", i, both, ccf(ui, e, both)),
-            mk("e_eu", i, nonneg, ccf(e[:-1], eu[:-1], nonneg)),
-            mk("u2_e", i, both, ccf(u2, e, both)),
-            mk("u2_e2", i, both, ccf(u2, e**2, both)),
+            mk("ue", i, both, streamed_ccf(partial(_piece, ui, None, 0, 1, 0.0), res, n, both)),
+            mk("e_eu", i, nonneg, streamed_ccf(res, partial(_piece, e, ui, 1, 1, 0.0), n - 1, nonneg)),
+            mk("u2_e", i, both, streamed_ccf(u2, res, n, both)),
+            mk("u2_e2", i, both, streamed_ccf(u2, partial(_piece, e, None, 0, 2, 0.0), n, both)),
         ]
     return CorrelationReport(n, float(band), tuple(tests))
 

@@ -48,6 +48,10 @@ MIN_WIDTH = 1e-150
 MIN_SPAN = 1e-60
 #: Bytes of the temporaries of one block of one-step-ahead rows.
 OSA_BLOCK_BYTES = 64 * 1024 * 1024
+#: Rows of one chunk of streamed work over a record (one-step-ahead blocks, free-run scoring, the refinement's
+#: Jacobian, validation): memory bounded by it, not by the record. An offline estimation record with more
+#: regressor rows than this takes the bounded path (:func:`streamid.engine.search.rows.long_record_rows`).
+CHUNK_ROWS = 65_536
 
 _ENSEMBLES = ("streamid.model/3", "streamid.model/5", "streamid.model/6")
 

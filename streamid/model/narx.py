@@ -50,7 +50,7 @@ from streamid.model.freerun import free_run
 from streamid.model.describe import describe
 from streamid.model.domain import excess
 from streamid.model.files import read_model_file
-from streamid.model.limits import MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
+from streamid.model.limits import CHUNK_ROWS, MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
 from streamid.model.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
 from streamid.model.uncertainty import Band, Interval
 from streamid.errors import DataError, ModelFormatError
@@ -79,7 +79,7 @@ MODEL_FORMATS = (MODEL_FORMAT, MODEL_FORMAT_LINEAR, MODEL_FORMAT_ENSEMBLE, MODEL
 #: Rows of a one-step-ahead prediction computed at once: its regressors and activations take about 900 bytes a row
 #: (30 lags, 30 neurons), so a block is ~60 MB whatever the record's length (a 380,000-sample piezo record took
 #: 336 MB at once).
-OSA_BLOCK_ROWS = 65_536
+OSA_BLOCK_ROWS = CHUNK_ROWS
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
     try:

@@ -53,7 +53,7 @@ from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.settings import MORE_BELOW, RIDGE, CoEAConfig
 from streamid.errors import StreamidError
 from streamid.online.recalibrate import recalibrate
-from streamid.online.rows import RowSample, informative_rows, search_row_bound
+from streamid.engine.search.rows import RowSample, informative_rows, search_row_bound
 from streamid.online.stream_config import StreamConfig
 from streamid.online.summary import ValidationSummary, r2_or_nan, summarise
 from streamid.online.window_types import Window

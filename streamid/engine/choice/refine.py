@@ -62,6 +62,7 @@ from streamid.engine.choice.sensitivities import free_run_sensitivities
 from streamid.engine.choice.scores import path_score
 from streamid.engine.choice.stability import is_bounded
 from streamid.model.ensemble import EnsembleModel, members_of
+from streamid.model.limits import CHUNK_ROWS
 from streamid.threads import thread_map
 from streamid.model.narx import Model
 from streamid.engine.validation import r2_or_none
@@ -80,11 +81,10 @@ _TRIALS = 4  # free runs per iteration on average, at most (a bound on the work 
 
 _STOP = 1e-4  # stop when an iteration lowers the error by less than this fraction of it
 
-#: Rows of the free run and its derivatives made at a time (:func:`chunks`): the refinement's memory is this many
-#: rows of every parameter whatever the record's length (its Jacobian over a 1,000,000-sample window's estimation
-#: part was 112 MB, with 62 MB of derivatives besides, at the online update's peak). A record of up to
-#: ``max_lag + CHUNK_ROWS`` samples is one chunk, as before.
-CHUNK_ROWS = 65_536
+# CHUNK_ROWS (streamid.model.limits, 65,536): rows of the free run and its derivatives made at a time (:func:`chunks`):
+# the refinement's memory is this many rows of every parameter whatever the record's length (its Jacobian over a
+# 1,000,000-sample window's estimation part was 112 MB, with 62 MB of derivatives besides, at the online update's
+# peak). A record of up to ``max_lag + CHUNK_ROWS`` samples is one chunk, as before.
 
 
 def chunks(L: int, n: int) -> list[tuple[int, int]]:

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.model.ensemble import EnsembleModel, members_of
+from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model, free_run
 from streamid.engine.choice.stability import is_bounded
 from streamid.engine.validation import r2
@@ -118,7 +119,7 @@ class FreeRunScores:
 #: Rows per step of a free-run scoring that keeps no paths (``free_run_scores(..., keep_paths=False)``): its memory
 #: is this many rows of each candidate whatever the record's length (the paths of 21 candidates over a 1,000,000-
 #: sample window's estimation part were 2 x 118 MB at the online update's peak).
-SCORE_CHUNK_ROWS = 65_536
+SCORE_CHUNK_ROWS = CHUNK_ROWS
 
 
 def free_run_scores(
