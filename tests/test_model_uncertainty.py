@@ -14,9 +14,9 @@ from streamid.engine.choice.calibration import calibrate
 from streamid.engine.settings import RIDGE
 from streamid.errors import DataError, ModelFormatError
 from streamid.model import Model
-from streamid.model.domain import domain_text, outside, outside_share
+from streamid.model.domain import domain_text, excess, outside, outside_share
 from streamid.model.ensemble import EnsembleModel, ensemble_of
-from streamid.model.uncertainty import (LEVELS, Band, Interval, band_coverage, conformal_quantiles, interval_report,
+from streamid.model.uncertainty import (BEYOND, LEVELS, Band, Interval, band_coverage, conformal_quantiles, interval_report,
                                         interval_text, member_spread)
 from streamid.sim import simulate_mr_damper
 from test_engine_ensemble import NORM, U1, U3, Y1, _data, _net
@@ -103,6 +103,34 @@ def test_the_domain_is_each_regressors_estimation_range() -> None:
     assert np.flatnonzero(outside(NORM, net.regressors, u)).tolist() == [7]  # free run: the inputs alone
     assert outside_share(net, u, y) == pytest.approx(2 / 7)  # of the samples from max_lag 3 on
     assert "28.6 % of the validation samples" in domain_text(2 / 7, "validation")
+    # how far beyond, in half-spans of each range: u's is [-1, 1] (half-span 1), y's [-2, 2] (half-span 2)
+    far = excess(NORM, net.regressors, u, y)
+    assert far.tolist() == [0.0] * 7 + [0.5, 0.0, 0.25]
+    assert np.array_equal(far > 0, outside(NORM, net.regressors, u, y))
+
+
+def test_beyond_its_domain_the_band_grows_with_how_far_and_an_older_document_keeps_its_band() -> None:
+    net = _net(0, (Y1, U3))
+    _, y = _data()
+    u = np.random.default_rng(7).uniform(-0.9, 0.9, (len(y), 1))
+    u[200:260] *= 1.8  # the input leaves its estimation range [-1, 1] there
+    grown = replace(net, interval=Interval(LEVELS, (0.5, 1.0, 1.5, 2.0, 3.0), 0.1, 100, beyond=BEYOND))
+    before = replace(grown, interval=replace(grown.interval, beyond=0.0))  # a document without the rule
+    b1, b0 = grown.simulate(u, y, interval=0.9), before.simulate(u, y, interval=0.9)
+    far = grown.far_from_domain(u, b1.y)
+    L = net.max_lag
+    assert np.array_equal(b1.y, b0.y) and np.allclose((b0.upper - b0.y)[L:], 1.5 * 0.1)
+    assert np.allclose((b1.upper - b1.y)[L:], 1.5 * (0.1 + BEYOND * far[L:]))
+    assert np.array_equal(far > 0, outside(NORM, net.regressors, u, b1.y))  # where a regressor is outside
+    assert np.any(far[203:263] > 0.1) and not np.any(outside(NORM, net.regressors, u)[L:200])
+    assert np.allclose(far, excess(NORM, net.regressors, u.reshape(len(u), -1), b1.y) * 2.0)  # y half-range 2
+    d = json.loads(grown.to_json())["interval"]
+    assert d["beyond"] == BEYOND and "beyond" in d["band"]
+    assert Model.from_json(grown.to_json()).interval == grown.interval
+    old = json.loads(before.to_json())
+    assert "beyond" not in old["interval"] and Model.from_dict(old).interval == before.interval
+    with pytest.raises(ModelFormatError, match="beyond"):
+        Model.from_dict({**old, "interval": {**old["interval"], "beyond": -1.0}})
 
 
 def test_identify_calibrates_an_interval_on_held_out_data_and_it_covers_the_next_record() -> None:

@@ -207,7 +207,7 @@ def _bounds(lo: float, hi: float) -> tuple[str, str]:
     return _num(lo - tol), _num(hi + tol)
 
 
-def _domain(N: str, i: int, o: Output) -> list[str]:
+def _domain(N: str, i: int, o: Output, band: bool = False) -> list[str]:
     """Lines setting ``out`` when a regressor of output ``i`` at the current sample lies beyond its estimation
     range (a regressor that reaches before the start is not counted; the y regressors are the output's own past
     values)."""
@@ -222,6 +222,12 @@ def _domain(N: str, i: int, o: Output) -> list[str]:
             val = f"u[{r.index}]" if r.lag == 0 else f"s->u[(s->pos + {H} - {r.lag}) % {H}][{r.index}]"
         guard = f"s->k >= {r.lag}u && " if r.lag else ""
         lines.append(f"        if ({guard}({val} < {lo} || {val} > {hi})) out = 1;  /* {comment_text(r.label())} */")
+        if band:  # how far beyond the range, in its half-spans (streamid.model.domain.excess)
+            a, b = (o.y_low, o.y_high) if r.signal == "y" else (o.u_low[r.index], o.u_high[r.index])
+            if b > a:
+                z = f"fabs(2.0 * ({val} - {_num(a)}) / {_num(b - a)} - 1.0) - 1.0"
+                lines.append(f"        {{ const double z = {z}; if ({guard}!(z <= ex)) ex = z; }}" if not r.lag else
+                             f"        if ({guard[:-4]}) {{ const double z = {z}; if (!(z <= ex)) ex = z; }}")
     return lines
 
 
@@ -257,15 +263,20 @@ def _eval(p: ExportPlan) -> str:
         ev.append(f"        y[{i}] = " + (f"s->k < {o.max_lag}u ? s->initial[{i}] : c;" if o.max_lag else "c;"))
         ev.append("        if (x != NULL) {")
         ev.append("            int out = 0;")
+        beyond = o.band is not None and o.band[2] > 0.0
+        if beyond:
+            ev.append("            double ex = 0.0;  /* the farthest regressor's excess beyond its range */")
+        ev += ["    " + ln for ln in _domain(N, i, o, beyond)]
         if o.band is not None:
-            q, scale = (_num(v) for v in o.band)
+            q, scale = (_num(v) for v in o.band[:2])
+            far = f" + {_num(o.band[2])} * (ex > 0.0 ? ex : 0.0) * {half}" if beyond else ""
             if K == 1:
-                ev.append(f"            const double h = {q} * {scale};")
+                ev.append(f"            const double h = {q} * ({scale}{far});")
             else:  # the members' standard deviation (population: numpy's np.std)
                 ev += [f"            const double m = ({' + '.join(f'v[{j}]' for j in range(K))}) / {K}.0;",
                        f"            const double sd = sqrt(({' + '.join(f'(v[{j}] - m) * (v[{j}] - m)' for j in range(K))})"
                        f" / {K}.0);",
-                       f"            const double h = {q} * ({scale} + sd);"]
+                       f"            const double h = {q} * ({scale} + sd{far});"]
             if o.max_lag:
                 ev.append(f"            if (s->k < {o.max_lag}u) {{ x[{xi}] = y[{i}]; x[{xi + 1}] = y[{i}]; }}")
                 ev.append(f"            else {{ x[{xi}] = y[{i}] - h; x[{xi + 1}] = y[{i}] + h; }}")
@@ -273,7 +284,6 @@ def _eval(p: ExportPlan) -> str:
                 ev.append(f"            x[{xi}] = y[{i}] - h;")
                 ev.append(f"            x[{xi + 1}] = y[{i}] + h;")
             xi += 2
-        ev += ["    " + ln for ln in _domain(N, i, o)]
         ev.append(f"            x[{xi}] = out ? 0.0 : 1.0;  /* {comment_text(o.name)}_in_domain */")
         xi += 1
         ev += ["        }", "    }"]

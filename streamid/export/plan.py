@@ -77,7 +77,8 @@ class Output:
     max_lag: int
     direct_inputs: tuple[int, ...]  # inputs used at lag 0 (direct terms), in input order
     combine: str = "mean"  # "mean" | "median" of the networks' outputs
-    band: tuple[float, float] | None = None  # (q at BAND_LEVEL, scale): centre -+ q (scale + members' std)
+    # (q at BAND_LEVEL, scale, beyond): centre -+ q (scale + members' std + beyond * excess * y half-range)
+    band: tuple[float, float, float] | None = None
     domain: tuple[Regressor, ...] = ()  # the union of the networks' regressors (and linear parts')
 
     @property
@@ -160,8 +161,8 @@ def _spellable(o: Output) -> None:
     _finite(tuple(0.5 * lo + 0.5 * hi for lo, hi in zip(o.u_low, o.u_high)), "input middles", o.name)
 
 
-def _band(m: Model) -> tuple[float, float] | None:
-    """``(q, scale)`` of the model's interval at :data:`BAND_LEVEL`; None when it carries none."""
+def _band(m: Model) -> tuple[float, float, float] | None:
+    """``(q, scale, beyond)`` of the model's interval at :data:`BAND_LEVEL`; None when it carries none."""
     if m.interval is None:
         return None
     if not any(abs(lv - BAND_LEVEL) < 1e-12 for lv in m.interval.levels):
@@ -169,8 +170,8 @@ def _band(m: Model) -> tuple[float, float] | None:
                                f"(levels {', '.join(f'{v:g}' for v in m.interval.levels)}); the export's "
                                f"<output>_lower and <output>_upper are the {100 * BAND_LEVEL:g} % band")
     q, scale = m.interval.quantile(BAND_LEVEL), m.interval.scale
-    _finite((q, scale, q * scale), "interval quantile, scale", m.output_name)
-    return q, scale
+    _finite((q, scale, q * scale, m.interval.beyond), "interval quantile, scale, beyond", m.output_name)
+    return q, scale, m.interval.beyond
 
 
 def plan_of(models: Sequence[Model], name: str, period_s: float | None = None) -> ExportPlan:

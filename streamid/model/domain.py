@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from streamid.model.regressors import Normalisation, Regressor
 
-__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "outside", "outside_share"]
+__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "outside", "outside_share"]
 
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -50,6 +50,32 @@ def outside(normalisation: Normalisation, regressors: Sequence[Regressor], u: ND
             continue
         flags[r.lag:] |= src[: n - r.lag] if r.lag else src
     return flags
+
+
+def excess(normalisation: Normalisation, regressors: Sequence[Regressor], u: NDArray[np.float64],
+           y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """For each sample ``t`` of ``u`` (N, n_inputs) and an output path ``y`` (N,): how far the model's farthest
+    regressor at ``t`` lies beyond its estimation range, in the normalised units where that range is [-1, 1]
+    (``max_j max(|x_j| - 1, 0)``; 0 inside the domain; 0.1: a tenth of the range's half-span beyond its edge). The
+    prediction band grows with it (:mod:`streamid.model.uncertainty`). A regressor that reaches before the record's
+    start is not counted, as in :func:`outside`."""
+    n = u.shape[0]
+    lo, hi = np.asarray(normalisation.u_low, dtype=np.float64), np.asarray(normalisation.u_high, dtype=np.float64)
+    span = hi - lo
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        ex_u = np.where(span > 0, np.abs(2.0 * (u - lo) / np.where(span > 0, span, 1.0) - 1.0) - 1.0, 0.0)
+        y_span = normalisation.y_high - normalisation.y_low
+        ex_y = np.abs(2.0 * (y - normalisation.y_low) / y_span - 1.0) - 1.0 if y_span > 0 else np.zeros(n)
+    ex_u = np.maximum(np.nan_to_num(ex_u, nan=np.inf), 0.0)  # a non-finite value: infinitely far
+    ex_y = np.maximum(np.nan_to_num(ex_y, nan=np.inf), 0.0)
+    d = np.zeros(n)
+    for r in regressors:
+        src = ex_u[:, r.index] if r.signal == "u" else ex_y
+        if r.lag:
+            np.maximum(d[r.lag:], src[: n - r.lag], out=d[r.lag:])
+        else:
+            np.maximum(d, src, out=d)
+    return d
 
 
 def outside_share(model: Any, u: NDArray[np.float64], y: NDArray[np.float64] | None = None) -> float:

@@ -1,14 +1,19 @@
 """A model's free-run prediction interval: what it needs to say how far the device may be from its simulation.
 
-The band at sample ``t`` of a free run is ``centre(t) +- q_level * (scale + spread(t))``:
+The band at sample ``t`` of a free run is ``centre(t) +- q_level * (scale + spread(t) + beyond * far(t))``:
 
 * ``centre`` the model's free run (an ensemble's combined members);
 * ``spread(t)`` the standard deviation of the members' own free runs at ``t`` (0 for a single network): where the
   restarts disagree about the device, the band widens;
 * ``scale`` the free-run error's root mean square on the calibration record (output units): the residual noise
   and the error the members share;
-* ``q_level`` the split-conformal quantile of the calibration scores ``|y(t) - centre(t)| / (scale + spread(t))``
-  at the level: the ``ceil((n + 1) level) / n`` empirical quantile of the ``n`` scores.
+* ``far(t)`` how far the model's farthest regressor at ``t`` lies beyond its estimation range
+  (:func:`streamid.model.domain.excess`, in units of the range's half-span) times the output's half-range: beyond
+  its data a network of Gaussian bumps does not know the device, and the band says so by growing as fast as the
+  regressors leave (``beyond`` 1; 0 in documents written before the rule, whose bands it leaves as they were);
+* ``q_level`` the split-conformal quantile of the calibration scores
+  ``|y(t) - centre(t)| / (scale + spread(t) + beyond * far(t))`` at the level: the ``ceil((n + 1) level) / n``
+  empirical quantile of the ``n`` scores.
 
 The calibration record is data held out from fitting (the engine's :mod:`~streamid.engine.choice.calibration`
 says which; docs/method.md says what the band covers and what it does not). The document keeps the quantiles of a
@@ -27,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "band_coverage", "conformal_quantiles",
+__all__ = ["BEYOND", "Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "band_coverage", "conformal_quantiles",
            "interval_report", "interval_text", "member_spread"]
 
 #: The levels whose quantiles a model carries; the default one is drawn and reported.
@@ -36,8 +41,11 @@ LEVELS: tuple[float, ...] = (0.5, 0.8, 0.9, 0.95, 0.99)
 DEFAULT_LEVEL = 0.9
 #: Fewest calibration samples a quantile is made from (fewer: no interval).
 MIN_CALIBRATION = 20
+#: How fast the band grows beyond the estimation domain (``beyond`` of the intervals calibrated now): by the
+#: output's half-range per half-span a regressor leaves its range (docs/method.md, "The prediction interval").
+BEYOND = 1.0
 _FORM = ("an object with levels (a list of numbers in (0, 1)), quantiles (one number >= 0 each), scale (a number >= 0), "
-         "samples (an integer) and method (text)")
+         "samples (an integer), method (text) and optionally beyond (a number >= 0)")
 
 
 class Band(NamedTuple):
@@ -76,16 +84,19 @@ class Interval:
     scale: float
     samples: int
     method: str = "split-conformal"
+    beyond: float = 0.0  # the band's growth beyond the estimation domain (BEYOND; 0: documents without the rule)
 
     def __post_init__(self) -> None:
         ok = (len(self.levels) == len(self.quantiles) >= 1
+              and isinstance(self.beyond, float) and math.isfinite(self.beyond) and self.beyond >= 0.0
               and all(isinstance(v, float) and 0.0 < v < 1.0 for v in self.levels)
               and all(isinstance(q, float) and math.isfinite(q) and q >= 0.0 for q in self.quantiles)
               and isinstance(self.scale, float) and math.isfinite(self.scale) and self.scale >= 0.0
               and isinstance(self.samples, int) and self.samples >= 0)
         if not ok:
             raise ModelFormatError(f"model field 'interval' must be {_FORM}; got levels {self.levels!r}, quantiles "
-                                   f"{self.quantiles!r}, scale {self.scale!r}, samples {self.samples!r}")
+                                   f"{self.quantiles!r}, scale {self.scale!r}, samples {self.samples!r}, beyond "
+                                   f"{self.beyond!r}")
 
     def quantile(self, level: float) -> float:
         """The quantile of ``level`` (one of :attr:`levels`)."""
@@ -95,17 +106,35 @@ class Interval:
         raise DataError(f"interval level must be one of {', '.join(f'{v:g}' for v in self.levels)} (the levels this "
                         f"model was calibrated at); got {level!r}")
 
-    def band(self, centre: NDArray[np.float64], paths: NDArray[np.float64], level: float, measured: int) -> Band:
-        """The band of ``level`` around ``centre`` (the members' ``paths`` ``(K, N)`` give the spread); the first
+    def band(self, centre: NDArray[np.float64], paths: NDArray[np.float64], level: float, measured: int,
+             far: NDArray[np.float64] | None = None) -> Band:
+        """The band of ``level`` around ``centre`` (the members' ``paths`` ``(K, N)`` give the spread; ``far`` how
+        far beyond the estimation domain each sample lies, in output units: see the module docstring); the first
         ``measured`` samples are measured outputs, their band of width zero."""
-        half = self.quantile(level) * (self.scale + member_spread(paths))
+        with np.errstate(over="ignore", invalid="ignore"):
+            half = self.quantile(level) * (self.widths(paths, far))
         half[:measured] = 0.0
         return Band(centre, centre - half, centre + half)
 
+    def widths(self, paths: NDArray[np.float64], far: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """``scale + spread(t) + beyond * far(t)``: the band's half-width over its quantile (and the calibration
+        scores' denominator)."""
+        w = self.scale + member_spread(paths)
+        if far is not None and self.beyond > 0.0:
+            w = w + self.beyond * far
+        return w
+
     def to_dict(self) -> dict[str, Any]:
-        return {"method": self.method, "levels": list(self.levels), "quantiles": list(self.quantiles),
-                "scale": self.scale, "samples": self.samples,
-                "band": "centre(t) +- quantiles[level] * (scale + std of the members' free runs at t)"}
+        d: dict[str, Any] = {"method": self.method, "levels": list(self.levels), "quantiles": list(self.quantiles),
+                             "scale": self.scale, "samples": self.samples}
+        if self.beyond > 0.0:
+            d["beyond"] = self.beyond
+            d["band"] = ("centre(t) +- quantiles[level] * (scale + std of the members' free runs at t + beyond * "
+                         "max(0, max_j |x_j(t)| - 1) * (y_high - y_low) / 2), x_j the normalised regressors at t "
+                         "(the output's from the free run itself)")
+        else:
+            d["band"] = "centre(t) +- quantiles[level] * (scale + std of the members' free runs at t)"
+        return d
 
     @classmethod
     def from_dict(cls, d: Any) -> Interval:
@@ -117,7 +146,8 @@ class Interval:
             samples = d["samples"]
             if isinstance(samples, bool) or not isinstance(samples, int):
                 raise TypeError(f"samples {samples!r}")
-            return cls(levels, quantiles, float(d["scale"]), samples, str(d.get("method", "split-conformal"))[:200])
+            return cls(levels, quantiles, float(d["scale"]), samples, str(d.get("method", "split-conformal"))[:200],
+                       float(d.get("beyond", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelFormatError(f"model field 'interval' must be {_FORM} ({type(exc).__name__}: {exc})") from None
 
@@ -149,7 +179,7 @@ def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], 
     L = int(model.max_lag)
     with np.errstate(over="ignore", invalid="ignore"):
         if free_run is not None and len(getattr(model, "members", (model,))) == 1:
-            band = interval.band(free_run, free_run[None, :], float(level), L)
+            band = interval.band(free_run, free_run[None, :], float(level), L, model.far_from_domain(u, free_run))
         else:
             band = model.simulate(u, y[:L], interval=level)
     return {"level": float(level), **band_coverage(y, band, L)}

@@ -3,7 +3,7 @@
 The estimation record is split in two halves. The kept model's structure (lags, centres, widths; each member's,
 for an ensemble) is refitted by least squares on the first half alone, then free-run over the whole record from
 its first measured outputs; the second half, which that fit never saw, gives the calibration scores
-``|y(t) - centre(t)| / (scale + spread(t))`` (:mod:`streamid.model.uncertainty`), ``scale`` the RMS of its free-run
+``|y(t) - centre(t)| / (scale + spread(t) + beyond * far(t))`` (:mod:`streamid.model.uncertainty`), ``scale`` the RMS of its free-run
 error there. Their conformal quantiles at :data:`~streamid.model.uncertainty.LEVELS` and ``scale`` are what the
 model carries. What this covers and what it does not: docs/method.md ("The prediction interval").
 """
@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from streamid.engine.choice.selection import refit_weights
 from streamid.errors import DataError
 from streamid.model.narx import Model
-from streamid.model.uncertainty import LEVELS, MIN_CALIBRATION, Interval, conformal_quantiles, member_spread
+from streamid.model.uncertainty import BEYOND, LEVELS, MIN_CALIBRATION, Interval, conformal_quantiles, member_spread
 
 __all__ = ["METHOD", "METHOD_IN_SAMPLE", "UNSTABLE_HALF_R2", "calibrate", "with_interval"]
 
@@ -48,7 +48,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
         paths = half.member_paths(u, y[: half.max_lag])
         centre = half.combine_paths(paths, y)
         err = y[h:] - centre[h:]
-        spread = member_spread(paths)[h:]
+        spread = member_spread(paths)[h:] + BEYOND * half.far_from_domain(u, centre)[h:]  # the band's own terms
     if not (np.all(np.isfinite(err)) and np.all(np.isfinite(spread))):
         return None, {"reason": "the model refitted on the first half diverged in free run over the second half",
                       "samples": n - h}
@@ -58,13 +58,15 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     if r2 is not None and r2 < UNSTABLE_HALF_R2:  # only then is the model's own free run needed (one more run)
         with np.errstate(over="ignore", invalid="ignore"):
             own_paths = model.member_paths(u, y[: model.max_lag])
-            own_err = y[h:] - model.combine_paths(own_paths, y)[h:]
+            own_centre = model.combine_paths(own_paths, y)
+            own_err = y[h:] - own_centre[h:]
         own_r2 = 1.0 - float(np.mean(own_err**2)) / var if np.all(np.isfinite(own_err)) else None
         if own_r2 is not None and own_r2 >= UNSTABLE_HALF_R2:
             # the half's refit leaves the record (a structure too large for half the rows, e.g. a long linear part
             # of hundreds of lags) where the model itself does not: its errors say nothing of the model's; the
             # model's own errors on the second half are used instead (in sample: narrower than a held-out band)
-            err, spread, method, held_out = own_err, member_spread(own_paths)[h:], METHOD_IN_SAMPLE, False
+            err, method, held_out = own_err, METHOD_IN_SAMPLE, False
+            spread = member_spread(own_paths)[h:] + BEYOND * model.far_from_domain(u, own_centre)[h:]
     scale = float(np.sqrt(np.mean(err**2)))
     den = scale + spread
     scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
@@ -72,7 +74,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     evidence = {"method": method, "held_out": held_out, "samples": n - h, "scale": scale, "r2_fr_held_out": r2,
                 "r2_fr_second_half": own_r2, "mean_spread": float(np.mean(spread)),
                 "quantile_90": quantiles[LEVELS.index(0.9)]}
-    return Interval(LEVELS, quantiles, scale, n - h, method), evidence
+    return Interval(LEVELS, quantiles, scale, n - h, method, BEYOND), evidence
 
 
 def with_interval(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:
