@@ -62,10 +62,10 @@ def test_json_means_one_json_line_on_stdout_everywhere_and_files_use_report() ->
 
 def test_bench_only_lists_its_sections(capsys: pytest.CaptureFixture[str]) -> None:
     help_text = " ".join(_subparsers()["bench"].format_help().split())
-    assert "sections: capacity, daemon, engine, logs, mr, online, peers, reading, suite" in help_text
+    assert "sections: capacity, daemon, engine, logs, long, mr, online, peers, reading, suite" in help_text
     assert main(["bench", "--only", "engin"]) == 2
     err = capsys.readouterr().err
-    assert "--only takes one of capacity, daemon, engine, logs, mr, online, peers, reading, suite; got 'engin' (did you mean 'engine'?)" in err
+    assert "--only takes one of capacity, daemon, engine, logs, long, mr, online, peers, reading, suite; got 'engin' (did you mean 'engine'?)" in err
 
 
 def test_replay_unknown_log_lists_the_bundled_logs_and_the_closest(capsys: pytest.CaptureFixture[str]) -> None:
