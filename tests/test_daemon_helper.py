@@ -27,7 +27,14 @@ def test_a_window_identified_with_a_helper_gives_the_same_outcome() -> None:
         c = identify_window(wins[1], BASE, version=2, warm_state=b.state, warm_signature=b.signature, helper=helper)
         d = identify_window(wins[1], BASE, version=2, warm_state=a.state, warm_signature=a.signature)
         assert c.warm and c.model.to_json() == d.model.to_json()
-        assert helper.stats.offloaded + helper.stats.missed > 0  # batches were offered to it
+        # batches were offered to it: a run binds the helper without waiting for its answer, so on a loaded machine
+        # a short run may end before the helper answered; up to 5 more runs (each the same model) give it the time
+        for _ in range(5):
+            if helper.stats.offloaded + helper.stats.missed > 0:
+                break
+            e = identify_window(wins[0], BASE, version=1, helper=helper)
+            assert e.model.to_json() == a.model.to_json()
+        assert helper.stats.offloaded + helper.stats.missed > 0, helper.stats
 
 
 @pytest.mark.parametrize("enabled", [True, False])
