@@ -72,7 +72,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
     quantiles = conformal_quantiles(scores, LEVELS)
     evidence = {"method": method, "held_out": held_out, "samples": n - h, "scale": scale, "r2_fr_held_out": r2,
-                "r2_fr_second_half": own_r2, "mean_spread": float(np.mean(spread)),
+                "r2_fr_second_half": own_r2, "mean_spread": float(np.mean(spread)),  # the members' spread and the growth past the domain, mean
                 "quantile_90": quantiles[LEVELS.index(0.9)]}
     return Interval(LEVELS, quantiles, scale, n - h, method, BEYOND), evidence
 
