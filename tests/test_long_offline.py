@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import streamid.engine.search.rows as rows
-import streamid.engine.validation as validation
+import streamid.engine.correlation as correlation
 from streamid.engine import identify
 from streamid.engine.settings import DEFAULT
-from streamid.engine.validation import ccf, correlation_tests, streamed_ccf
+from streamid.engine.correlation import ccf, correlation_tests, streamed_ccf
 
 
 def _whole(e: np.ndarray, u: np.ndarray, L: int) -> list[np.ndarray]:
@@ -41,7 +41,7 @@ def test_correlation_tests_over_several_chunks_equal_the_whole_record(monkeypatc
     u = g.uniform(-1, 1, n)
     e = 0.3 * np.roll(u, 2) ** 2 + 0.1 * g.normal(size=n)  # a residual the tests should flag
     want = _whole(e, u, L)
-    monkeypatch.setattr(validation, "CHUNK_ROWS", 300)  # seven chunks, the last partial
+    monkeypatch.setattr(correlation, "CHUNK_ROWS", 300)  # seven chunks, the last partial
     rep = correlation_tests(e, u, L)
     assert [t.name for t in rep.tests] == ["ee", "ue", "e_eu", "u2_e", "u2_e2"]
     for t, w in zip(rep.tests, want):
