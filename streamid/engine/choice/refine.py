@@ -59,7 +59,7 @@ from numpy.typing import NDArray
 
 from streamid.engine.settings import REFINE_ABOVE as ABOVE
 from streamid.engine.choice.sensitivities import free_run_sensitivities
-from streamid.engine.choice.scores import path_score
+from streamid.engine.choice.scores import path_score, segments
 from streamid.engine.choice.stability import is_bounded
 from streamid.model.ensemble import EnsembleModel, members_of
 from streamid.model.limits import CHUNK_ROWS
@@ -91,24 +91,6 @@ def chunks(L: int, n: int) -> list[tuple[int, int]]:
     """The rows ``[a, b)`` of each chunk of a free run over ``n`` samples from ``L`` given ones (the first from
     ``L``, then :data:`CHUNK_ROWS` each)."""
     return [(a, min(n, a + CHUNK_ROWS)) for a in range(L, n, CHUNK_ROWS)] or [(L, n)]
-
-
-#: Beyond one chunk the refinement's free runs are made on this many contiguous segments of the record (:func:`segments`)
-SEGMENTS = 8
-#: Rows scored in all the segments together (each segment has ``SEGMENT_ROWS // SEGMENTS`` after its first ``max_lag``).
-SEGMENT_ROWS = 16_384
-
-
-def segments(first: int, n: int, L: int) -> list[tuple[int, int]] | None:
-    """The segments ``[start, stop)`` of the samples ``first..n-1`` a refinement's free runs are made on: None when
-    they hold at most one chunk (:data:`CHUNK_ROWS`) of rows after their first ``L`` (one free run over them all, as
-    always), else :data:`SEGMENTS` segments of ``L + SEGMENT_ROWS // SEGMENTS`` samples evenly spaced from the first
-    to the last sample (each free run starts from its own first ``L`` measured outputs)."""
-    if n - first - L <= CHUNK_ROWS:
-        return None
-    span = L + SEGMENT_ROWS // SEGMENTS
-    starts = [first + k * (n - first - span) // (SEGMENTS - 1) for k in range(SEGMENTS)]
-    return [(a, a + span) for a in starts]
 
 
 class _Piece:
@@ -213,7 +195,7 @@ def refine_weights(
         An ensemble's members simulated in that many threads (a caller with a core to spare; the same result).
     segments : list of (start, stop), optional
         The free run made and scored on these contiguous parts of the record only, each from its own first
-        ``max_lag`` measured outputs (:func:`segments`; a record beyond one chunk); None: one free run over it all.
+        ``max_lag`` measured outputs (:func:`~streamid.engine.choice.scores.segments`; a record beyond one chunk); None: one free run over it all.
 
     Returns
     -------

@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.fit.blas import one_blas_thread
-from streamid.engine.choice.scores import RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run
+from streamid.engine.choice.scores import (RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run, segment_scores,
+                                          segments)
 from streamid.engine.choice.complexity import RULE, criterion, padded, parameter_count, pruned
 from streamid.model.ensemble import EnsembleModel
 from streamid.model.narx import Model
@@ -213,20 +214,51 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1]), path if k == 0 else fr.paths[k - 1]
 
 
+#: Beyond the screen (:func:`_screened`): the admissible candidates refitted on every row, best first, at most this many.
+REFITS_TRIED = 3
+
+
 def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float,
               ) -> tuple[Model, float, NDArray[np.float64] | None] | None:
     """``"fr_est"`` on a large record with candidates fitted on the search's rows only, the chosen one refitted on
-    all rows and scored again; None (choose the full way) when that refit is not admissible."""
+    all rows and scored again; None (choose the full way) when that refit is not admissible and the record is one
+    chunk or less.
+
+    Beyond one chunk (:func:`~streamid.engine.choice.scores.segments`) the candidates' free runs are made on the
+    record's segments, and the choice stays bounded whatever happens: the admissible candidates are refitted on
+    every row in turn, best first (at most :data:`REFITS_TRIED`), the first whose free run over every row is
+    admissible kept; when none is, the candidate of the smallest excursion (of those refitted, or of all when none
+    was admissible on the screen) refitted on every row, scored as an inadmissible choice."""
     pairs = run.candidate_pairs(run.config.fr_candidates or None)
     cands = [run.model_for(h, x, search_rows=True) for h, x in pairs]
+    parts = segments(0, len(y), max(m.max_lag for m in cands))
     with one_blas_thread():
-        fr = free_run_scores(cands, u, y, range_margin=margin, keep_paths=False)  # bounded memory: no paths kept
-        if not fr.admissible:
+        fr = (free_run_scores(cands, u, y, range_margin=margin, keep_paths=False) if parts is None  # bounded memory
+              else segment_scores(cands, u, y, parts, margin))
+        if parts is None and not fr.admissible:
             return None
-        k = fr.best()
-        final = run.model_for(*pairs[k])
-        again = free_run_scores([final], u, y, range_margin=margin)
-    if not again.admissible:
-        return None
-    ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible, "screened_on_rows": run.search_rows}
-    return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
+        order = [int(k) for k in np.argsort(-np.asarray(fr.scores), kind="stable") if fr.excursions[k] == 0.0]
+        tried: list[tuple[float, Model, FreeRunScores]] = []
+        for k in order[: 1 if parts is None else REFITS_TRIED]:
+            final = run.model_for(*pairs[k])
+            again = free_run_scores([final], u, y, range_margin=margin)
+            if again.admissible:
+                ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible,
+                      "screened_on_rows": run.search_rows}
+                if parts is not None:
+                    ev["screened_on_segments"] = {"count": len(parts), "rows": int(sum(b - a for a, b in parts))}
+                return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
+            tried.append((again.excursions[0], final, again))
+        if parts is None:
+            return None
+        if not tried:  # none admissible on the screen: the smallest excursion's, refitted on every row
+            final = run.model_for(*pairs[fr.best()])
+            again = free_run_scores([final], u, y, range_margin=margin)
+            if again.admissible:
+                ev = {**again.evidence(0), "candidates": len(cands), "admissible": 0, "screened_on_rows": run.search_rows}
+                return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
+            tried.append((again.excursions[0], final, again))
+    excursion, final, again = min(tried, key=lambda t: t[0])
+    ev = {**again.evidence(0), "candidates": len(cands), "admissible": 0, "screened_on_rows": run.search_rows,
+          "refitted": len(tried)}
+    return final.with_metrics(free_run_choice=ev), -1e9 * (1.0 + min(excursion, 1e6)), None
