@@ -167,3 +167,23 @@ def test_segment_scores_on_one_segment_are_the_free_run_scores() -> None:
     assert got.scores[-1] == -np.inf
     two = segment_scores(nets, u[:, None], y, [(0, 400), (400, 800)])  # two free runs: rows 400-401 given, not scored
     assert two.admissible == want.admissible and two.scores != got.scores
+
+
+def test_the_direct_term_test_beyond_one_chunk_fits_on_evenly_spaced_rows(monkeypatch: pytest.MonkeyPatch) -> None:
+    from streamid.engine.search.feedthrough import feedthrough_test
+
+    g = np.random.default_rng(11)
+    n = 6_000
+    u = g.uniform(-1, 1, n)
+    y_direct, y_lagged = np.zeros(n), np.zeros(n)
+    for t in range(1, n):
+        y_direct[t] = 0.5 * y_direct[t - 1] + u[t] + 0.3 * u[t - 1]
+        y_lagged[t] = 0.5 * y_lagged[t - 1] + u[t - 1]
+    y_direct += 0.05 * g.normal(size=n)
+    y_lagged += 0.05 * g.normal(size=n)
+    whole = [feedthrough_test(u[:, None], y, 3) for y in (y_direct, y_lagged)]
+    monkeypatch.setattr(rows, "CHUNK_ROWS", 700)  # 5,997 rows: 700 evenly spaced
+    assert rows.spaced_rows(699) is None and np.array_equal(rows.spaced_rows(1400), np.arange(0, 1400, 2))
+    spaced = [feedthrough_test(u[:, None], y, 3) for y in (y_direct, y_lagged)]
+    assert [w["min_lag_u"] for w in whole] == [s["min_lag_u"] for s in spaced] == [0, 1]
+    assert spaced[0]["lr"][0] < whole[0]["lr"][0]  # n in LR is the rows fitted: fewer, a smaller statistic

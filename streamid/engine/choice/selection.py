@@ -20,6 +20,7 @@ from streamid.model.ensemble import EnsembleModel
 from streamid.model.narx import Model
 from streamid.engine.choice.longlinear import long_linear_fit
 from streamid.engine.fit.rbf import activations, fit_linear_rbf, fit_weights
+from streamid.engine.search.rows import spaced_rows
 from streamid.model.regressors import as_data
 from streamid.engine.settings import RIDGE
 from streamid.engine.validation import r2
@@ -200,7 +201,8 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     model's). Evidence in ``metrics.neuron_choice``."""
     M = model.neurons
     with one_blas_thread():
-        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), RIDGE)
+        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), RIDGE,
+                         spaced_rows(len(y) - model.max_lag))  # beyond one chunk: fitted on evenly spaced rows
         if not smaller:
             return model, score, path
         fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run
