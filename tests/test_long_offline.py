@@ -187,3 +187,24 @@ def test_the_direct_term_test_beyond_one_chunk_fits_on_evenly_spaced_rows(monkey
     spaced = [feedthrough_test(u[:, None], y, 3) for y in (y_direct, y_lagged)]
     assert [w["min_lag_u"] for w in whole] == [s["min_lag_u"] for s in spaced] == [0, 1]
     assert spaced[0]["lr"][0] < whole[0]["lr"][0]  # n in LR is the rows fitted: fewer, a smaller statistic
+
+
+def test_a_refit_beyond_one_chunk_is_streamed_and_the_same_least_squares(monkeypatch: pytest.MonkeyPatch) -> None:
+    from dataclasses import replace
+
+    import streamid.engine.choice.selection as selection
+
+    u, y = _plant(3_000, seed=13)
+    net = _osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4)
+    lin = replace(net, linear=np.zeros(5))
+    want = [selection.refit_weights(m, u, y, 1e-8) for m in (net, lin)]
+    monkeypatch.setattr(selection, "CHUNK_ROWS", 500)
+    calls: list[int] = []
+    real = selection.fit_in_blocks
+    monkeypatch.setattr(selection, "fit_in_blocks", lambda *a, **k: calls.append(1) or real(*a, **k))
+    got = [selection.refit_weights(m, u, y, 1e-8) for m in (net, lin)]
+    assert len(calls) == 2  # both streamed
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g.weights, w.weights, rtol=1e-8, atol=1e-10)
+        assert g.metrics["fitness"] == pytest.approx(w.metrics["fitness"], rel=1e-9)
+    np.testing.assert_allclose(got[1].linear, want[1].linear, rtol=1e-8, atol=1e-10)

@@ -44,6 +44,12 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   ``metrics.refinement``; a refined model's ``metrics.fitness`` is its one-step MSE on the estimation
   record (``Result.fitness``: the final model's, as for an ensemble).
 
+* **Beyond one chunk** (an estimation record of more than ``CHUNK_ROWS`` rows): the free runs of the refinement, of
+  its held-out judgement and of "kept only if better" are made on :data:`~streamid.engine.choice.scores.SEGMENTS`
+  contiguous segments of the part of the record concerned (``SEGMENT_ROWS`` scored rows in all, evenly spaced from
+  its first sample to its last), each from its own first measured outputs (docs/method.md, "Long records": what
+  is sampled and why it is safe); up to one chunk, one free run over every row as above.
+
 Not applied by ``--paper``; applied to each online coevolution run's model (``streamid.online.stream_config.
 ONLINE_REFINE``; ``engine.refine_iterations = 0``: off). Numerics only: no I/O, no randomness.
 """
@@ -61,6 +67,7 @@ from streamid.engine.settings import REFINE_ABOVE as ABOVE
 from streamid.engine.choice.sensitivities import free_run_sensitivities
 from streamid.engine.choice.scores import path_score, segments
 from streamid.engine.choice.stability import is_bounded
+from streamid.engine.fit.blas import one_blas_thread
 from streamid.model.ensemble import EnsembleModel, members_of
 from streamid.model.limits import CHUNK_ROWS
 from streamid.threads import thread_map
@@ -339,11 +346,25 @@ def refine_judged(
     """:func:`refine_weights` judged out of sample (the rule above): refined on the first half of ``(u, y)``, the
     refinement is made on the whole record only if that half's refined model free-runs better than ``model`` over
     the second half (both simulated from the record's start, R^2 over the second half). The evidence is
-    :func:`refine_weights`'s with ``held_out`` (samples, and the two R^2 when the half was refined)."""
+    :func:`refine_weights`'s with ``held_out`` (samples, and the two R^2 when the half was refined).
+
+    Beyond one chunk (:func:`~streamid.engine.choice.scores.segments`) every free run of the three steps is made on
+    segments of its part of the record (the first half, the second, the whole), each from its own measured outputs,
+    and the evidence says how many (``segments``): the cost is bounded, not the record's."""
     if iterations < 1:
         return refine_weights(model, u, y, iterations, above, range_margin, threads)
     h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
     whole = segments(0, len(y), L)  # beyond one chunk: each step on segments of the record (docs/method.md)
+    if whole is not None:  # and in one BLAS thread: its J'J products waited on the second one (STACK.md)
+        with one_blas_thread():
+            return _judged(model, u, y, iterations, above, range_margin, threads, whole)
+    return _judged(model, u, y, iterations, above, range_margin, threads, whole)
+
+
+def _judged(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float,
+            range_margin: float, threads: int, whole: list[tuple[int, int]] | None) -> tuple[Model, dict[str, Any]]:
+    """:func:`refine_judged`'s work (``whole``: the record's segments beyond one chunk, else None)."""
+    h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
     half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads,
                                    None if whole is None else segments(0, h, L))
     held: dict[str, Any] = {"samples": int(len(y) - h)}

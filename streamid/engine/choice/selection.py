@@ -19,7 +19,8 @@ from streamid.engine.choice.complexity import RULE, criterion, padded, parameter
 from streamid.model.ensemble import EnsembleModel
 from streamid.model.narx import Model
 from streamid.engine.choice.longlinear import long_linear_fit
-from streamid.engine.fit.rbf import activations, fit_linear_rbf, fit_weights
+from streamid.engine.fit.rbf import activations, fit_in_blocks, fit_linear_rbf, fit_weights
+from streamid.model.limits import CHUNK_ROWS
 from streamid.engine.search.rows import spaced_rows
 from streamid.model.regressors import as_data
 from streamid.engine.settings import RIDGE
@@ -46,6 +47,8 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Mod
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
     L = model.max_lag
+    if ya.shape[0] - L > CHUNK_ROWS and model.linear_regressors is None:  # beyond one chunk: streamed in blocks
+        return _refit_in_blocks(model, ua, ya, ridge)
     r, target = model.regressor_rows(ua, ya)  # target: the normalised outputs of rows t >= L
     with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
@@ -64,6 +67,21 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Mod
         raise DataError("refitted weights are not finite (numerically degenerate data)")
     mse = float(np.mean((fit - target) ** 2)) * model.normalisation.y_half_range**2
     return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": mse})
+
+
+def _refit_in_blocks(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:
+    """:func:`refit_weights` of a network (its linear part on its own regressors, if any) on a record beyond one
+    chunk: the least squares streamed over blocks of rows (:func:`~streamid.engine.fit.rbf.fit_in_blocks`: the same
+    weights to rounding), never every row's activations at once."""
+    L = model.max_lag
+    target = model.normalisation.y(y)[L:]
+    with one_blas_thread():
+        w, lin, sse = fit_in_blocks(lambda a, b: model.regressor_rows(u[a : b + L], y[a : b + L])[0], target,
+                                    model.centres, model.widths, ridge, model.linear is not None)
+    if not np.all(np.isfinite(w)) or (lin is not None and not np.all(np.isfinite(lin))):
+        raise DataError("refitted weights are not finite (numerically degenerate data)")
+    mse = sse / target.shape[0] * model.normalisation.y_half_range**2
+    return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": float(mse)})
 
 
 def free_run_r2(
