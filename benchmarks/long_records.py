@@ -122,8 +122,8 @@ def bench(options: Any) -> Iterator[Measurement]:
 
 
 def _r2_fr_val(doc: Any) -> str:
-    try:
-        return f"{float(doc['validation']['r2']['fr_val']):.4f}"
+    try:  # identify's JSON report: the summary over its runs (one identification: one value)
+        return f"{float(doc['summary']['r2']['fr_val']['median']):.6f}"
     except (KeyError, TypeError, ValueError):
         return "?"
 

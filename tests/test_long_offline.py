@@ -208,3 +208,21 @@ def test_a_refit_beyond_one_chunk_is_streamed_and_the_same_least_squares(monkeyp
         np.testing.assert_allclose(g.weights, w.weights, rtol=1e-8, atol=1e-10)
         assert g.metrics["fitness"] == pytest.approx(w.metrics["fitness"], rel=1e-9)
     np.testing.assert_allclose(got[1].linear, want[1].linear, rtol=1e-8, atol=1e-10)
+
+
+def test_a_candidate_fitted_on_given_rows_is_model_for_s_fit_on_those_rows() -> None:
+    from benchmarks.long_records import reactor_record
+    from streamid.engine.search.coevolution import Coevolution
+
+    u, y = reactor_record(900, "uniform", 41)
+    cfg = DEFAULT.replace(restarts=1, generations=4, lag_search_neurons=0, neurons=6, max_lag_cap=0, max_lag_y=2,
+                          max_lag_u=2, search_rows=200)
+    run = Coevolution(u[:, None], y, cfg, 0, rows=np.sort(np.random.default_rng(1).choice(898, 200, replace=False)))
+    run.solve()
+    h, x = run.candidate_pairs(None)[0]
+    every = run.model_for(h, x)
+    same = run.model_on_rows(h, x, np.arange(len(run.target)))
+    np.testing.assert_allclose(same.weights, every.weights, rtol=1e-9, atol=1e-12)
+    half = run.model_on_rows(h, x, np.arange(0, len(run.target), 2))
+    assert not np.allclose(half.weights, every.weights, rtol=1e-9)  # other rows, another least squares
+    assert half.centres.tolist() == every.centres.tolist() and half.lags == every.lags

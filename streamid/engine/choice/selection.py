@@ -258,9 +258,14 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
         if parts is None and not fr.admissible:
             return None
         order = [int(k) for k in np.argsort(-np.asarray(fr.scores), kind="stable") if fr.excursions[k] == 0.0]
+        spaced = None if parts is None else spaced_rows(len(run.target))
+
+        def refit(k: int) -> Model:  # on every row; beyond one chunk on CHUNK_ROWS evenly spaced rows
+            return run.model_for(*pairs[k]) if spaced is None else run.model_on_rows(*pairs[k], spaced)
+
         tried: list[tuple[float, Model, FreeRunScores]] = []
         for k in order[: 1 if parts is None else REFITS_TRIED]:
-            final = run.model_for(*pairs[k])
+            final = refit(k)
             again = free_run_scores([final], u, y, range_margin=margin)
             if again.admissible:
                 ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible,
@@ -272,7 +277,7 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
         if parts is None:
             return None
         if not tried:  # none admissible on the screen: the smallest excursion's, refitted on every row
-            final = run.model_for(*pairs[fr.best()])
+            final = refit(fr.best())
             again = free_run_scores([final], u, y, range_margin=margin)
             if again.admissible:
                 ev = {**again.evidence(0), "candidates": len(cands), "admissible": 0, "screened_on_rows": run.search_rows}
