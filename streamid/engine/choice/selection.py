@@ -172,7 +172,8 @@ def select_model_path(
     time, :meth:`~streamid.engine.search.coevolution.Coevolution.models_for`'s ``in_blocks`` and
     :func:`~streamid.engine.choice.scores.free_run_scores`'s ``keep_paths=False``, so that a window's memory does not
     grow with every candidate's activations and free run; no path is returned); otherwise every candidate is
-    fitted on all rows.
+    fitted on all rows. Beyond one chunk of rows the screen's free runs are made on segments of the record and
+    there is no full way (:func:`_screened`).
     ``range_margin`` defaults to :data:`~streamid.engine.choice.scores.RANGE_MARGIN`. ``threads`` > 1: the candidates are fitted
     and simulated in that many threads (for a caller with a core to spare; the same result). A run with no
     candidate in range scores below -1e9 (any run with one wins over it); its model says ``admissible: 0``.
