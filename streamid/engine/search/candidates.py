@@ -139,6 +139,12 @@ class CandidateModels:
         c = self.config
         return lambda a, b: lag_rows(un, yn, c.max_lag_y, c.max_lag_u, np.arange(a, b), min_lag_u=c.min_lag_u)[:, cols]
 
+    @property
+    def searched(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Every candidate lag's regressors and the targets on the rows the search evaluated (every row when it
+        evaluated them all)."""
+        return self._fit_rows(True)
+
     def _fit_rows(self, search_rows: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if search_rows and self._rows is not None:
             return self._search
