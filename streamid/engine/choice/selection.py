@@ -247,9 +247,10 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
 
     Beyond one chunk (:func:`~streamid.engine.choice.scores.segments`) the candidates' free runs are made on the
     record's segments, and the choice stays bounded whatever happens: the admissible candidates are refitted on
-    every row in turn, best first (at most :data:`REFITS_TRIED`), the first whose free run over every row is
-    admissible kept; when none is, the candidate of the smallest excursion (of those refitted, or of all when none
-    was admissible on the screen) refitted on every row, scored as an inadmissible choice."""
+    :func:`~streamid.engine.search.rows.spaced_rows` in turn, best first (at most :data:`REFITS_TRIED`), the first
+    whose free run over every row is admissible kept; when none is (a free run that holds on 2,048-sample segments
+    and drifts over the whole record), the full way's rule with bounded fits: every candidate fitted on those rows
+    and free-run over every row, streamed (the online rule's fallback, its least squares on 65,536 rows)."""
     pairs = run.candidate_pairs(run.config.fr_candidates or None)
     cands = [run.model_for(h, x, search_rows=True) for h, x in pairs]
     parts = segments(0, len(y), max(m.max_lag for m in cands))
@@ -277,14 +278,13 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
             tried.append((again.excursions[0], final, again))
         if parts is None:
             return None
-        if not tried:  # none admissible on the screen: the smallest excursion's, refitted on every row
-            final = refit(fr.best())
-            again = free_run_scores([final], u, y, range_margin=margin)
-            if again.admissible:
-                ev = {**again.evidence(0), "candidates": len(cands), "admissible": 0, "screened_on_rows": run.search_rows}
-                return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
-            tried.append((again.excursions[0], final, again))
-    excursion, final, again = min(tried, key=lambda t: t[0])
-    ev = {**again.evidence(0), "candidates": len(cands), "admissible": 0, "screened_on_rows": run.search_rows,
-          "refitted": len(tried)}
-    return final.with_metrics(free_run_choice=ev), -1e9 * (1.0 + min(excursion, 1e6)), None
+        # the fallback, bounded: every candidate fitted on the spaced rows, free-run over every row (streamed, no paths)
+        both = run.config.linear_terms  # both kinds compete, as in the full way (_by_criterion)
+        full = [run.model_on_rows(*pairs[k], spaced, linear=kind) for kind in ((None, False) if both else (None,))
+                for k in range(len(pairs))] if spaced is not None else [refit(k) for k in range(len(pairs))]
+        fb = free_run_scores(full, u, y, range_margin=margin, keep_paths=False)
+    k = _by_criterion(full, fb, len(y)) if both and fb.admissible else fb.best()
+    score = fb.scores[k] if fb.admissible else -1e9 * (1.0 + min(fb.excursions[k], 1e6))  # finite: JSON-able
+    ev = {**fb.evidence(k), "screened_on_rows": run.search_rows, "admissible_on_segments": fr.admissible,
+          "refitted_first": len(tried), "fallback": "every candidate on spaced rows, free run over every row"}
+    return full[k].with_metrics(free_run_choice=ev), float(score), None

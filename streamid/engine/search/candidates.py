@@ -68,9 +68,11 @@ class CandidateModels:
             phi = activations(R[:, cols], x[: M * D].reshape(M, D)[:, cols], x[M * D :])
             return self._fitted(cols, x, phi, R[:, cols], target)
 
-    def model_on_rows(self, mask: NDArray[np.bool_], x: NDArray[np.float64], rows: NDArray[np.intp]) -> Model:
+    def model_on_rows(self, mask: NDArray[np.bool_], x: NDArray[np.float64], rows: NDArray[np.intp],
+                      linear: bool | None = None) -> Model:
         """:meth:`model_for` with the weights fitted on the regressor rows ``rows`` only (a record beyond one chunk:
-        :func:`~streamid.engine.search.rows.spaced_rows`; its memory and time those rows', not the record's)."""
+        :func:`~streamid.engine.search.rows.spaced_rows`; its memory and time those rows', not the record's); ``linear``
+        as :meth:`_fitted`'s."""
         M, D = self.config.neurons, self.D
         cols = np.flatnonzero(mask)
         if self._R is not None:
@@ -81,7 +83,7 @@ class CandidateModels:
             R = np.ascontiguousarray(lag_rows(un, yn, c.max_lag_y, c.max_lag_u, rows, min_lag_u=c.min_lag_u)[:, cols])
         with one_blas_thread():
             phi = activations(R, x[: M * D].reshape(M, D)[:, cols], x[M * D :])
-            return self._fitted(cols, x, phi, R, self.target[rows])
+            return self._fitted(cols, x, phi, R, self.target[rows], linear=linear)
 
     def _fitted_in_blocks(self, cols: NDArray[np.intp], x: NDArray[np.float64], linear: bool | None = None,
                           batch: bool = False) -> Model:
