@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import streamid.engine.search.rows as rows
-import streamid.engine.validation as validation
+import streamid.engine.correlation as correlation
 from streamid.engine import identify
 from streamid.engine.settings import DEFAULT
-from streamid.engine.validation import ccf, correlation_tests, streamed_ccf
+from streamid.engine.correlation import ccf, correlation_tests, streamed_ccf
 
 
 def _whole(e: np.ndarray, u: np.ndarray, L: int) -> list[np.ndarray]:
@@ -41,7 +41,7 @@ def test_correlation_tests_over_several_chunks_equal_the_whole_record(monkeypatc
     u = g.uniform(-1, 1, n)
     e = 0.3 * np.roll(u, 2) ** 2 + 0.1 * g.normal(size=n)  # a residual the tests should flag
     want = _whole(e, u, L)
-    monkeypatch.setattr(validation, "CHUNK_ROWS", 300)  # seven chunks, the last partial
+    monkeypatch.setattr(correlation, "CHUNK_ROWS", 300)  # seven chunks, the last partial
     rep = correlation_tests(e, u, L)
     assert [t.name for t in rep.tests] == ["ee", "ue", "e_eu", "u2_e", "u2_e2"]
     for t, w in zip(rep.tests, want):
@@ -76,3 +76,153 @@ def test_an_identification_beyond_one_chunk_searches_on_the_stratified_sample(mo
     assert ev == {"rows": 300, "of": 1_500 - 3, "bound": 300, "sampling": "stratified"}
     assert res.model.metrics["free_run_choice"].get("screened_on_rows") == 300 or \
         "screened_on_rows" not in res.model.metrics["free_run_choice"]  # screened, or the full way when refit failed
+
+
+# --- beyond one chunk: free runs on contiguous segments (refinement, the candidates' screen) -------------------------
+
+def _plant(n: int = 600, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """A nonlinear plant with output feedback (its free run differs from its one-step prediction)."""
+    g = np.random.default_rng(seed)
+    u = g.uniform(-1, 1, n)
+    y = np.zeros(n)
+    for t in range(2, n):
+        y[t] = 0.7 * y[t - 1] - 0.2 * y[t - 2] + np.tanh(1.5 * u[t - 1]) + 0.3 * u[t - 2] ** 2
+    return u, y + g.normal(0, 0.02, n)
+
+
+def _osa_net(u: np.ndarray, y: np.ndarray, lags: tuple[tuple[str, int], ...], m: int, seed: int) -> "Model":
+    """A network with random centres and widths, its weights the one-step least squares (as the search's)."""
+    from dataclasses import replace
+
+    from streamid.model.narx import Model
+    from streamid.model.regressors import Normalisation, Regressor
+
+    regs = tuple(Regressor(s, 0, lag) for s, lag in lags)
+    g = np.random.default_rng(seed)
+    net = Model(regressors=regs, centres=g.uniform(-1, 1, (m, len(regs))), widths=g.uniform(0.4, 1.2, m),
+                weights=np.zeros(m), normalisation=Normalisation((-1.0,), (1.0,), -3.0, 3.0))
+    r, target = net.regressor_rows(u[:, None], y)
+    return replace(net, weights=np.linalg.lstsq(net._phi(r), target, rcond=None)[0])
+
+
+def test_segments_are_none_within_one_chunk_and_evenly_spaced_beyond(monkeypatch: pytest.MonkeyPatch) -> None:
+    from streamid.engine.choice import scores
+
+    monkeypatch.setattr(scores, "CHUNK_ROWS", 1000)
+    monkeypatch.setattr(scores, "SEGMENT_ROWS", 400)  # 8 segments of 50 scored rows
+    assert scores.segments(0, 1003, 3) is None  # one chunk of rows after the first L: one free run, as always
+    parts = scores.segments(0, 10_000, 3)
+    assert parts is not None and len(parts) == scores.SEGMENTS == 8
+    assert parts[0][0] == 0 and parts[-1][1] == 10_000
+    assert all(b - a == 3 + 50 for a, b in parts) and all(b <= a2 for (_, b), (a2, _) in zip(parts, parts[1:]))
+    assert scores.segments(4_000, 10_000, 3)[0][0] == 4_000  # type: ignore[index]
+
+
+def test_refinement_on_segments_that_repeat_one_record_is_that_record_s_refinement() -> None:
+    """Four copies of one record, each copy a segment: every free run, Jacobian and error is four times one copy's,
+    so the refinement is the one made on one copy (a test of the segments' bookkeeping: a piece started from the
+    wrong outputs, or rows scored twice or not at all, would not give it)."""
+    from streamid.engine.choice.refine import refine_weights
+    from streamid.model.ensemble import ensemble_of, members_of
+
+    u, y = _plant()
+    net = _osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 7, 2)
+    ens = ensemble_of([_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1)), 6, 3), _osa_net(u, y, (("y", 1), ("u", 1)), 5, 4)])
+    n, k = len(y), 4
+    U, Y = np.tile(u, k)[:, None], np.tile(y, k)
+    for model in (net, ens):
+        want, ev_want = refine_weights(model, u[:, None], y, 10, 0.0, 0.25)
+        got, ev = refine_weights(model, U, Y, 10, 0.0, 0.25, segments=[(i * n, (i + 1) * n) for i in range(k)])
+        assert ev_want["taken"] is True and ev["taken"] is True and ev["iterations"] == ev_want["iterations"] >= 2
+        assert ev["segments"] == {"count": k, "rows": k * n, "of": k * n}
+        assert ev["r2_fr_est_after"] == pytest.approx(ev_want["r2_fr_est_after"], abs=1e-9)
+        for a, b in zip(members_of(got), members_of(want)):
+            np.testing.assert_allclose(a.weights, b.weights, rtol=1e-7, atol=1e-10)
+
+
+def test_a_refinement_beyond_one_chunk_is_made_and_judged_on_segments(monkeypatch: pytest.MonkeyPatch) -> None:
+    from streamid.engine.choice import scores
+    from streamid.engine.choice.refine import refine_judged
+
+    u, y = _plant(4_000, seed=5)
+    net = _osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 7, 2)
+    monkeypatch.setattr(scores, "CHUNK_ROWS", 500)
+    monkeypatch.setattr(scores, "SEGMENT_ROWS", 800)  # 8 segments of 100 scored rows: 800 of 4,000
+    out, ev = refine_judged(net, u[:, None], y, 10, 0.0, 0.25)
+    assert ev["held_out"]["segments"] == 8 and ev["held_out"]["samples"] == 2_000
+    assert ev["taken"] is True and ev["segments"] == {"count": 8, "rows": 8 * 102, "of": 4_000}
+    assert out is not net and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
+
+
+def test_segment_scores_on_one_segment_are_the_free_run_scores() -> None:
+    from streamid.engine.choice.scores import free_run_scores, segment_scores
+
+    u, y = _plant(800, seed=7)
+    nets = [_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, s) for s in (1, 2, 3)]
+    nets.append(_osa_net(u, y, (("y", 1), ("y", 2)), 4, 9))  # no input term: never admissible
+    want = free_run_scores(nets, u[:, None], y)
+    got = segment_scores(nets, u[:, None], y, [(0, len(y))])
+    assert got.excursions == pytest.approx(want.excursions) and want.admissible >= 1
+    np.testing.assert_allclose(got.scores, want.scores, rtol=1e-10)
+    assert got.scores[-1] == -np.inf
+    two = segment_scores(nets, u[:, None], y, [(0, 400), (400, 800)])  # two free runs: rows 400-401 given, not scored
+    assert two.admissible == want.admissible and two.scores != got.scores
+
+
+def test_the_direct_term_test_beyond_one_chunk_fits_on_evenly_spaced_rows(monkeypatch: pytest.MonkeyPatch) -> None:
+    from streamid.engine.search.feedthrough import feedthrough_test
+
+    g = np.random.default_rng(11)
+    n = 6_000
+    u = g.uniform(-1, 1, n)
+    y_direct, y_lagged = np.zeros(n), np.zeros(n)
+    for t in range(1, n):
+        y_direct[t] = 0.5 * y_direct[t - 1] + u[t] + 0.3 * u[t - 1]
+        y_lagged[t] = 0.5 * y_lagged[t - 1] + u[t - 1]
+    y_direct += 0.05 * g.normal(size=n)
+    y_lagged += 0.05 * g.normal(size=n)
+    whole = [feedthrough_test(u[:, None], y, 3) for y in (y_direct, y_lagged)]
+    monkeypatch.setattr(rows, "CHUNK_ROWS", 700)  # 5,997 rows: 700 evenly spaced
+    assert rows.spaced_rows(699) is None and np.array_equal(rows.spaced_rows(1400), np.arange(0, 1400, 2))
+    spaced = [feedthrough_test(u[:, None], y, 3) for y in (y_direct, y_lagged)]
+    assert [w["min_lag_u"] for w in whole] == [s["min_lag_u"] for s in spaced] == [0, 1]
+    assert spaced[0]["lr"][0] < whole[0]["lr"][0]  # n in LR is the rows fitted: fewer, a smaller statistic
+
+
+def test_a_refit_beyond_one_chunk_is_streamed_and_the_same_least_squares(monkeypatch: pytest.MonkeyPatch) -> None:
+    from dataclasses import replace
+
+    import streamid.engine.choice.selection as selection
+
+    u, y = _plant(3_000, seed=13)
+    net = _osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4)
+    lin = replace(net, linear=np.zeros(5))
+    want = [selection.refit_weights(m, u, y, 1e-8) for m in (net, lin)]
+    monkeypatch.setattr(selection, "CHUNK_ROWS", 500)
+    calls: list[int] = []
+    real = selection.fit_in_blocks
+    monkeypatch.setattr(selection, "fit_in_blocks", lambda *a, **k: calls.append(1) or real(*a, **k))
+    got = [selection.refit_weights(m, u, y, 1e-8) for m in (net, lin)]
+    assert len(calls) == 2  # both streamed
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g.weights, w.weights, rtol=1e-8, atol=1e-10)
+        assert g.metrics["fitness"] == pytest.approx(w.metrics["fitness"], rel=1e-9)
+    np.testing.assert_allclose(got[1].linear, want[1].linear, rtol=1e-8, atol=1e-10)
+
+
+def test_a_candidate_fitted_on_given_rows_is_model_for_s_fit_on_those_rows() -> None:
+    from benchmarks.long_records import reactor_record
+    from streamid.engine.search.coevolution import Coevolution
+
+    u, y = reactor_record(900, "uniform", 41)
+    cfg = DEFAULT.replace(restarts=1, generations=4, lag_search_neurons=0, neurons=6, max_lag_cap=0, max_lag_y=2,
+                          max_lag_u=2, search_rows=200)
+    run = Coevolution(u[:, None], y, cfg, 0, rows=np.sort(np.random.default_rng(1).choice(898, 200, replace=False)))
+    run.solve()
+    h, x = run.candidate_pairs(None)[0]
+    every = run.model_for(h, x)
+    same = run.model_on_rows(h, x, np.arange(len(run.target)))
+    np.testing.assert_allclose(same.weights, every.weights, rtol=1e-9, atol=1e-12)
+    half = run.model_on_rows(h, x, np.arange(0, len(run.target), 2))
+    assert not np.allclose(half.weights, every.weights, rtol=1e-9)  # other rows, another least squares
+    assert half.centres.tolist() == every.centres.tolist() and half.lags == every.lags

@@ -175,8 +175,9 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         lag_run = Coevolution(u, y, lag_cfg, rng, harmony_stop=1.0, **common).solve(_stage(tick, 0, 0))
         evaluations = lag_run.evaluations
         # ...(always with an input term: streamid.engine.search.lagspace)...
-        mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,
-                                         lag_run.R, lag_run.target)
+        R, target = (lag_run.R, lag_run.target) if sample is None else lag_run.searched  # beyond one chunk:
+        mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,  # the sample's
+                                         R, target)  # rows, never every row's candidate lags at once
         # ...then DE trains the full network on those lags.
         run = Coevolution(u, y, cfg, rng, fixed_mask=mask, **common).solve(
             _stage(tick, lag_cfg.generations, evaluations))

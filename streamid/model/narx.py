@@ -263,9 +263,13 @@ class Model:
 
     def _phi(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
         d2 = np.zeros((r.shape[0], self.neurons))
+        tmp = np.empty_like(d2)  # in place: one temporary, not three per regressor (the same values to the bit)
         for j in range(r.shape[1]):
-            d2 += (r[:, j : j + 1] - self.centres[None, :, j]) ** 2
-        return np.exp(-d2 / (2.0 * self.widths**2))
+            np.subtract(r[:, j : j + 1], self.centres[None, :, j], out=tmp)
+            np.square(tmp, out=tmp)
+            d2 += tmp
+        np.divide(d2, -(2.0 * self.widths**2), out=d2)  # -d2 / (2 w^2): negation is exact
+        return np.exp(d2, out=d2)
 
     def regressor_rows(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The normalised regressors of rows ``t >= max_lag`` (one column per regressor) and the normalised targets.

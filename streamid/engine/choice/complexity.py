@@ -123,17 +123,20 @@ def ols_order(phi: NDArray[np.float64], target: NDArray[np.float64]) -> list[int
 
 
 def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: tuple[int, ...],
-           ridge: float) -> list[Model]:
+           ridge: float, rows: NDArray[np.intp] | None = None) -> list[Model]:
     """Smaller networks made of ``model``'s first neurons in :func:`ols_order` on ``(u, y)``, weights refitted.
 
     One network per size in ``sizes`` below ``model.neurons`` (same regressors, centres
-    and widths of the neurons kept; a linear part, if any, refitted with the weights).
+    and widths of the neurons kept; a linear part, if any, refitted with the weights). ``rows``: the order and the
+    fits on those regressor rows only (a record beyond one chunk: :func:`~streamid.engine.search.rows.spaced_rows`).
     """
     _single("pruned", model)
     if model.linear_regressors is not None:
         raise ModelFormatError("pruned takes networks whose linear part (if any) is on their own regressors; "
                                "got one with a long linear part")
     r, target = model.regressor_rows(u, y)
+    if rows is not None:
+        r, target = r[rows], target[rows]
     phi = activations(r, model.centres, model.widths)
     order = ols_order(phi, target)
     out: list[Model] = []

@@ -44,6 +44,12 @@ The rule (applied by :func:`~streamid.engine.identification.identify` after the 
   ``metrics.refinement``; a refined model's ``metrics.fitness`` is its one-step MSE on the estimation
   record (``Result.fitness``: the final model's, as for an ensemble).
 
+* **Beyond one chunk** (an estimation record of more than ``CHUNK_ROWS`` rows): the free runs of the refinement, of
+  its held-out judgement and of "kept only if better" are made on :data:`~streamid.engine.choice.scores.SEGMENTS`
+  contiguous segments of the part of the record concerned (``SEGMENT_ROWS`` scored rows in all, evenly spaced from
+  its first sample to its last), each from its own first measured outputs (docs/method.md, "Long records": what
+  is sampled and why it is safe); up to one chunk, one free run over every row as above.
+
 Not applied by ``--paper``; applied to each online coevolution run's model (``streamid.online.stream_config.
 ONLINE_REFINE``; ``engine.refine_iterations = 0``: off). Numerics only: no I/O, no randomness.
 """
@@ -59,8 +65,9 @@ from numpy.typing import NDArray
 
 from streamid.engine.settings import REFINE_ABOVE as ABOVE
 from streamid.engine.choice.sensitivities import free_run_sensitivities
-from streamid.engine.choice.scores import path_score
+from streamid.engine.choice.scores import path_score, segments
 from streamid.engine.choice.stability import is_bounded
+from streamid.engine.fit.blas import one_blas_thread
 from streamid.model.ensemble import EnsembleModel, members_of
 from streamid.model.limits import CHUNK_ROWS
 from streamid.threads import thread_map
@@ -91,6 +98,18 @@ def chunks(L: int, n: int) -> list[tuple[int, int]]:
     """The rows ``[a, b)`` of each chunk of a free run over ``n`` samples from ``L`` given ones (the first from
     ``L``, then :data:`CHUNK_ROWS` each)."""
     return [(a, min(n, a + CHUNK_ROWS)) for a in range(L, n, CHUNK_ROWS)] or [(L, n)]
+
+
+class _Piece:
+    """One contiguous part of the record a refinement's free runs are made on: its normalised inputs and outputs,
+    every network's :func:`parts` and linear columns on it, its chunks (:func:`chunks`)."""
+
+    def __init__(self, nets: tuple[Model, ...], un: NDArray[np.float64], yn: NDArray[np.float64], L: int) -> None:
+        self.un, self.yn, self.n = un, yn, int(un.shape[0])
+        self.P = [parts(m, un) for m in nets]
+        self.lin = [None if m.linear is None else _linear_columns(m, un) for m in nets]
+        self.none = np.zeros((self.n, 0))
+        self.bounds = chunks(L, self.n)
 
 
 def parts(model: Model, un: NDArray[np.float64]) -> tuple[NDArray[Any], ...]:
@@ -163,7 +182,7 @@ def _model_order(M: int, yj: list[int], uj: list[int]) -> NDArray[np.intp]:
 
 def refine_weights(
     model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float, range_margin: float,
-    threads: int = 1,
+    threads: int = 1, segments: list[tuple[int, int]] | None = None,
 ) -> tuple[Model, dict[str, Any]]:
     """``model`` with its output weights refined to its free run on ``(u, y)`` (the rule above).
 
@@ -181,6 +200,9 @@ def refine_weights(
         The range guard's margin (``CoEAConfig.range_margin``).
     threads : int
         An ensemble's members simulated in that many threads (a caller with a core to spare; the same result).
+    segments : list of (start, stop), optional
+        The free run made and scored on these contiguous parts of the record only, each from its own first
+        ``max_lag`` measured outputs (:func:`~streamid.engine.choice.scores.segments`; a record beyond one chunk); None: one free run over it all.
 
     Returns
     -------
@@ -188,74 +210,77 @@ def refine_weights(
         The refined model (or ``model`` itself) and the evidence for ``metrics.refinement``.
     """
     ev: dict[str, Any] = {"gate": float(above), "iterations": 0, "taken": False}
+    if segments is not None:
+        ev["segments"] = {"count": len(segments), "rows": int(sum(b - a for a, b in segments)), "of": int(len(y))}
     if iterations < 1:
         return model, {**ev, "reason": "off"}
     nets = members_of(model)
     if any(m.linear_regressors is not None for m in nets):  # its hundreds of coefficients: fitted by least squares
         return model, {**ev, "reason": "a long linear part (not refined)"}
     norm = model.normalisation
-    un, yn = norm.u(u), norm.y(y)
     L = max(m.max_lag for m in nets)
     lo, hi = float(np.min(y)), float(np.max(y))
     K = len(nets)
     W = [m.weights.copy() if m.linear is None else np.concatenate([m.weights, m.linear]) for m in nets]
     sizes = [w.size for w in W]
-    P = [parts(m, un) for m in nets]
-    lin = [None if m.linear is None else _linear_columns(m, un) for m in nets]
-    orders = [None if li is None else _model_order(m.neurons, li[1], li[2]) for m, li in zip(nets, lin)]
-    none = np.zeros((un.shape[0], 0))
     offs = np.cumsum([0, *sizes])
+    pieces = [_Piece(nets, norm.u(u[s:b]), norm.y(y[s:b]), L) for s, b in ([(0, len(y))] if segments is None
+                                                                           else segments)]
+    target = pieces[0].yn[L:] if len(pieces) == 1 else np.concatenate([p.yn[L:] for p in pieces])
+    y_scored = y[L:] if segments is None else np.concatenate([y[s + L : b] for s, b in segments])
+    orders = [None if li is None else _model_order(m.neurons, li[1], li[2]) for m, li in zip(nets, pieces[0].lin)]
 
-    n = un.shape[0]
-    bounds = chunks(L, n)
-
-    def one(i: int, theta: NDArray[np.float64], start: int, stop: int, y0: NDArray[np.float64],
+    def one(p: _Piece, i: int, theta: NDArray[np.float64], start: int, stop: int, y0: NDArray[np.float64],
             s0: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Network ``i``'s free run over rows ``start..stop-1`` with parameters ``theta`` (weights, then a linear
-        part) and its derivatives (the kernel's column order), its first ``max_lag`` outputs ``y0`` and their
-        derivatives ``s0`` given."""
-        du, cy, a, lags, lin_y, lin_u = P[i]
-        M, li, Li = nets[i].neurons, lin[i], nets[i].max_lag
+        """Network ``i``'s free run over rows ``start..stop-1`` of piece ``p`` with parameters ``theta`` (weights,
+        then a linear part) and its derivatives (the kernel's column order), its first ``max_lag`` outputs ``y0``
+        and their derivatives ``s0`` given."""
+        du, cy, a, lags, lin_y, lin_u = p.P[i]
+        M, li, Li = nets[i].neurons, p.lin[i], nets[i].max_lag
         if li is None:
             return free_run_sensitivities(du[start:stop], cy, a, lags, theta, lin_y, lin_u[start:stop], y0, Li,
-                                          none[start:stop], 0, s0)
+                                          p.none[start:stop], 0, s0)
         xu, yj, uj = li
         c = theta[M:]
         return free_run_sensitivities(du[start:stop], cy, a, lags, theta[:M], np.ascontiguousarray(c[yj]),
                                       xu[start:stop] @ np.append(c[uj], c[-1]), y0, Li, xu[start:stop], len(yj), s0)
 
     def runs(ws: list[NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """The mean free run with parameters ``ws``, ``J'J`` and ``J'(y - mean)`` (rows L:), ``J`` the Jacobian of
-        that mean by all of them: made :data:`CHUNK_ROWS` rows at a time (each member's free run continued from
+        """The mean free run with parameters ``ws`` on the rows scored (each piece's from its ``L``-th), ``J'J``
+        and ``J'(y - mean)``, ``J`` the Jacobian of that mean by all of them: each piece a free run of its own from
+        its measured first outputs, made :data:`CHUNK_ROWS` rows at a time (each member's free run continued from
         the outputs and derivatives that end the chunk before), so that no ``n x parameters`` array is held."""
-        mean = np.empty(n)
+        scored: list[NDArray[np.float64]] = []
         jtj, jtr = np.zeros((w0_size, w0_size)), np.zeros(w0_size)
-        tails: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
-        for k, (a, b) in enumerate(bounds):
+        for p in pieces:
+            mean = np.empty(p.n)
+            tails: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+            for k, (a, b) in enumerate(p.bounds):
 
-            def member(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-                Li = nets[i].max_lag
-                y0, s0 = (yn, np.zeros((Li, sizes[i]))) if k == 0 else tails[i]
-                with np.errstate(over="ignore", invalid="ignore"):  # (numpy's error state is each thread's own)
-                    return one(i, ws[i], 0 if k == 0 else a - Li, b, y0, s0)
+                def member(i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                    Li = nets[i].max_lag
+                    y0, s0 = (p.yn, np.zeros((Li, sizes[i]))) if k == 0 else tails[i]
+                    with np.errstate(over="ignore", invalid="ignore"):  # (numpy's error state is each thread's own)
+                        return one(p, i, ws[i], 0 if k == 0 else a - Li, b, y0, s0)
 
-            outs = thread_map(member, range(K), threads)
-            tails = [(Y[Y.shape[0] - m.max_lag :].copy(), S[S.shape[0] - m.max_lag :].copy())
-                     for (Y, S), m in zip(outs, nets)]
-            first = 0 if k == 0 else a  # the first chunk's rows start at 0 for every member
-            with np.errstate(over="ignore", invalid="ignore"):
-                mean[first:b] = np.mean([Y[Y.shape[0] - (b - first) :] for Y, _ in outs], axis=0)
-                J = np.concatenate([(S if o is None else S[:, o])[S.shape[0] - (b - a) :]
-                                    for (_, S), o in zip(outs, orders)], axis=1) / K
-                jtj += J.T @ J
-                jtr += J.T @ (yn[a:b] - mean[a:b])
-        return mean, jtj, jtr
+                outs = thread_map(member, range(K), threads)
+                tails = [(Y[Y.shape[0] - m.max_lag :].copy(), S[S.shape[0] - m.max_lag :].copy())
+                         for (Y, S), m in zip(outs, nets)]
+                first = 0 if k == 0 else a  # the first chunk's rows start at 0 for every member
+                with np.errstate(over="ignore", invalid="ignore"):
+                    mean[first:b] = np.mean([Y[Y.shape[0] - (b - first) :] for Y, _ in outs], axis=0)
+                    J = np.concatenate([(S if o is None else S[:, o])[S.shape[0] - (b - a) :]
+                                        for (_, S), o in zip(outs, orders)], axis=1) / K
+                    jtj += J.T @ J
+                    jtr += J.T @ (p.yn[a:b] - mean[a:b])
+            scored.append(mean[L:])
+        return (scored[0] if len(scored) == 1 else np.concatenate(scored)), jtj, jtr
 
     w0_size = int(sum(sizes))
     mean, jtj, jtr = runs(W)
     with np.errstate(over="ignore", invalid="ignore"):
-        ok = bool(np.all(np.isfinite(mean[L:])))
-        score = path_score(norm.y_inverse(mean), y, L, L, lo, hi, range_margin)[0] if ok else -np.inf
+        ok = bool(np.all(np.isfinite(mean)))
+        score = path_score(norm.y_inverse(mean), y_scored, 0, 0, lo, hi, range_margin)[0] if ok else -np.inf
     ev["r2_fr_est_before"] = float(score) if np.isfinite(score) else None
     if not score >= above:
         return model, {**ev, "reason": f"estimation free-run R2 {score:.4f} below the gate {above}"}
@@ -265,7 +290,7 @@ def refine_weights(
 
     def objective(mean_run: NDArray[np.float64], w: NDArray[np.float64]) -> float:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial's free run: inf, refused below
-            return float(np.sum((yn[L:] - mean_run[L:]) ** 2) + rho * np.sum((w - w0) ** 2))
+            return float(np.sum((target - mean_run) ** 2) + rho * np.sum((w - w0) ** 2))
 
     cost = cost0 = objective(mean, w0)
     lam, trials = DAMPING[0], 0
@@ -301,7 +326,7 @@ def refine_weights(
         refined: Model = replace(model, members=tuple(_with(m, w) for m, w in zip(nets, W)))
     else:
         refined = _with(model, W[0])
-    after, excursion = path_score(norm.y_inverse(mean), y, L, L, lo, hi, range_margin)
+    after, excursion = path_score(norm.y_inverse(mean), y_scored, 0, 0, lo, hi, range_margin)
     ev.update(r2_fr_est_after=float(after) if np.isfinite(after) else None, excursion_spans=float(excursion))
     if not after > score:
         ev["reason"] = "the refined free run leaves the range" if excursion > 0 else "no gain on the whole record"
@@ -321,17 +346,38 @@ def refine_judged(
     """:func:`refine_weights` judged out of sample (the rule above): refined on the first half of ``(u, y)``, the
     refinement is made on the whole record only if that half's refined model free-runs better than ``model`` over
     the second half (both simulated from the record's start, R^2 over the second half). The evidence is
-    :func:`refine_weights`'s with ``held_out`` (samples, and the two R^2 when the half was refined)."""
+    :func:`refine_weights`'s with ``held_out`` (samples, and the two R^2 when the half was refined).
+
+    Beyond one chunk (:func:`~streamid.engine.choice.scores.segments`) every free run of the three steps is made on
+    segments of its part of the record (the first half, the second, the whole), each from its own measured outputs,
+    and the evidence says how many (``segments``): the cost is bounded, not the record's."""
     if iterations < 1:
         return refine_weights(model, u, y, iterations, above, range_margin, threads)
-    h = len(y) // 2
-    half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads)
+    h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
+    whole = segments(0, len(y), L)  # beyond one chunk: each step on segments of the record (docs/method.md)
+    if whole is not None:  # and in one BLAS thread: its J'J products waited on the second one (STACK.md)
+        with one_blas_thread():
+            return _judged(model, u, y, iterations, above, range_margin, threads, whole)
+    return _judged(model, u, y, iterations, above, range_margin, threads, whole)
+
+
+def _judged(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float,
+            range_margin: float, threads: int, whole: list[tuple[int, int]] | None) -> tuple[Model, dict[str, Any]]:
+    """:func:`refine_judged`'s work (``whole``: the record's segments beyond one chunk, else None)."""
+    h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
+    half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads,
+                                   None if whole is None else segments(0, h, L))
     held: dict[str, Any] = {"samples": int(len(y) - h)}
     if ev_half.get("taken"):
-        held.update(r2_fr_before=_r2_after(model, u, y, h), r2_fr_after=_r2_after(half, u, y, h))  # None: diverged
+        if whole is None:
+            held.update(r2_fr_before=_r2_after(model, u, y, h), r2_fr_after=_r2_after(half, u, y, h))  # None: diverged
+        else:
+            judged = segments(h - L, len(y), L) or [(h - L, len(y))]
+            held.update(r2_fr_before=_r2_on(model, u, y, judged, L), r2_fr_after=_r2_on(half, u, y, judged, L),
+                        segments=len(judged))
         before, after = (-math.inf if held[k] is None else held[k] for k in ("r2_fr_before", "r2_fr_after"))
         if after > before:
-            refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads)
+            refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads, whole)
             return refined, {**ev, "held_out": held}
         reason = f"no gain on the held-out second half (free-run R2 {before:.5f} -> {after:.5f} refined on the first)"
     else:
@@ -344,6 +390,15 @@ def _r2_after(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], h: i
     None when it diverged (:func:`~streamid.engine.validation.r2_or_none`)."""
     with np.errstate(over="ignore", invalid="ignore"):
         return r2_or_none(y[h:], model.simulate(u, y[: model.max_lag])[h:])
+
+
+def _r2_on(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], parts_: list[tuple[int, int]],
+           L: int) -> float | None:
+    """R^2 of ``model``'s free runs over the segments ``[start, stop)`` (each from its first ``L`` measured
+    outputs) on their samples after those; None when one diverged."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        sims = [model.simulate(u[a:b], y[a : a + model.max_lag])[L:] for a, b in parts_]
+        return r2_or_none(np.concatenate([y[a + L : b] for a, b in parts_]), np.concatenate(sims))
 
 
 def _with(model: Model, theta: NDArray[np.float64]) -> Model:

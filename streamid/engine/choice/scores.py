@@ -43,7 +43,8 @@ from streamid.engine.choice.stability import is_bounded
 from streamid.engine.validation import r2
 from streamid.errors import DataError, ModelFormatError
 
-__all__ = ["FreeRunScores", "free_run_scores", "group_free_run", "path_score"]
+__all__ = ["SEGMENTS", "SEGMENT_ROWS", "FreeRunScores", "free_run_scores", "group_free_run", "path_score",
+           "segment_scores", "segments"]
 
 def group_free_run(models: list[Model], u: NDArray[np.float64], y_init: NDArray[np.float64],
                    threads: int = 1) -> NDArray[np.float64]:
@@ -231,3 +232,72 @@ def _excursion(top: float, bottom: float, lo: float, hi: float, range_margin: fl
     """How far a free run reaching ``[bottom, top]`` goes beyond ``[lo, hi]`` widened by ``range_margin`` of its span
     each side, in spans (0: admissible)."""
     return max(max(top - hi, lo - bottom, 0.0) / (hi - lo) - range_margin, 0.0)
+
+
+#: Beyond one chunk (:data:`CHUNK_ROWS` rows) the free runs that compare candidates or fit a refinement are made on this
+#: many contiguous segments of the estimation record (:func:`segments`; docs/method.md, "Long records")...
+SEGMENTS = 8
+#: ...holding this many scored rows together (each ``SEGMENT_ROWS // SEGMENTS`` after its first ``max_lag``).
+SEGMENT_ROWS = 16_384
+
+
+def segments(first: int, n: int, L: int) -> list[tuple[int, int]] | None:
+    """The segments ``[start, stop)`` of the samples ``first..n-1`` whose free runs stand for the whole: None when
+    those hold at most one chunk (:data:`CHUNK_ROWS`) of rows after their first ``L`` (one free run over them all,
+    as always), else :data:`SEGMENTS` segments of ``L + SEGMENT_ROWS // SEGMENTS`` samples evenly spaced from the
+    first sample to the last (each free run starts from its own first ``L`` measured outputs)."""
+    if n - first - L <= CHUNK_ROWS:
+        return None
+    span = L + SEGMENT_ROWS // SEGMENTS
+    return [(a, a + span) for a in (first + k * (n - first - span) // (SEGMENTS - 1) for k in range(SEGMENTS))]
+
+
+def segment_scores(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64],
+                   parts: list[tuple[int, int]], range_margin: float = RANGE_MARGIN) -> FreeRunScores:
+    """:func:`free_run_scores` on the segments ``parts`` of the record (:func:`segments`) instead of the whole: each
+    candidate simulated on every segment from that segment's first ``L`` measured outputs (``L`` the largest
+    ``max_lag`` of the candidates), its R^2 over the segments' later rows together and its range guard over them
+    against the whole record's range (``[min, max]`` of ``y``). No paths kept. The same rule otherwise (finite,
+    an input term, a stable linear part)."""
+    if not models:
+        raise DataError("no candidate models to choose from")
+    lo, hi = float(np.min(y)), float(np.max(y))
+    if not hi - lo > 0:
+        raise DataError(f"the output is constant over the estimation record (all values {lo!r}); nothing to score")
+    L = max(m.max_lag for m in models)
+    target = np.concatenate([y[a + L : b] for a, b in parts])
+    ss = float(np.sum((target - target.mean()) ** 2))
+    if not ss > 0:
+        raise DataError("the output is constant over the segments scored; nothing to score")
+    C = len(models)
+    sse, top, bottom = np.zeros(C), np.full(C, -np.inf), np.full(C, np.inf)
+    finite = np.ones(C, dtype=bool)
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    for i, m in enumerate(models):
+        key = (("ensemble", i) if isinstance(m, EnsembleModel)
+               else (m.regressors, m.normalisation, m.neurons, m.linear_regressors))
+        groups.setdefault(key, []).append(i)
+    for idx in groups.values():
+        m0 = models[idx[0]]
+        Lm = m0.max_lag
+        for a, b in parts:
+            with np.errstate(over="ignore", invalid="ignore"):
+                if isinstance(m0, EnsembleModel):
+                    ys = m0.simulate(u[a + L - Lm : b], y[a + L - Lm : a + L])[None]
+                else:
+                    ys = m0.normalisation.y_inverse(group_free_run([models[i] for i in idx], u[a + L - Lm : b],
+                                                                   y[a + L - Lm : a + L]))
+                out = ys[:, Lm:]
+                ok = np.all(np.isfinite(out), axis=1)
+                sse[idx] += np.sum((y[None, a + L : b] - out) ** 2, axis=1)
+            finite[idx] &= ok
+            top[idx] = np.maximum(top[idx], np.where(ok, out.max(axis=1), np.inf))
+            bottom[idx] = np.minimum(bottom[idx], np.where(ok, out.min(axis=1), -np.inf))
+    scores, exc = [-np.inf] * C, [np.inf] * C
+    for i, m in enumerate(models):
+        drives = all(any(r.signal == "u" for r in mm.regressors) for mm in members_of(m))
+        if finite[i] and drives and is_bounded(m):
+            e = _excursion(float(top[i]), float(bottom[i]), lo, hi, range_margin)
+            scores[i], exc[i] = ((1.0 - float(sse[i]) / ss) if e == 0.0 else -np.inf), e
+    return FreeRunScores(tuple(float(v) for v in scores), tuple(float(e) for e in exc), float(range_margin),
+                         tuple([None] * C))

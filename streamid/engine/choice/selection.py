@@ -13,12 +13,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.fit.blas import one_blas_thread
-from streamid.engine.choice.scores import RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run
+from streamid.engine.choice.scores import (RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run, segment_scores,
+                                          segments)
 from streamid.engine.choice.complexity import RULE, criterion, padded, parameter_count, pruned
 from streamid.model.ensemble import EnsembleModel
 from streamid.model.narx import Model
 from streamid.engine.choice.longlinear import long_linear_fit
-from streamid.engine.fit.rbf import activations, fit_linear_rbf, fit_weights
+from streamid.engine.fit.rbf import activations, fit_in_blocks, fit_linear_rbf, fit_weights
+from streamid.model.limits import CHUNK_ROWS
+from streamid.engine.search.rows import spaced_rows
 from streamid.model.regressors import as_data
 from streamid.engine.settings import RIDGE
 from streamid.engine.validation import r2
@@ -44,6 +47,8 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Mod
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
     L = model.max_lag
+    if ya.shape[0] - L > CHUNK_ROWS and model.linear_regressors is None:  # beyond one chunk: streamed in blocks
+        return _refit_in_blocks(model, ua, ya, ridge)
     r, target = model.regressor_rows(ua, ya)  # target: the normalised outputs of rows t >= L
     with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
@@ -62,6 +67,21 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Mod
         raise DataError("refitted weights are not finite (numerically degenerate data)")
     mse = float(np.mean((fit - target) ** 2)) * model.normalisation.y_half_range**2
     return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": mse})
+
+
+def _refit_in_blocks(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:
+    """:func:`refit_weights` of a network (its linear part on its own regressors, if any) on a record beyond one
+    chunk: the least squares streamed over blocks of rows (:func:`~streamid.engine.fit.rbf.fit_in_blocks`: the same
+    weights to rounding), never every row's activations at once."""
+    L = model.max_lag
+    target = model.normalisation.y(y)[L:]
+    with one_blas_thread():
+        w, lin, sse = fit_in_blocks(lambda a, b: model.regressor_rows(u[a : b + L], y[a : b + L])[0], target,
+                                    model.centres, model.widths, ridge, model.linear is not None)
+    if not np.all(np.isfinite(w)) or (lin is not None and not np.all(np.isfinite(lin))):
+        raise DataError("refitted weights are not finite (numerically degenerate data)")
+    mse = sse / target.shape[0] * model.normalisation.y_half_range**2
+    return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": float(mse)})
 
 
 def free_run_r2(
@@ -152,7 +172,8 @@ def select_model_path(
     time, :meth:`~streamid.engine.search.coevolution.Coevolution.models_for`'s ``in_blocks`` and
     :func:`~streamid.engine.choice.scores.free_run_scores`'s ``keep_paths=False``, so that a window's memory does not
     grow with every candidate's activations and free run; no path is returned); otherwise every candidate is
-    fitted on all rows.
+    fitted on all rows. Beyond one chunk of rows the screen's free runs are made on segments of the record and
+    there is no full way (:func:`_screened`).
     ``range_margin`` defaults to :data:`~streamid.engine.choice.scores.RANGE_MARGIN`. ``threads`` > 1: the candidates are fitted
     and simulated in that many threads (for a caller with a core to spare; the same result). A run with no
     candidate in range scores below -1e9 (any run with one wins over it); its model says ``admissible: 0``.
@@ -199,7 +220,8 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     model's). Evidence in ``metrics.neuron_choice``."""
     M = model.neurons
     with one_blas_thread():
-        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), RIDGE)
+        smaller = pruned(model, u, y, (M // 3, 2 * M // 3), RIDGE,
+                         spaced_rows(len(y) - model.max_lag))  # beyond one chunk: fitted on evenly spaced rows
         if not smaller:
             return model, score, path
         fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run
@@ -213,20 +235,56 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1]), path if k == 0 else fr.paths[k - 1]
 
 
+#: Beyond the screen (:func:`_screened`): the admissible candidates refitted on every row, best first, at most this many.
+REFITS_TRIED = 3
+
+
 def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float,
               ) -> tuple[Model, float, NDArray[np.float64] | None] | None:
     """``"fr_est"`` on a large record with candidates fitted on the search's rows only, the chosen one refitted on
-    all rows and scored again; None (choose the full way) when that refit is not admissible."""
+    all rows and scored again; None (choose the full way) when that refit is not admissible and the record is one
+    chunk or less.
+
+    Beyond one chunk (:func:`~streamid.engine.choice.scores.segments`) the candidates' free runs are made on the
+    record's segments, and the choice stays bounded whatever happens: the admissible candidates are refitted on
+    :func:`~streamid.engine.search.rows.spaced_rows` in turn, best first (at most :data:`REFITS_TRIED`), the first
+    whose free run over every row is admissible kept; when none is (a free run that holds on 2,048-sample segments
+    and drifts over the whole record), the full way's rule with bounded fits: every candidate fitted on those rows
+    and free-run over every row, streamed (the online rule's fallback, its least squares on 65,536 rows)."""
     pairs = run.candidate_pairs(run.config.fr_candidates or None)
     cands = [run.model_for(h, x, search_rows=True) for h, x in pairs]
+    parts = segments(0, len(y), max(m.max_lag for m in cands))
     with one_blas_thread():
-        fr = free_run_scores(cands, u, y, range_margin=margin, keep_paths=False)  # bounded memory: no paths kept
-        if not fr.admissible:
+        fr = (free_run_scores(cands, u, y, range_margin=margin, keep_paths=False) if parts is None  # bounded memory
+              else segment_scores(cands, u, y, parts, margin))
+        if parts is None and not fr.admissible:
             return None
-        k = fr.best()
-        final = run.model_for(*pairs[k])
-        again = free_run_scores([final], u, y, range_margin=margin)
-    if not again.admissible:
-        return None
-    ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible, "screened_on_rows": run.search_rows}
-    return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
+        order = [int(k) for k in np.argsort(-np.asarray(fr.scores), kind="stable") if fr.excursions[k] == 0.0]
+        spaced = None if parts is None else spaced_rows(len(run.target))
+
+        def refit(k: int) -> Model:  # on every row; beyond one chunk on CHUNK_ROWS evenly spaced rows
+            return run.model_for(*pairs[k]) if spaced is None else run.model_on_rows(*pairs[k], spaced)
+
+        tried: list[tuple[float, Model, FreeRunScores]] = []
+        for k in order[: 1 if parts is None else REFITS_TRIED]:
+            final = refit(k)
+            again = free_run_scores([final], u, y, range_margin=margin)
+            if again.admissible:
+                ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible,
+                      "screened_on_rows": run.search_rows}
+                if parts is not None:
+                    ev["screened_on_segments"] = {"count": len(parts), "rows": int(sum(b - a for a, b in parts))}
+                return final.with_metrics(free_run_choice=ev), float(again.scores[0]), again.paths[0]
+            tried.append((again.excursions[0], final, again))
+        if parts is None:
+            return None
+        # the fallback, bounded: every candidate fitted on the spaced rows, free-run over every row (streamed, no paths)
+        both = run.config.linear_terms  # both kinds compete, as in the full way (_by_criterion)
+        full = [run.model_on_rows(*pairs[k], spaced, linear=kind) for kind in ((None, False) if both else (None,))
+                for k in range(len(pairs))] if spaced is not None else [refit(k) for k in range(len(pairs))]
+        fb = free_run_scores(full, u, y, range_margin=margin, keep_paths=False)
+    k = _by_criterion(full, fb, len(y)) if both and fb.admissible else fb.best()
+    score = fb.scores[k] if fb.admissible else -1e9 * (1.0 + min(fb.excursions[k], 1e6))  # finite: JSON-able
+    ev = {**fb.evidence(k), "screened_on_rows": run.search_rows, "admissible_on_segments": fr.admissible,
+          "refitted_first": len(tried), "fallback": "every candidate on spaced rows, free run over every row"}
+    return full[k].with_metrics(free_run_choice=ev), float(score), None

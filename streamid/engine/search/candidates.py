@@ -68,6 +68,23 @@ class CandidateModels:
             phi = activations(R[:, cols], x[: M * D].reshape(M, D)[:, cols], x[M * D :])
             return self._fitted(cols, x, phi, R[:, cols], target)
 
+    def model_on_rows(self, mask: NDArray[np.bool_], x: NDArray[np.float64], rows: NDArray[np.intp],
+                      linear: bool | None = None) -> Model:
+        """:meth:`model_for` with the weights fitted on the regressor rows ``rows`` only (a record beyond one chunk:
+        :func:`~streamid.engine.search.rows.spaced_rows`; its memory and time those rows', not the record's); ``linear``
+        as :meth:`_fitted`'s."""
+        M, D = self.config.neurons, self.D
+        cols = np.flatnonzero(mask)
+        if self._R is not None:
+            R = np.ascontiguousarray(self._R[rows][:, cols])
+        else:
+            un, yn = self._lag_data
+            c = self.config
+            R = np.ascontiguousarray(lag_rows(un, yn, c.max_lag_y, c.max_lag_u, rows, min_lag_u=c.min_lag_u)[:, cols])
+        with one_blas_thread():
+            phi = activations(R, x[: M * D].reshape(M, D)[:, cols], x[M * D :])
+            return self._fitted(cols, x, phi, R, self.target[rows], linear=linear)
+
     def _fitted_in_blocks(self, cols: NDArray[np.intp], x: NDArray[np.float64], linear: bool | None = None,
                           batch: bool = False) -> Model:
         """:meth:`_fitted` on every row of a long record by :func:`~streamid.engine.fit.rbf.fit_in_blocks` (the same
@@ -123,6 +140,12 @@ class CandidateModels:
         un, yn = self._lag_data
         c = self.config
         return lambda a, b: lag_rows(un, yn, c.max_lag_y, c.max_lag_u, np.arange(a, b), min_lag_u=c.min_lag_u)[:, cols]
+
+    @property
+    def searched(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Every candidate lag's regressors and the targets on the rows the search evaluated (every row when it
+        evaluated them all)."""
+        return self._fit_rows(True)
 
     def _fit_rows(self, search_rows: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if search_rows and self._rows is not None:

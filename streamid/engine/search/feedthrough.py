@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from streamid.engine.search.rows import spaced_rows
+
 if TYPE_CHECKING:
     from streamid.engine.search.populations import CoEAState
     from streamid.engine.settings import CoEAConfig
@@ -50,7 +52,8 @@ def feedthrough_test(u: NDArray[np.float64], y: NDArray[np.float64], order: int)
 
     Returns ``{"order", "lr": [LR_i per input], "threshold", "min_lag_u"}`` (``min_lag_u`` 0 when some
     ``LR_i`` exceeds the threshold, else 1); an order the record cannot support (fewer than 10 rows
-    per coefficient) is lowered to one it can.
+    per coefficient) is lowered to one it can. Beyond one chunk of rows the fits use
+    :func:`~streamid.engine.search.rows.spaced_rows` (``n`` in ``LR_i`` is then their count).
     """
     u2 = np.asarray(u, dtype=np.float64).reshape(len(y), -1)
     y1 = np.asarray(y, dtype=np.float64)
@@ -59,11 +62,19 @@ def feedthrough_test(u: NDArray[np.float64], y: NDArray[np.float64], order: int)
     rows = len(y1) - p
     if rows < 3 * (1 + p * (1 + n_in) + n_in):
         return {"order": p, "lr": [0.0] * n_in, "threshold": THRESHOLD, "min_lag_u": 1, "note": "too few samples"}
-    lagged = [y1[p - k : len(y1) - k] for k in range(1, p + 1)]
-    for i in range(n_in):
-        lagged += [u2[p - k : len(y1) - k, i] for k in range(1, p + 1)]
-    direct = [u2[p:, i] for i in range(n_in)]
-    target = y1[p:]
+    pick = spaced_rows(rows)  # beyond one chunk: the two fits on CHUNK_ROWS evenly spaced rows (bounded)
+    if pick is None:
+        lagged = [y1[p - k : len(y1) - k] for k in range(1, p + 1)]
+        for i in range(n_in):
+            lagged += [u2[p - k : len(y1) - k, i] for k in range(1, p + 1)]
+        direct = [u2[p:, i] for i in range(n_in)]
+        target = y1[p:]
+    else:
+        t = p + pick
+        lagged = [y1[t - k] for k in range(1, p + 1)]
+        for i in range(n_in):
+            lagged += [u2[t - k, i] for k in range(1, p + 1)]
+        direct, target, rows = [u2[t, i] for i in range(n_in)], y1[t], int(t.size)
     full = _residual_variance(np.column_stack(lagged + direct), target)
     lr = []
     for i in range(n_in):

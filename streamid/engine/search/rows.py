@@ -69,7 +69,7 @@ from streamid.errors import ConfigError
 from streamid.model.limits import CHUNK_ROWS
 
 __all__ = ["CHUNK_ROWS", "ROWS_PER_WEIGHT", "SEARCH_ROWS", "RowSample", "informative_rows", "long_record_rows",
-           "search_row_bound"]
+           "search_row_bound", "spaced_rows"]
 
 #: The least bound of the search's rows (see the module docstring).
 SEARCH_ROWS = 4096
@@ -132,3 +132,13 @@ def long_record_rows(n_rows: int, cfg: CoEAConfig, n_inputs: int, rng: np.random
         return None
     bound = max(int(cfg.search_rows), search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, n_inputs, {}))
     return informative_rows(n_rows, bound, rng.spawn(1)[0])
+
+
+def spaced_rows(n_rows: int, most: int | None = None) -> NDArray[np.intp] | None:
+    """``most`` (default :data:`CHUNK_ROWS`) of ``n_rows`` rows evenly spaced from the first, for a least squares
+    beyond one chunk that needs no contiguity (the direct-term test, the pruned networks' fits); None: ``n_rows`` is
+    at most that (every row, as always). Deterministic: no draw."""
+    k = CHUNK_ROWS if most is None else int(most)
+    if n_rows <= k:
+        return None
+    return ((np.arange(k, dtype=np.int64) * n_rows) // k).astype(np.intp)
