@@ -14,7 +14,7 @@ from streamid.engine.choice.calibration import calibrate
 from streamid.engine.settings import RIDGE
 from streamid.errors import DataError, ModelFormatError
 from streamid.model import Model
-from streamid.model.domain import domain_text, excess, outside, outside_share
+from streamid.model.domain import domain_text, excess, far_from_domain, outside, outside_share
 from streamid.model.ensemble import EnsembleModel, ensemble_of
 from streamid.model.uncertainty import (BEYOND, LEVELS, Band, Interval, band_coverage, conformal_quantiles, interval_report,
                                         interval_text, member_spread)
@@ -117,7 +117,7 @@ def test_beyond_its_domain_the_band_grows_with_how_far_and_an_older_document_kee
     grown = replace(net, interval=Interval(LEVELS, (0.5, 1.0, 1.5, 2.0, 3.0), 0.1, 100, beyond=BEYOND))
     before = replace(grown, interval=replace(grown.interval, beyond=0.0))  # a document without the rule
     b1, b0 = grown.simulate(u, y, interval=0.9), before.simulate(u, y, interval=0.9)
-    far = grown.far_from_domain(u, b1.y)
+    far = far_from_domain(grown, u, b1.y)
     L = net.max_lag
     assert np.array_equal(b1.y, b0.y) and np.allclose((b0.upper - b0.y)[L:], 1.5 * 0.1)
     assert np.allclose((b1.upper - b1.y)[L:], 1.5 * (0.1 + BEYOND * far[L:]))

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from streamid.model.regressors import Normalisation, Regressor
 
-__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "outside", "outside_share"]
+__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "far_from_domain", "outside", "outside_share"]
 
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -76,6 +76,20 @@ def excess(normalisation: Normalisation, regressors: Sequence[Regressor], u: NDA
         else:
             np.maximum(d, src, out=d)
     return d
+
+
+def far_from_domain(model: Any, u: Any, path: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How far beyond the estimation domain each sample of a free run of ``model`` (a Model, read, not imported)
+    lies, in output units: the farthest regressor's :func:`excess` (any member's; the output's regressors read
+    ``path``, the run's own outputs) times the output's half-range. The band grows by it
+    (:mod:`streamid.model.uncertainty`)."""
+    ua = np.asarray(u, dtype=np.float64)
+    ua = ua.reshape(ua.shape[0], -1)
+    regs = {r for m in getattr(model, "members", (model,)) for r in (*m.regressors, *(m.linear_regressors or ()))}
+    ex = excess(model.normalisation, sorted(regs, key=lambda r: (r.signal, r.index, r.lag)), ua,
+                np.asarray(path, dtype=np.float64))
+    far: NDArray[np.float64] = ex * model.normalisation.y_half_range
+    return far
 
 
 def outside_share(model: Any, u: NDArray[np.float64], y: NDArray[np.float64] | None = None) -> float:

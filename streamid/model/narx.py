@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.freerun import free_run
 from streamid.model.describe import describe
-from streamid.model.domain import excess
+from streamid.model.domain import far_from_domain
 from streamid.model.files import read_model_file
 from streamid.model.limits import CHUNK_ROWS, MIN_WIDTH, check_model_document, osa_block_rows, parse_model_json
 from streamid.model.regressors import Normalisation, Regressor, as_data, check_finite, format_lags, regressor_columns
@@ -345,19 +345,7 @@ class Model:
                             "an earlier streamid): simulate without interval=, or identify it again")
         paths = self.member_paths(u, y_init)
         centre = self.combine_paths(paths, y_init)
-        return self.interval.band(centre, paths, float(interval), self.max_lag, self.far_from_domain(u, centre))
-
-    def far_from_domain(self, u: ArrayLike, path: NDArray[np.float64]) -> NDArray[np.float64]:
-        """How far beyond the estimation domain each sample of a free run lies, in output units: the farthest
-        regressor's excess (:func:`streamid.model.domain.excess`; the output's regressors read ``path``, the run's
-        own outputs) times the output's half-range. The band grows by it (:mod:`streamid.model.uncertainty`)."""
-        ua = np.asarray(u, dtype=np.float64)
-        ua = ua.reshape(ua.shape[0], -1)
-        regs = {r for m in getattr(self, "members", (self,)) for r in (*m.regressors, *(m.linear_regressors or ()))}
-        ex = excess(self.normalisation, sorted(regs, key=lambda r: (r.signal, r.index, r.lag)), ua,
-                    np.asarray(path, dtype=np.float64))
-        far: NDArray[np.float64] = ex * self.normalisation.y_half_range
-        return far
+        return self.interval.band(centre, paths, float(interval), self.max_lag, far_from_domain(self, u, centre))
 
     def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
         """The free runs of the model's networks, shape ``(K, N)``: one row for a single network, a member's each

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.errors import DataError, ModelFormatError
+from streamid.model.domain import far_from_domain
 
 __all__ = ["BEYOND", "Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "band_coverage", "conformal_quantiles",
            "interval_report", "interval_text", "member_spread"]
@@ -179,7 +180,7 @@ def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], 
     L = int(model.max_lag)
     with np.errstate(over="ignore", invalid="ignore"):
         if free_run is not None and len(getattr(model, "members", (model,))) == 1:
-            band = interval.band(free_run, free_run[None, :], float(level), L, model.far_from_domain(u, free_run))
+            band = interval.band(free_run, free_run[None, :], float(level), L, far_from_domain(model, u, free_run))
         else:
             band = model.simulate(u, y[:L], interval=level)
     return {"level": float(level), **band_coverage(y, band, L)}

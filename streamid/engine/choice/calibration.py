@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from streamid.engine.choice.selection import refit_weights
 from streamid.errors import DataError
+from streamid.model.domain import far_from_domain
 from streamid.model.narx import Model
 from streamid.model.uncertainty import BEYOND, LEVELS, MIN_CALIBRATION, Interval, conformal_quantiles, member_spread
 
@@ -48,7 +49,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
         paths = half.member_paths(u, y[: half.max_lag])
         centre = half.combine_paths(paths, y)
         err = y[h:] - centre[h:]
-        spread = member_spread(paths)[h:] + BEYOND * half.far_from_domain(u, centre)[h:]  # the band's own terms
+        spread = member_spread(paths)[h:] + BEYOND * far_from_domain(half, u, centre)[h:]  # the band's own terms
     if not (np.all(np.isfinite(err)) and np.all(np.isfinite(spread))):
         return None, {"reason": "the model refitted on the first half diverged in free run over the second half",
                       "samples": n - h}
@@ -66,7 +67,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
             # of hundreds of lags) where the model itself does not: its errors say nothing of the model's; the
             # model's own errors on the second half are used instead (in sample: narrower than a held-out band)
             err, method, held_out = own_err, METHOD_IN_SAMPLE, False
-            spread = member_spread(own_paths)[h:] + BEYOND * model.far_from_domain(u, own_centre)[h:]
+            spread = member_spread(own_paths)[h:] + BEYOND * far_from_domain(model, u, own_centre)[h:]
     scale = float(np.sqrt(np.mean(err**2)))
     den = scale + spread
     scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
