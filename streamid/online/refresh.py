@@ -48,9 +48,7 @@ import numpy as np
 import scipy.linalg
 
 from streamid.model import Model
-from streamid.engine.choice.calibration import with_interval
 from streamid.engine.fit.rbf import MIN_NORM, activations
-from streamid.engine.settings import RIDGE
 from streamid.engine.choice.stability import ar_radius, is_bounded, radius
 from streamid.online.head import OutputHead
 from streamid.online.refresh_policy import RefreshPolicy
@@ -280,9 +278,8 @@ def refresh_window(job: RefreshJob) -> Outcome:
     if not is_bounded(model):
         return Outcome("failed", f"the refreshed linear part's autoregression is unstable (largest root "
                        f"{ar_radius(model):.4g}); the coevolution reruns", "refresh_failed", signature=sig, **common)
-    # its own interval, calibrated as a coevolution run's model is (the structure refitted on the window's first
-    # half, scored on its second): the champion's would describe other weights and other data
-    model = with_interval(model, u_est, y_est, RIDGE)
+    # the champion's interval stays (a refresh keeps the structure): calibrating the refreshed weights' own band
+    # cost a third of the refreshes a box makes (docs/method.md, "Online"); the next coevolution run calibrates anew
     summary = summarise(model, u_est, y_est, u_val, y_val)
     champ, champ_fr = champion_figures(champion, u_val, y_val)
     return RefreshOutcome(
