@@ -18,6 +18,7 @@ import statistics
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 __all__ = [
@@ -27,6 +28,8 @@ __all__ = [
     "measure",
     "summarise",
     "format_table",
+    "PeakRun",
+    "run_with_peak",
 ]
 
 
@@ -213,3 +216,69 @@ def format_table(rows: Iterable[Measurement]) -> str:
         if k == 0:
             out.append("|" + "|".join("-" * (w + 2) for w in widths) + "|")
     return "\n".join(out)
+
+
+def _hwm_kib(pid: int) -> int:
+    """The process's peak resident memory so far (``VmHWM`` of /proc/<pid>/status, KiB; 0 when gone or a zombie)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except (OSError, ValueError):
+        pass
+    return 0
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process under ``pid`` (its children's children too), from /proc's ``children`` lists."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            for task in Path(f"/proc/{p}/task").iterdir():
+                kids = [int(k) for k in (task / "children").read_text().split()]
+                out += kids
+                todo += kids
+        except (OSError, ValueError):
+            pass
+    return out
+
+
+@dataclass(frozen=True)
+class PeakRun:
+    """What :func:`run_with_peak` measured of a command."""
+
+    code: int  # exit code (negative: killed by that signal)
+    seconds: float  # wall time
+    peak_kib: int  # its own peak RSS
+    tree_kib: int  # its own peak plus every process it started's (a sum of peaks: an upper bound of the total)
+
+
+def run_with_peak(cmd: Sequence[str], out: Path, err: Path, deadline_s: float,
+                  env: dict[str, str] | None = None) -> PeakRun:
+    """Run ``cmd`` with stdout/stderr to the files ``out``/``err``, reading its own peak RSS and its descendants'
+    every 20 ms while it lives; killed after ``deadline_s`` (stuck). The peak is the process's own high-water mark
+    (``VmHWM``, monotonic): wait4's ``ru_maxrss`` starts from the parent's at the fork on Linux, so under pytest it
+    measured the test process, not the command."""
+    import subprocess
+
+    with open(out, "w") as fo, open(err, "w") as fe:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(list(cmd), stdout=fo, stderr=fe, env=env)
+    deadline = time.monotonic() + deadline_s
+    peak = 0
+    others: dict[int, int] = {}
+    while True:
+        peak = max(peak, _hwm_kib(proc.pid))  # (a zombie's status has no VmHWM: 0, the peak read before stands)
+        for kid in _descendants(proc.pid):
+            others[kid] = max(others.get(kid, 0), _hwm_kib(kid))
+        pid, status, _ = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.monotonic() > deadline:
+            proc.kill()
+            pid, status, _ = os.wait4(proc.pid, 0)
+            break
+        time.sleep(0.02)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return PeakRun(proc.returncode, time.perf_counter() - t0, peak, peak + sum(others.values()))

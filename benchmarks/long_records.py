@@ -17,17 +17,15 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.kit import Measurement
+from benchmarks.kit import Measurement, run_with_peak
 
 SECTION = "long"
 #: A child that runs longer than this is stopped (a bound on a stuck run, not a measure of speed).
@@ -54,59 +52,15 @@ def write_record(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> int:
     return sum(len(y) for _, y in parts)
 
 
-def _hwm_kib(pid: int) -> int:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    except (OSError, ValueError):
-        pass
-    return 0
-
-
-def _descendants(pid: int) -> list[int]:
-    """Every process under ``pid`` (its children's children too), from /proc's ``children`` lists."""
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        try:
-            for task in Path(f"/proc/{p}/task").iterdir():
-                kids = [int(k) for k in (task / "children").read_text().split()]
-                out += kids
-                todo += kids
-        except (OSError, ValueError):
-            pass
-    return out
-
-
 def run_measured(args: list[str], workdir: Path) -> dict[str, Any]:
     """``python -m streamid ARGS`` in a child: its exit code, wall seconds, own peak RSS (MiB), stdout, and
     ``tree_mib``: the sum of the peaks of it and every process it started (``identify`` runs its restarts in worker
     processes; a sum of peaks bounds the simultaneous total from above)."""
     cmd = [sys.executable, "-m", "streamid", *args]
-    with open(workdir / "out", "w") as fo, open(workdir / "err", "w") as fe:
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=fo, stderr=fe, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    deadline = time.monotonic() + DEADLINE_S
-    peak = 0
-    others: dict[int, int] = {}
-    while True:
-        peak = max(peak, _hwm_kib(proc.pid))
-        for kid in _descendants(proc.pid):
-            others[kid] = max(others.get(kid, 0), _hwm_kib(kid))
-        pid, status, _ = os.wait4(proc.pid, os.WNOHANG)
-        if pid:
-            break
-        if time.monotonic() > deadline:
-            proc.kill()
-            pid, status, _ = os.wait4(proc.pid, 0)
-            break
-        time.sleep(0.02)
-    seconds = time.perf_counter() - t0
-    code = os.waitstatus_to_exitcode(status)
-    if code != 0:
-        raise RuntimeError(f"{' '.join(args)} exited {code}: {(workdir / 'err').read_text()[-2000:]}")
-    return {"code": code, "seconds": seconds, "peak_mib": peak / 1024.0, "tree_mib": (peak + sum(others.values())) / 1024.0,
+    run = run_with_peak(cmd, workdir / "out", workdir / "err", DEADLINE_S, {**os.environ, "PYTHONUNBUFFERED": "1"})
+    if run.code != 0:
+        raise RuntimeError(f"{' '.join(args)} exited {run.code}: {(workdir / 'err').read_text()[-2000:]}")
+    return {"code": run.code, "seconds": run.seconds, "peak_mib": run.peak_kib / 1024.0, "tree_mib": run.tree_kib / 1024.0,
             "stdout": (workdir / "out").read_text()}
 
 

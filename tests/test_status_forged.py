@@ -8,7 +8,6 @@ endpoint (anyone who reaches the daemon without access control), or a process of
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -102,35 +101,10 @@ def test_status_under_a_flood_of_large_answers_reads_a_bounded_part_in_bounded_m
 
 
 def _run_measured(cmd: list[str], tmp_path: Path) -> tuple[int, int, str, str]:
-    """Run ``cmd``; (exit code, its own peak RSS in KiB, stdout, stderr); killed after 120 s (stuck).
+    """Run ``cmd``; (exit code, its own peak RSS in KiB, stdout, stderr); killed after 120 s (stuck). The peak is
+    its own VmHWM read while it lives (:func:`benchmarks.kit.run_with_peak`: wait4's ru_maxrss would start from the
+    pytest worker's, 800 MB after other tests in the same worker, not the command's)."""
+    from benchmarks.kit import run_with_peak
 
-    The peak is the process's own high-water mark (``VmHWM`` of /proc/<pid>/status, monotonic), read every 20 ms
-    while it lives: wait4's ``ru_maxrss`` starts from the parent's at the fork on Linux, so under pytest it
-    measured the test process (800 MB after other tests in the same worker), not the command."""
-    import time
-
-    def hwm_kib(pid: int) -> int:
-        try:
-            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1])
-        except (OSError, ValueError):
-            pass
-        return 0
-
-    with open(tmp_path / "out", "w") as fo, open(tmp_path / "err", "w") as fe:
-        proc = subprocess.Popen(cmd, stdout=fo, stderr=fe)
-    deadline = time.monotonic() + 120  # a deadline for a stuck command, not a measure of speed
-    peak = 0
-    while True:
-        peak = max(peak, hwm_kib(proc.pid))  # (a zombie's status has no VmHWM: 0, the peak read before stands)
-        pid, status, _usage = os.wait4(proc.pid, os.WNOHANG)
-        if pid:
-            break
-        if time.monotonic() > deadline:
-            proc.kill()
-            pid, status, _usage = os.wait4(proc.pid, 0)
-            break
-        time.sleep(0.02)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return (proc.returncode, peak, (tmp_path / "out").read_text(), (tmp_path / "err").read_text())
+    run = run_with_peak(cmd, tmp_path / "out", tmp_path / "err", 120.0)  # a deadline for a stuck command, not a speed
+    return (run.code, run.peak_kib, (tmp_path / "out").read_text(), (tmp_path / "err").read_text())
