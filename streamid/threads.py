@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
-__all__ = ["thread_map"]
+__all__ = ["cores", "thread_map"]
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -21,3 +22,12 @@ def thread_map(fn: Callable[[J], R], items: Sequence[J], threads: int) -> list[R
         return [fn(x) for x in items]
     with ThreadPoolExecutor(max_workers=min(threads, len(items))) as ex:
         return list(ex.map(fn, items))
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity; ``os.cpu_count()`` where the platform has none):
+    what a command a user runs (``streamid validate``, one ``identify``) may spend on its own numerics."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)

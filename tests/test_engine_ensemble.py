@@ -76,6 +76,39 @@ def test_predictions_are_the_mean_of_the_members() -> None:
     assert "mean of 3 networks" in text and "4, 5, 3 + linear" in text and "member 1" in text
 
 
+def test_threads_give_the_same_bits_and_validation_simulates_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``threads`` (what ``streamid validate`` and one ``identify`` spend of their cores) changes no bit of a
+    prediction or a report; and a report's free run and its interval's band come from one simulation (a record
+    of N samples costs each member one free run of N, not two)."""
+    from dataclasses import replace
+    from streamid.engine.validation import assess, validate
+    from streamid.model.uncertainty import BEYOND, LEVELS, Interval
+    from streamid.model.narx import Model as Net
+
+    interval = Interval(LEVELS, (0.5, 1.0, 1.5, 2.0, 3.0), 0.1, 100, beyond=BEYOND)
+    u, y = _data(3000)
+    for model in (replace(ensemble_of(_members()), interval=interval), replace(_members()[2], interval=interval)):
+        assert np.array_equal(model.predict_osa(u, y, threads=2), model.predict_osa(u, y))
+        assert np.array_equal(model.member_paths(u, y[:3], threads=2), model.member_paths(u, y[:3]))
+        calls: list[int] = []
+        real = Net.simulate_many
+        monkeypatch.setattr(Net, "simulate_many", lambda self, runs, threads=1: calls.append(len(runs)) or
+                            real(self, runs, threads))
+        one, two = assess(model, u, y), assess(model, u, y, threads=2)
+        assert len(calls) == 2 * len(members_of(model)), calls  # one free run per member and report
+        monkeypatch.undo()
+        assert one.to_dict() == two.to_dict() and one.interval is not None
+        for k in ("osa", "fr"):
+            assert np.array_equal(one.predictions[k], two.predictions[k])
+        assert np.array_equal(one.predictions["fr"], model.simulate(u, y[:3]))  # the free run simulate gives
+        band = model.simulate(u, y[:3], interval=0.9)
+        inside = float(np.mean((y[3:] >= band.lower[3:]) & (y[3:] <= band.upper[3:])))
+        assert one.interval["coverage"] == inside  # the band simulate(interval=) gives
+        a, b = validate(model, u[:2000], y[:2000], u[2000:], y[2000:]), validate(
+            model, u[:2000], y[:2000], u[2000:], y[2000:], threads=2)
+        assert a.r2_dict() == b.r2_dict() and a.extra == b.extra
+
+
 def test_v3_round_trip_and_v1_v2_unchanged(tmp_path: Path) -> None:
     ens = ensemble_of(_members(), metrics={"fitness": 0.5, "r2_fr_val": 0.9}, window={"n_samples": 300})
     doc = json.loads(ens.to_json())

@@ -18,6 +18,7 @@ from streamid.engine.validation import RecordReport, assess, fit_percent
 from streamid.model.domain import domain_text
 from streamid.model.uncertainty import interval_text
 from streamid.errors import ConfigError, DataError
+from streamid.threads import cores
 from streamid.logs.bundled import data_file
 from streamid.logs.datafile import Record, load_record, same_period
 
@@ -188,7 +189,7 @@ def validate_command(args: argparse.Namespace) -> int:
     if len(rec.y) < model.max_lag + 2 + 20:
         raise DataError(f"{rec.path} has {len(rec.y)} samples; judging a model of max lag {model.max_lag} needs at "
                         f"least {model.max_lag + 22} (its first {model.max_lag} start the predictions)")
-    rep = assess(model, rec.u, rec.y)
+    rep = assess(model, rec.u, rec.y, threads=cores())  # this command's cores: the same report, sooner
     caveats = record_caveats(model, rep.osa, rep.fr, rec.u, rec.y, rep.fr_diverged_at)
     passed = None if args.min_r2_fr is None else bool(rep.fr is not None and rep.fr >= args.min_r2_fr)
     files = _draw(args.rrd, model, rec, rep, notes, caveats) if args.rrd is not None else []

@@ -15,9 +15,11 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine.correlation import (PASS_FRACTION, STRICT_Z, TESTS, CorrelationReport, CorrelationTest, ccf,
                                          correlation_test_name, correlation_tests)
 from streamid.model.domain import outside_share
+from streamid.model.ensemble import members_of
 from streamid.model.regressors import as_data
 from streamid.model.uncertainty import interval_report
 from streamid.errors import DataError
+from streamid.threads import thread_map
 
 if TYPE_CHECKING:
     from streamid.model.narx import Model
@@ -177,10 +179,24 @@ class RecordReport:
         }
 
 
-def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], fr: NDArray[np.float64],
-            max_lag: int) -> RecordReport:
-    osa_r2, fr_r2, res, osa, _ = _predictions(model, u, y, fr=fr)
+def _paths(model: Model, records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+           threads: int) -> list[NDArray[np.float64]]:
+    """The model's networks' free runs (``model.member_paths``) on each record, from its first ``max_lag``
+    outputs: an ensemble's members in ``threads`` threads, a single network's records so (the same values to
+    the bit either way: each network's and record's arithmetic is its own)."""
     L = model.max_lag
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (fr None), not warned about
+        if len(members_of(model)) > 1:
+            return [model.member_paths(u, y[:L], threads=threads) for u, y in records]
+        return thread_map(lambda r: model.member_paths(r[0], r[1][:L]), records, threads)
+
+
+def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], paths: NDArray[np.float64],
+            max_lag: int, threads: int = 1) -> RecordReport:
+    L = model.max_lag
+    with np.errstate(over="ignore", invalid="ignore"):  # the free run once: its R^2 and its interval's band
+        fr = model.combine_paths(paths, y[:L])
+    osa_r2, fr_r2, res, osa, _ = _predictions(model, u, y, fr=fr, threads=threads)
     with np.errstate(over="ignore", invalid="ignore"):
         rmse_fr = float(np.sqrt(np.mean((y[L:] - fr[L:]) ** 2)))
     return RecordReport(
@@ -188,15 +204,16 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], fr: ND
         rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
         correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
         predictions={"osa": osa, "fr": fr}, fr_diverged_at=diverged_at(fr),
-        interval=interval_report(model, u, y, free_run=fr), outside_domain=outside_share(model, u, y),
+        interval=interval_report(model, u, y, paths=paths), outside_domain=outside_share(model, u, y),
     )
 
 
-def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20) -> RecordReport:
+def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20, threads: int = 1) -> RecordReport:
     """One-step-ahead and free-run R^2, RMSE and the correlation tests of ``model`` on one record.
 
     The record is typically one the model has never seen (``streamid validate``; a second experiment with
-    another excitation is the real test).  Pure: numbers in, a :class:`RecordReport` out.
+    another excitation is the real test).  Pure: numbers in, a :class:`RecordReport` out. ``threads`` > 1: the
+    predictions computed in that many threads (for a caller with cores to spare; the same report to the bit).
 
     Raises
     ------
@@ -207,9 +224,7 @@ def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20) -> Re
     if ua.shape[1] != model.n_inputs:
         raise DataError(f"the model has {model.n_inputs} input(s) {list(model.input_names)}; the data give "
                         f"{ua.shape[1]}: pass one input column per model input, in the model's order")
-    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (fr None), not warned about
-        fr = model.simulate(ua, ya[: model.max_lag])
-    return _record(model, ua, ya, fr, max_lag)
+    return _record(model, ua, ya, _paths(model, [(ua, ya)], threads)[0], max_lag, threads)
 
 
 def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, float | None, NDArray[np.float64]]:
@@ -220,11 +235,11 @@ def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, floa
 
 
 def _predictions(
-    model: Model, u: ArrayLike, y: ArrayLike, fr: NDArray[np.float64] | None = None
+    model: Model, u: ArrayLike, y: ArrayLike, fr: NDArray[np.float64] | None = None, threads: int = 1
 ) -> tuple[float, float | None, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
     L = model.max_lag
-    osa = model.predict_osa(ua, ya)
+    osa = model.predict_osa(ua, ya, threads=threads)
     if fr is None:
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported, not warned about
             fr = model.simulate(ua, ya[:L])
@@ -239,6 +254,7 @@ def validate(
     y_val: ArrayLike,
     *,
     max_lag: int = 20,
+    threads: int = 1,
 ) -> ValidationReport:
     """OSA and free-run R^2 on estimation and validation data, and the correlation tests of both.
 
@@ -249,6 +265,9 @@ def validate(
         Estimation and validation data (inputs ``(N,)`` or ``(N, n_inputs)``).
     max_lag : int
         Largest lag of the correlation tests.
+    threads : int
+        The predictions computed in that many threads (for a caller with cores to spare; the same report to
+        the bit).
 
     Returns
     -------
@@ -258,9 +277,9 @@ def validate(
     L = model.max_lag
     ue, ye = as_data(u_est, y_est, min_samples=L + 2)
     uv, yv = as_data(u_val, y_val, min_samples=L + 2)
-    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (R^2 None), not warned about
-        p_fr_e, p_fr_v = model.simulate_many([(ue, ye[:L]), (uv, yv[:L])])  # both free runs in one recursion
-    e, v = _record(model, ue, ye, p_fr_e, max_lag), _record(model, uv, yv, p_fr_v, max_lag)
+    paths_e, paths_v = _paths(model, [(ue, ye), (uv, yv)], threads)
+    e, v = _record(model, ue, ye, paths_e, max_lag, threads), _record(model, uv, yv, paths_v, max_lag, threads)
+    p_fr_e, p_fr_v = e.predictions["fr"], v.predictions["fr"]
     return ValidationReport(
         osa_est=e.osa,
         osa_val=v.osa,

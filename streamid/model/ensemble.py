@@ -51,6 +51,7 @@ from streamid.model.uncertainty import Interval
 from streamid.model.limits import check_model_document
 from streamid.model.regressors import Normalisation, Regressor
 from streamid.errors import ModelFormatError
+from streamid.threads import thread_map
 
 __all__ = ["COMBINES", "EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
 
@@ -195,12 +196,13 @@ class EnsembleModel(Model):
     def _phi(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
         raise ModelFormatError("an ensemble has no single activation matrix: use model.members[i]")
 
-    def predict_osa(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
-        """One-step-ahead: the mean of the members' predictions from measured past outputs (see the module docstring)."""
+    def predict_osa(self, u: ArrayLike, y: ArrayLike, threads: int = 1) -> NDArray[np.float64]:
+        """One-step-ahead: the mean of the members' predictions from measured past outputs (see the module docstring);
+        ``threads``: the members computed in that many threads (the same values to the bit)."""
         ua, ya = self._check(u, y)
         L = self.max_lag
         out = ya.copy()
-        out[L:] = self._combined(np.array([m.predict_osa(ua, ya)[L:] for m in self.members]))
+        out[L:] = self._combined(np.array(thread_map(lambda m: m.predict_osa(ua, ya)[L:], self.members, threads)))
         return out
 
     def _combined(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -208,7 +210,7 @@ class EnsembleModel(Model):
         out: NDArray[np.float64] = np.median(rows, axis=0) if self.combine == "median" else np.mean(rows, axis=0)
         return out
 
-    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
+    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]], threads: int = 1) -> list[NDArray[np.float64]]:
         """Free runs: each member simulates on its own past outputs, the outputs averaged (module docstring).
 
         Each run's ``y_init`` must hold at least :attr:`max_lag` measured outputs; member ``i`` starts
@@ -218,7 +220,7 @@ class EnsembleModel(Model):
         inits = [initial_outputs(y_init, L) for _, y_init in runs]
         if not inits:
             return []
-        per_member = [m.simulate_many(runs) for m in self.members]
+        per_member = thread_map(lambda m: m.simulate_many(runs), self.members, threads)
         out = []
         for c, yi in enumerate(inits):
             avg = self._combined(np.array([sims[c] for sims in per_member]))
@@ -226,11 +228,12 @@ class EnsembleModel(Model):
             out.append(avg)
         return out
 
-    def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
-        """Each member's free run (rows), from its own past outputs; the first :attr:`max_lag` samples measured."""
+    def member_paths(self, u: ArrayLike, y_init: ArrayLike, threads: int = 1) -> NDArray[np.float64]:
+        """Each member's free run (rows), from its own past outputs; the first :attr:`max_lag` samples measured
+        (``threads``: the members simulated in that many threads, the same values to the bit)."""
         L = self.max_lag
         yi = initial_outputs(y_init, L)
-        paths = np.array([m.simulate(u, yi) for m in self.members])
+        paths = np.array(thread_map(lambda m: m.simulate(u, yi), self.members, threads))
         paths[:, :L] = yi[:L]
         return paths
 

@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.model.freerun import free_run
+from streamid.threads import thread_map
 from streamid.model.describe import describe
 from streamid.model.domain import far_from_domain
 from streamid.model.files import read_model_file
@@ -285,13 +286,17 @@ class Model:
         regs = self.regressors if self.linear_regressors is None else self.linear_regressors
         return regressor_columns(regs, self.normalisation.u(u), self.normalisation.y(y), self.max_lag)
 
-    def predict_osa(self, u: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+    def predict_osa(self, u: ArrayLike, y: ArrayLike, threads: int = 1) -> NDArray[np.float64]:
         """One-step-ahead prediction from measured inputs and outputs.
 
         Parameters
         ----------
         u : array_like, shape (N,) or (N, n_inputs)
         y : array_like, shape (N,)
+        threads : int
+            The record's blocks computed in that many threads (numpy releases the GIL in them): for a caller
+            with cores to spare (``streamid validate``). Each block's arithmetic is its own: the same values
+            to the bit with any number.
 
         Returns
         -------
@@ -302,7 +307,8 @@ class Model:
         out = ya.copy()
         L = self.max_lag
         rows = osa_block_rows(self.neurons, len(self.regressors), OSA_BLOCK_ROWS)
-        for a in range(L, ya.shape[0], rows):  # rows a..b-1 from samples a-L..b-1: bounded memory
+
+        def block(a: int) -> None:  # rows a..b-1 from samples a-L..b-1: bounded memory
             b = min(ya.shape[0], a + rows)
             us, ys = ua[a - L : b], ya[a - L : b]
             r, _ = self.regressor_rows(us, ys)
@@ -311,6 +317,8 @@ class Model:
                 rl = r if self.linear_regressors is None else self.linear_rows(us, ys)
                 yn_hat += rl @ self.linear[:-1] + self.linear[-1]
             out[a:b] = self.normalisation.y_inverse(yn_hat)
+
+        thread_map(block, range(L, ya.shape[0], rows), threads)
         return out
 
     @overload
@@ -347,21 +355,22 @@ class Model:
         centre = self.combine_paths(paths, y_init)
         return self.interval.band(centre, paths, float(interval), self.max_lag, far_from_domain(self, u, centre))
 
-    def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
+    def member_paths(self, u: ArrayLike, y_init: ArrayLike, threads: int = 1) -> NDArray[np.float64]:
         """The free runs of the model's networks, shape ``(K, N)``: one row for a single network, a member's each
-        for an ensemble (each from its own past outputs; the first ``max_lag`` samples measured)."""
+        for an ensemble (each from its own past outputs; the first ``max_lag`` samples measured). ``threads``: an
+        ensemble's members simulated in that many threads (the same values to the bit)."""
         return self.simulate_many([(u, y_init)])[0][None, :]
 
     def combine_paths(self, paths: NDArray[np.float64], y_init: ArrayLike) -> NDArray[np.float64]:
         """The model's free run from its networks' (:meth:`member_paths`): the one network's path itself."""
         return np.array(paths[0])
 
-    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
+    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]], threads: int = 1) -> list[NDArray[np.float64]]:
         """Several free runs of this model at once, e.g. on the estimation and the validation data.
 
         Equal to ``[self.simulate(u, y_init) for u, y_init in runs]`` (to rounding), in one
-        recursion over the longest input: the runs advance together, so two runs cost
-        about as much as the longer one alone.
+        recursion over the longest input (``threads`` > 1: the runs split over that many threads,
+        the same values to the bit).
 
         Parameters
         ----------
@@ -399,7 +408,7 @@ class Model:
             un,
             np.stack([self.normalisation.y(yi) for _, yi in parts]),
             None if self.linear is None else np.broadcast_to(self.linear, (C, self.linear.shape[0])),
-            linear_regressors=self.linear_regressors,
+            linear_regressors=self.linear_regressors, threads=threads,
         )
         out = []
         for c, (ua, yi) in enumerate(parts):
