@@ -49,16 +49,20 @@ def test_correlation_tests_over_several_chunks_equal_the_whole_record(monkeypatc
     assert not rep.passed
 
 
-def test_one_chunk_or_less_keeps_the_old_sample_and_beyond_it_the_online_rule(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_one_chunk_or_less_keeps_the_old_sample_and_beyond_it_as_many_rows_stratified() -> None:
     cfg = DEFAULT
     g = np.random.default_rng(0)
     assert rows.long_record_rows(rows.CHUNK_ROWS, cfg, 1, g) is None  # one chunk: as before (hash-identical)
     assert rows.long_record_rows(10 * rows.CHUNK_ROWS, cfg.replace(search_rows=0), 1, g) is None  # every row, asked
-    s = rows.long_record_rows(10 * rows.CHUNK_ROWS, cfg, 1, g)
-    assert s is not None
-    bound = rows.search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, 1, {})
-    assert s.rows.size == bound == max(rows.SEARCH_ROWS, rows.ROWS_PER_WEIGHT * (cfg.neurons + cfg.max_lag_y + cfg.max_lag_u + 1))
-    assert np.all(np.diff(s.rows) > 0) and s.rows[-1] < 10 * rows.CHUNK_ROWS
+    for n in (rows.CHUNK_ROWS + 1, 10 * rows.CHUNK_ROWS, 150 * rows.CHUNK_ROWS):  # the search's cost: not the record's
+        s = rows.long_record_rows(n, cfg, 1, g)
+        assert s is not None and s.rows.size == s.bound == cfg.search_rows == 2000 and s.of == n
+        assert np.all(np.diff(s.rows) > 0) and s.rows[-1] < n
+        strata = (np.arange(cfg.search_rows + 1) * n) // cfg.search_rows  # one row in each stratum
+        assert np.array_equal(np.searchsorted(strata, s.rows, side="right") - 1, np.arange(cfg.search_rows))
+    # the online bound (a window's search, engine/search/rows.py) is another rule and stays what it was
+    assert rows.search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, 1, {}) == max(
+        rows.SEARCH_ROWS, rows.ROWS_PER_WEIGHT * (cfg.neurons + cfg.max_lag_y + cfg.max_lag_u + 1))
 
 
 def test_an_identification_beyond_one_chunk_searches_on_the_stratified_sample(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -66,8 +70,6 @@ def test_an_identification_beyond_one_chunk_searches_on_the_stratified_sample(mo
 
     u, y = reactor_record(1_500, "uniform", 41)
     monkeypatch.setattr(rows, "CHUNK_ROWS", 600)  # the record is more than two chunks
-    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
-    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
     cfg = DEFAULT.replace(restarts=1, more_restarts=0, generations=5, lag_search_neurons=0, neurons=8,
                           max_lag_cap=0, max_lag_y=3, max_lag_u=3, fallback_neurons=(), search_rows=300, prune_runs=0,
                           run_ensembles=False, long_linear=0, refine_iterations=0)
@@ -226,3 +228,63 @@ def test_a_candidate_fitted_on_given_rows_is_model_for_s_fit_on_those_rows() -> 
     half = run.model_on_rows(h, x, np.arange(0, len(run.target), 2))
     assert not np.allclose(half.weights, every.weights, rtol=1e-9)  # other rows, another least squares
     assert half.centres.tolist() == every.centres.tolist() and half.lags == every.lags
+
+
+def test_a_refit_on_samples_is_the_least_squares_of_those_rows_and_the_calibration_uses_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``refit_weights(..., samples)``: every sample is the full refit (networks with and without a linear part,
+    and their ensemble, whose fitness is then the mean's one-step error there); half of them another fit. Beyond
+    one chunk the interval's calibration refits its half-model on that many evenly spaced samples and says so."""
+    from dataclasses import replace
+
+    import streamid.engine.choice.calibration as calibration
+    import streamid.engine.choice.selection as selection
+    from streamid.model.ensemble import ensemble_of
+
+    u, y = _plant(3_000, seed=13)
+    net = _osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4)
+    lin = replace(_osa_net(u, y, (("y", 1), ("u", 1), ("u", 3)), 5, 5), linear=np.zeros(4))
+    ens = ensemble_of([net, lin])
+    for m in (net, lin, ens):
+        L = m.max_lag
+        got = selection.refit_weights(m, u, y, 1e-8, np.arange(L, len(y)))
+        # each member on the rows t >= L (the ensemble's), i.e. its own full refit of the record from L - its lag
+        want = [selection.refit_weights(k, u[L - k.max_lag:], y[L - k.max_lag:], 1e-8) for k in
+                getattr(m, "members", (m,))]
+        for a, b in zip(getattr(got, "members", (got,)), want):
+            np.testing.assert_allclose(a.weights, b.weights, rtol=1e-8, atol=1e-10)
+            if b.linear is not None:
+                np.testing.assert_allclose(a.linear, b.linear, rtol=1e-8, atol=1e-10)
+        mean = ensemble_of(want) if len(want) > 1 else want[0]
+        fitness = float(np.mean((mean.predict_osa(u, y)[L:] - y[L:]) ** 2))
+        assert got.metrics["fitness"] == pytest.approx(fitness, rel=1e-9)
+        half = selection.refit_weights(m, u, y, 1e-8, np.arange(L, len(y), 2))
+        assert not np.allclose(getattr(half, "members", (half,))[0].weights, want[0].weights, rtol=1e-6)
+    with pytest.raises(Exception, match="at least neurons"):
+        selection.refit_weights(net, u, y, 1e-8, np.arange(2, 5))
+    whole, ev = calibration.calibrate(ens, u, y, 1e-8)
+    assert whole is not None and "fit_rows" not in ev  # one chunk: every row of the first half, as always
+    monkeypatch.setattr(rows, "CHUNK_ROWS", 400)  # the first half (1,500 samples) is beyond one chunk
+    spaced, ev = calibration.calibrate(ens, u, y, 1e-8)
+    assert spaced is not None and ev["fit_rows"] == 400 and ev["held_out"] is True
+    assert spaced.scale != whole.scale  # another fit (a test that can fail), of the same order
+    assert 0.5 < spaced.scale / whole.scale < 2.0
+
+
+def test_an_ensemble_s_one_step_prediction_beyond_one_chunk_is_made_a_chunk_at_a_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import streamid.model.ensemble as ensemble
+    from streamid.model.ensemble import ensemble_of
+
+    u, y = _plant(3_000, seed=13)
+    ens = ensemble_of([_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4),
+                       _osa_net(u, y, (("y", 1), ("u", 1), ("u", 3)), 5, 5)])
+    want = ens.predict_osa(u, y)
+    monkeypatch.setattr(ensemble, "CHUNK_ROWS", 700)  # five chunks, the last partial
+    seen: list[int] = []
+    real = type(ens.members[0]).predict_osa
+    monkeypatch.setattr(type(ens.members[0]), "predict_osa",
+                        lambda self, uu, yy, threads=1: seen.append(len(yy)) or real(self, uu, yy, threads))
+    for threads in (1, 2):
+        np.testing.assert_allclose(ens.predict_osa(u, y, threads=threads), want, rtol=1e-12, atol=1e-12)
+    assert max(seen) <= 700 + ens.max_lag and len(seen) == 2 * 2 * 5  # members x thread counts x chunks

@@ -25,6 +25,7 @@ from streamid.engine.identification import identify
 from streamid.model.narx import Model
 from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.validation import CorrelationTest, validate
+from streamid.model.limits import CHUNK_ROWS
 
 __all__ = ["identify_command", "identify_runs", "validated_run"]
 
@@ -50,10 +51,11 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
 
 
 def validated_run(model: Model, ds: Dataset, *, seed: int, seconds: float, evaluations: int, fitness: float,
-                  history: list[float]) -> dict[str, Any]:
-    """A run's row of the report: ``model`` validated on the data set (JSON-able). A free run that diverges is
-    a row with its R² None and the sample it diverged at (``diverged``), never an error (issue 37)."""
-    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val)
+                  history: list[float], threads: int = 1) -> dict[str, Any]:
+    """A run's row of the report: ``model`` validated on the data set (JSON-able; its predictions in ``threads``
+    threads, the same row). A free run that diverges is a row with its R² None and the sample it diverged at
+    (``diverged``), never an error (issue 37)."""
+    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, threads=threads)
     model = model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
     return {
         "seed": seed,
@@ -307,6 +309,16 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
             reading_bar.close()
         for note in ds.notes:
             print(f"streamid identify: warning: {note}", file=sys.stderr, flush=True)
+        if args.runs == 1 and len(ds.y_est) > CHUNK_ROWS:
+            # A record beyond one chunk: its restarts here, one after the other, on one core. Their search is
+            # bounded (engine/search/rows.py), so a pool's start and its copies of the record cost more than the
+            # second core saves, and a helper's second thread doubles the temporaries of the work after them
+            # (1,000,000 samples: 8.6 s and 389 MB here; a pool of 2 8.8 s and 432 MB, a helper 8.1-8.5 s and
+            # 482 MB: docs/benchmarks.md, "Long records offline")
+            restart_workers = 1
+            if helper is not None:
+                helper.close()
+                helper = None
         bar = Bar(sys.stderr, show, "identify", delay_s=1.0 if args.progress == "auto" else 0.0)
         seeds = list(range(args.seed, args.seed + args.runs))
         try:

@@ -178,6 +178,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
         R, target = (lag_run.R, lag_run.target) if sample is None else lag_run.searched  # beyond one chunk:
         mask, lag_rule = with_input_term(lag_run.best_h, lag_run.H, lag_run.fh, lag_run.candidates,  # the sample's
                                          R, target)  # rows, never every row's candidate lags at once
+        del lag_run, R, target  # its copies of the record go before the second stage makes its own
         # ...then DE trains the full network on those lags.
         run = Coevolution(u, y, cfg, rng, fixed_mask=mask, **common).solve(
             _stage(tick, lag_cfg.generations, evaluations))
@@ -377,6 +378,7 @@ def identify(
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
                               on_result=partial(report_after, report, made))
 
+    post = _threads(helper)  # threads of the work after the restarts (a helper's core is idle then)
     models = [o["model"] if isinstance(o["model"], Model) else Model.from_json(o["model"]) for o in outs]
     scores, paths = [float(o["score"]) for o in outs], [o.get("path") for o in outs]  # paths: estimation free runs
     complexity: dict[str, Any] | None = None
@@ -394,7 +396,7 @@ def identify(
         chosen = int(np.argmax(scores))
     final, score = models[chosen], float(outs[chosen]["score"])
     if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.choice.ensemble_choice)
-        ens, members, complexity["ensembles"] = choose_ensemble(models, paths, complexity, ua, ya, RANGE_MARGIN)
+        ens, members, complexity["ensembles"] = choose_ensemble(models, paths, complexity, ua, ya, RANGE_MARGIN, post)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
     own = scores[chosen] if final is models[chosen] else score
@@ -406,9 +408,9 @@ def identify(
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     if cfg.refine_iterations:  # the weights fitted to the free run (streamid.engine.choice.refine)
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
-                                       threads=_threads(helper))
+                                       threads=post)
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
-    final = with_interval(final, ua, ya, RIDGE)  # its free-run interval, calibrated on a held-out half
+    final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,

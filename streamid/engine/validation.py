@@ -192,7 +192,9 @@ def _paths(model: Model, records: list[tuple[NDArray[np.float64], NDArray[np.flo
 
 
 def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], paths: NDArray[np.float64],
-            max_lag: int, threads: int = 1) -> RecordReport:
+            max_lag: int, threads: int = 1, band: bool = True) -> RecordReport:
+    """The report on one record from the model's networks' free runs ``paths`` on it; ``band`` False: without the
+    interval's coverage and the domain's share (``validate``'s estimation record, whose are not reported)."""
     L = model.max_lag
     with np.errstate(over="ignore", invalid="ignore"):  # the free run once: its R^2 and its interval's band
         fr = model.combine_paths(paths, y[:L])
@@ -204,7 +206,8 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], paths:
         rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
         correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
         predictions={"osa": osa, "fr": fr}, fr_diverged_at=diverged_at(fr),
-        interval=interval_report(model, u, y, paths=paths), outside_domain=outside_share(model, u, y),
+        interval=interval_report(model, u, y, paths=paths) if band else None,
+        outside_domain=outside_share(model, u, y) if band else 0.0,
     )
 
 
@@ -278,7 +281,9 @@ def validate(
     ue, ye = as_data(u_est, y_est, min_samples=L + 2)
     uv, yv = as_data(u_val, y_val, min_samples=L + 2)
     paths_e, paths_v = _paths(model, [(ue, ye), (uv, yv)], threads)
-    e, v = _record(model, ue, ye, paths_e, max_lag, threads), _record(model, uv, yv, paths_v, max_lag, threads)
+    e = _record(model, ue, ye, paths_e, max_lag, threads, band=False)  # its band and domain share are not reported
+    del paths_e
+    v = _record(model, uv, yv, paths_v, max_lag, threads)
     p_fr_e, p_fr_v = e.predictions["fr"], v.predictions["fr"]
     return ValidationReport(
         osa_est=e.osa,

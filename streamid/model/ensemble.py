@@ -48,9 +48,9 @@ from streamid.model.narx import (
     MODEL_FORMAT_ENSEMBLE, MODEL_FORMAT_ENSEMBLE_LONG_LINEAR, MODEL_FORMAT_ENSEMBLE_MEDIAN, Model, _finite_array,
     initial_outputs)
 from streamid.model.uncertainty import Interval
-from streamid.model.limits import check_model_document
+from streamid.model.limits import CHUNK_ROWS, check_model_document
 from streamid.model.regressors import Normalisation, Regressor
-from streamid.errors import ModelFormatError
+from streamid.errors import DataError, ModelFormatError
 from streamid.threads import thread_map
 
 __all__ = ["COMBINES", "EnsembleModel", "MAX_MEMBERS", "MODEL_FORMAT_ENSEMBLE", "ensemble_of", "members_of"]
@@ -202,7 +202,16 @@ class EnsembleModel(Model):
         ua, ya = self._check(u, y)
         L = self.max_lag
         out = ya.copy()
-        out[L:] = self._combined(np.array(thread_map(lambda m: m.predict_osa(ua, ya)[L:], self.members, threads)))
+        n = ya.shape[0]
+        if n - L <= CHUNK_ROWS:  # up to one chunk: every member over the whole record at once
+            out[L:] = self._combined(np.array(thread_map(lambda m: m.predict_osa(ua, ya)[L:], self.members, threads)))
+            return out
+
+        def block(a: int) -> None:  # beyond: a chunk of rows at a time (memory of a chunk, not K records)
+            b = min(n, a + CHUNK_ROWS)
+            out[a:b] = self._combined(np.array([m.predict_osa(ua[a - L : b], ya[a - L : b])[L:] for m in self.members]))
+
+        thread_map(block, range(L, n, CHUNK_ROWS), threads)
         return out
 
     def _combined(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -233,7 +242,16 @@ class EnsembleModel(Model):
         (``threads``: the members simulated in that many threads, the same values to the bit)."""
         L = self.max_lag
         yi = initial_outputs(y_init, L)
-        paths = np.array(thread_map(lambda m: m.simulate(u, yi), self.members, threads))
+        try:
+            n = int(np.shape(u)[0])
+        except (IndexError, TypeError):
+            raise DataError(f"u must have shape (N,) or (N, n_inputs); got {u!r}") from None
+        paths = np.empty((len(self.members), n))  # filled in place: no second copy of K records
+
+        def one(i: int) -> None:
+            paths[i] = self.members[i].simulate(u, yi)
+
+        thread_map(one, range(len(self.members)), threads)
         paths[:, :L] = yi[:L]
         return paths
 

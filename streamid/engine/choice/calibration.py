@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.engine.choice.selection import refit_weights
+from streamid.engine.search.rows import spaced_rows
 from streamid.errors import DataError
 from streamid.model.domain import far_from_domain
 from streamid.model.narx import Model
@@ -32,21 +33,27 @@ METHOD_IN_SAMPLE = ("conformal on the model's own free-run errors over the estim
 UNSTABLE_HALF_R2 = 0.0
 
 
-def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> tuple[Interval | None, dict[str, Any]]:
+def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float,
+              threads: int = 1) -> tuple[Interval | None, dict[str, Any]]:
     """The interval of ``model`` from its estimation record ``(u, y)`` and the evidence (``metrics.calibration``):
     ``samples``, ``scale``, the refitted half's held-out free-run R^2 (``r2_fr_held_out``; the model's own over the
     second half, ``r2_fr_second_half``, only when that one is below :data:`UNSTABLE_HALF_R2`), or ``reason`` when
-    no interval could be made (a record too short, a refit that failed, a held-out free run that diverged)."""
+    no interval could be made (a record too short, a refit that failed, a held-out free run that diverged).
+    A first half beyond one chunk (:data:`~streamid.model.limits.CHUNK_ROWS` rows) is refitted on that many evenly
+    spaced rows of it (``fit_rows`` in the evidence), as every least squares of a long record that needs no
+    contiguity. ``threads``: an ensemble's members free-run in that many threads (the same interval to the bit)."""
     n = int(y.shape[0])
     h = n // 2
     if n - h < MIN_CALIBRATION or h < model.max_lag + 2:
         return None, {"reason": f"too few samples to hold out ({n}; at least {2 * MIN_CALIBRATION} are needed)"}
+    spaced = spaced_rows(h - model.max_lag)  # None: up to one chunk, every row (as always)
+    samples = None if spaced is None else model.max_lag + spaced
     try:
-        half = refit_weights(model, u[:h], y[:h], ridge)
+        half = refit_weights(model, u[:h], y[:h], ridge, samples)
     except DataError as exc:
         return None, {"reason": f"the model could not be refitted on the first half ({exc})"}
     with np.errstate(over="ignore", invalid="ignore"):
-        paths = half.member_paths(u, y[: half.max_lag])
+        paths = half.member_paths(u, y[: half.max_lag], threads=threads)
         centre = half.combine_paths(paths, y)
         err = y[h:] - centre[h:]
         spread = member_spread(paths)[h:] + BEYOND * far_from_domain(half, u, centre)[h:]  # the band's own terms
@@ -58,7 +65,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     method, held_out, own_r2 = METHOD, True, None
     if r2 is not None and r2 < UNSTABLE_HALF_R2:  # only then is the model's own free run needed (one more run)
         with np.errstate(over="ignore", invalid="ignore"):
-            own_paths = model.member_paths(u, y[: model.max_lag])
+            own_paths = model.member_paths(u, y[: model.max_lag], threads=threads)
             own_centre = model.combine_paths(own_paths, y)
             own_err = y[h:] - own_centre[h:]
         own_r2 = 1.0 - float(np.mean(own_err**2)) / var if np.all(np.isfinite(own_err)) else None
@@ -74,11 +81,13 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     quantiles = conformal_quantiles(scores, LEVELS)
     evidence = {"method": method, "held_out": held_out, "samples": n - h, "scale": scale, "r2_fr_held_out": r2,
                 "r2_fr_second_half": own_r2, "mean_spread": float(np.mean(spread)),  # the members' spread and the growth past the domain, mean
-                "quantile_90": quantiles[LEVELS.index(0.9)]}
+                "quantile_90": quantiles[LEVELS.index(0.9)],
+                **({} if samples is None else {"fit_rows": int(samples.size)})}
     return Interval(LEVELS, quantiles, scale, n - h, method, BEYOND), evidence
 
 
-def with_interval(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:
+def with_interval(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float,
+                  threads: int = 1) -> Model:
     """``model`` carrying its calibrated interval (or none), the evidence in ``metrics.calibration``."""
-    interval, evidence = calibrate(model, u, y, ridge)
+    interval, evidence = calibrate(model, u, y, ridge, threads)
     return replace(model, interval=interval, metrics={**model.metrics, "calibration": evidence})

@@ -51,12 +51,14 @@ def choose_ensemble(
     u: NDArray[np.float64],
     y: NDArray[np.float64],
     range_margin: float,
+    threads: int = 1,
 ) -> tuple[Model | None, list[int], list[dict[str, Any]]]:
     """The ensemble taken (None: the single choice stands), its members' runs (best first) and the evidence.
 
     ``models``: each run's candidate after pruning; ``paths``: each one's estimation free run in output
     units (None: simulated here once); ``complexity``: the single choice's evidence
-    (:func:`~streamid.engine.choice.complexity.choose`); ``u``, ``y``: the estimation record.
+    (:func:`~streamid.engine.choice.complexity.choose`); ``u``, ``y``: the estimation record; ``threads``: the
+    taken ensemble's members predicted in that many threads (the same result to the bit).
     """
     rows = complexity["candidates"]
     ranked = [int(c["run"]) for c in sorted((c for c in rows if c["criterion"] is not None),
@@ -109,7 +111,7 @@ def choose_ensemble(
     first = models[members[0]]  # the document's config and window: the identification's (as a single network's)
     ens = ensemble_of([models[i] for i in members], config=first.config, window=first.window)
     L = ens.max_lag
-    fitness = float(np.mean((ens.predict_osa(u, y)[L:] - y[L:]) ** 2))  # one-step MSE, output units squared
+    fitness = float(np.mean((ens.predict_osa(u, y, threads=threads)[L:] - y[L:]) ** 2))  # one-step MSE, output units squared
     choice = {"candidates": len(evidence), "admissible": sum(1 for e in evidence if e["criterion"] is not None),
               "score": taken["r2_fr_est"], "excursion_spans": 0.0, "range_margin": float(range_margin),
               "run_ensemble": len(members)}  # the mean's free run on the estimation record, as a single model's

@@ -334,7 +334,7 @@ def refine_weights(
     if not is_bounded(refined):
         ev["reason"] = "the refined linear part's autoregression is unstable (streamid.engine.choice.stability)"
         return model, ev
-    osa = refined.predict_osa(u, y)
+    osa = refined.predict_osa(u, y, threads=threads)
     ev.update(taken=True, osa_mse_est=float(np.mean((osa[L:] - y[L:]) ** 2)))
     return refined, ev
 

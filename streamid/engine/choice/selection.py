@@ -22,7 +22,7 @@ from streamid.engine.choice.longlinear import long_linear_fit
 from streamid.engine.fit.rbf import activations, fit_in_blocks, fit_linear_rbf, fit_weights
 from streamid.model.limits import CHUNK_ROWS
 from streamid.engine.search.rows import spaced_rows
-from streamid.model.regressors import as_data
+from streamid.model.regressors import Regressor, as_data
 from streamid.engine.settings import RIDGE
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError
@@ -34,22 +34,38 @@ if TYPE_CHECKING:
 __all__ = ["free_run_r2", "pruned_choice", "refit_weights", "select_model", "select_model_path"]
 
 
-def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Model:
+def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float,
+                  samples: NDArray[np.intp] | None = None) -> Model:
     """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
 
     A model with a linear part has it refitted in the same least squares. The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.fit.rbf.fit_weights`.
     An ensemble has every member refitted (each on its own regressors); its ``fitness`` is then the mean's.
+    ``samples`` (sorted sample indices, each at least the model's ``max_lag``): the fit and the fitness on those
+    samples' rows only (a record beyond one chunk: :func:`~streamid.engine.search.rows.spaced_rows`; the time and
+    memory those rows', not the record's).
     """
     if isinstance(model, EnsembleModel):
-        ens = model.map_members(lambda m: refit_weights(m, u, y, ridge))
+        ens = model.map_members(lambda m: refit_weights(m, u, y, ridge, samples))
         ua, ya = as_data(u, y, min_samples=ens.max_lag + 2)
         L = ens.max_lag
+        if samples is not None:
+            at = np.array([_rows_at(m, ua, ya, samples)[2] for m in ens.members])  # each member's OSA there
+            err = ens.combine_paths(np.hstack([np.zeros((len(at), L)), at]), ya[:L])[L:] - ya[samples]
+            return ens.with_metrics(fitness=float(np.mean(err**2)))
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
     L = model.max_lag
-    if ya.shape[0] - L > CHUNK_ROWS and model.linear_regressors is None:  # beyond one chunk: streamed in blocks
+    if samples is not None:
+        if samples.size < model.neurons + 1 or int(samples[0]) < L:
+            raise DataError(f"a refit on samples needs at least neurons + 1 = {model.neurons + 1} of them, each >= "
+                            f"max_lag {L}; got {samples.size} from {int(samples[0]) if samples.size else None}")
+        r, rl, _ = _rows_at(model, ua, ya, samples)
+        target = model.normalisation.y(ya[samples])
+    elif ya.shape[0] - L > CHUNK_ROWS and model.linear_regressors is None:  # beyond one chunk: streamed in blocks
         return _refit_in_blocks(model, ua, ya, ridge)
-    r, target = model.regressor_rows(ua, ya)  # target: the normalised outputs of rows t >= L
+    else:
+        r, target = model.regressor_rows(ua, ya)  # target: the normalised outputs of rows t >= L
+        rl = r if model.linear_regressors is None else model.linear_rows(ua, ya)
     with one_blas_thread():
         phi = activations(r, model.centres, model.widths)
         lin = None
@@ -57,7 +73,6 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Mod
             w = fit_weights(phi, target, ridge)
             fit = phi @ w
         else:
-            rl = r if model.linear_regressors is None else model.linear_rows(ua, ya)
             if model.linear_regressors is None:
                 w, lin = fit_linear_rbf(phi, rl, target, ridge)
             else:  # a long linear part: fitted as it was built (streamid.engine.choice.longlinear)
@@ -67,6 +82,23 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float) -> Mod
         raise DataError("refitted weights are not finite (numerically degenerate data)")
     mse = float(np.mean((fit - target) ** 2)) * model.normalisation.y_half_range**2
     return replace(model, weights=w, linear=lin, metrics={**model.metrics, "fitness": mse})
+
+
+def _rows_at(model: Model, u: NDArray[np.float64], y: NDArray[np.float64],
+             samples: NDArray[np.intp]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A network's normalised regressors at ``samples`` (one row each), its linear part's, and its one-step
+    prediction there (output units): what :meth:`Model.predict_osa` computes at those samples."""
+    un, yn = model.normalisation.u(u), model.normalisation.y(y)
+
+    def gather(regs: tuple[Regressor, ...]) -> NDArray[np.float64]:
+        return np.column_stack([(yn if g.signal == "y" else un[:, g.index])[samples - g.lag] for g in regs])
+
+    r = gather(model.regressors)
+    rl = r if model.linear_regressors is None else gather(model.linear_regressors)
+    yn_hat = activations(r, model.centres, model.widths) @ model.weights
+    if model.linear is not None:
+        yn_hat = yn_hat + rl @ model.linear[:-1] + model.linear[-1]
+    return r, rl, model.normalisation.y_inverse(yn_hat)
 
 
 def _refit_in_blocks(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float) -> Model:

@@ -158,7 +158,7 @@ class Coevolution(CandidateModels):
                 f"{ya.shape[0]} estimation samples are too few: with max lag {L} and {M} neurons at least "
                 f"max_lag + 2 * neurons = {need} are needed"
             )
-        self.u, self.y = ua, ya
+        # (the record itself is not kept: its normalised copy below is what the run uses)
         self.n_inputs = ua.shape[1]
         self.input_names = tuple(input_names) if input_names else tuple(f"u{i}" for i in range(self.n_inputs))
         if len(self.input_names) != self.n_inputs:
@@ -171,6 +171,7 @@ class Coevolution(CandidateModels):
                 f"the normalisation given has {self.norm.n_inputs} input(s); the data have {self.n_inputs}"
             )
         un, yn = self.norm.u(ua), self.norm.y(ya)
+        del ua, ya  # the record's copy goes: the run keeps its normalised one (memory of a long record)
         self._lag_data = (un, yn)
         # every row's regressors (all candidate lags) only when the search uses every row; otherwise its sample's
         # rows, and a block of rows at a time for the fits (the property R makes them all, once, if asked)
