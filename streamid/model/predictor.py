@@ -46,10 +46,11 @@ from streamid.model.narx import Model
 from streamid.model.limits import MAX_INPUTS, MAX_LAG, MAX_NEURONS
 from streamid.model.regressors import Normalisation, Regressor
 from streamid.model.regressors import check_finite
-from streamid.model.uncertainty import Band
+from streamid.model.stepping import FreeRun, Step, band_quantile
+from streamid.model.uncertainty import DEFAULT_LEVEL, Band
 from streamid.errors import DataError
 
-__all__ = ["Predictor", "has_direct_terms", "one_step"]
+__all__ = ["Predictor", "Step", "has_direct_terms", "one_step"]
 
 #: samples a predictor keeps at least (a model swapped in with a longer memory is ready at once up to this)
 MIN_HISTORY = 256
@@ -163,6 +164,7 @@ class Predictor:
         self._cap = max(MIN_HISTORY, model.max_lag)
         self._n = 0  # samples in the buffer (the newest at _n - 1): between _cap and 2 _cap once it has wrapped
         self._held = 0  # samples learnt since the start or the last reset
+        self._run: FreeRun | None = None  # the free run of step(), from the newest measured samples
         self._alloc(model.n_inputs)
         self._serve(model)
         self._nets[0].yn(self._un, self._yn, self._lag)  # load (or compile) the kernel now; the value is unused
@@ -183,12 +185,20 @@ class Predictor:
         """Whether ``max_lag`` samples are held: predictions can be made."""
         return self.held >= self._model.max_lag
 
+    @property
+    def stepped(self) -> int:
+        """Instants :meth:`step` has simulated since its free run started from the newest measured samples (0:
+        the next :meth:`step` starts one)."""
+        return 0 if self._run is None else self._run.steps
+
     def reset(self) -> None:
-        """Forget the samples (after a gap in the measurements: a prediction must not span it)."""
+        """Forget the samples and any free run (after a gap in the measurements: a prediction must not span it)."""
         self._n = self._held = 0
+        self._run = None
 
     def swap(self, model: Model) -> None:
-        """Serve ``model`` from now on, keeping the samples (the model must take the same number of inputs)."""
+        """Serve ``model`` from now on, keeping the samples (the model must take the same number of inputs); the
+        next :meth:`step` starts the new model's free run from the newest measured samples."""
         model = self._checked(model, self._model)
         if model.max_lag > self._cap:  # a longer memory: keep what is held, in a larger buffer
             u, y = (a.copy() for a in self._recent(self.held))
@@ -197,10 +207,12 @@ class Predictor:
             self._n = len(y)
             self._u[: self._n], self._y[: self._n] = u, y
         self._serve(model)
+        self._run = None
 
     # ------------------------------------------------------------------ verbs
     def learn_one(self, u: ArrayLike, y: float) -> None:
-        """Add the newest measured sample: the input(s) ``u(t)`` and the output ``y(t)``.
+        """Add the newest measured sample: the input(s) ``u(t)`` and the output ``y(t)``; the next :meth:`step`
+        starts a free run from it (a measurement ends the free run of the earlier ones).
 
         Raises
         ------
@@ -228,6 +240,7 @@ class Predictor:
         self._yn[n] = 2.0 * (y - self._y_low) / self._y_span - 1.0
         self._n = n + 1
         self._held += 1
+        self._run = None
 
     def predict_one(self, u_next: ArrayLike | None = None) -> float:
         """``yhat(t+1)``, the next output one step ahead of the newest sample.
@@ -254,6 +267,35 @@ class Predictor:
         for net in self._nets:  # an ensemble's prediction is its members' mean (in output units, as predict_osa's)
             total += (net.yn(self._un, self._yn, n) + 1.0) * self._y_half + self._y_low
         return total / len(self._nets)
+
+    def step(self, u: ArrayLike, interval: float | None = DEFAULT_LEVEL) -> Step:
+        """The model run as a simulator, one instant a call: the next instant's :class:`~streamid.model.stepping.Step`
+        (``y``, its band's ``lower`` and ``upper``, ``in_domain``) for ``u``, the input at that instant.
+
+        The first call after measured samples (:meth:`learn_one`; or after :meth:`swap` or :meth:`reset`) starts a
+        free run from the newest ``max_lag`` of them and gives ``yhat(t+1)`` for ``u = u(t+1)``; each further call
+        gives the instant after, feeding back the run's own outputs only (never a measured one): ``k`` calls give
+        what :meth:`forecast` gives for the plan of their inputs (a direct term, lag 0, reads ``u`` at its own
+        instant; other models use it from the next instant on). A :meth:`learn_one` in between ends the run: the
+        next call starts again from the measurements. ``interval``: a level of the model's interval (``lower`` and
+        ``upper`` None when the model carries none, or with None). Each call costs the same bounded work
+        (:mod:`~streamid.model.stepping`).
+
+        Raises
+        ------
+        DataError
+            If ``u`` is not finite or not one value per input, ``interval`` is not a level the model carries, or
+            fewer than ``max_lag`` samples are held; the run is then unchanged.
+        """
+        m = self._model
+        u_row = _inputs("u", u, m.n_inputs)
+        q = band_quantile(m, interval)
+        if self._run is None:
+            L = m.max_lag
+            u_held, y_held = self._needed()
+            n = self._n
+            self._run = FreeRun(m, self._nets, u_held, y_held, self._un[n - L : n], self._yn[n - L : n])
+        return self._run.advance(u_row, 2.0 * (u_row - self._u_low) / self._u_span - 1.0, q)
 
     @overload
     def forecast(self, u_plan: ArrayLike, interval: None = None) -> NDArray[np.float64]: ...
