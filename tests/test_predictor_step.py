@@ -11,7 +11,7 @@ import pytest
 from streamid.engine import DEFAULT, identify
 from streamid.errors import DataError
 from streamid.model import Model, Predictor
-from streamid.model.domain import outside
+from streamid.model.domain import outside, signal_excess, signal_outside, value_excess, value_outside
 from streamid.model.ensemble import ensemble_of, members_of
 from streamid.model.predictor import Step, has_direct_terms
 from streamid.model.uncertainty import BEYOND, LEVELS, Interval
@@ -35,11 +35,12 @@ def damper() -> tuple[list[Model], np.ndarray, np.ndarray]:
 
 def _stepped(model: Model, u: np.ndarray, y: np.ndarray, start: int, stop: int,
              level: float | None = 0.9) -> tuple[Predictor, list[Step]]:
-    """A predictor that learnt samples ..start-1, then stepped the instants start..stop-1."""
+    """A predictor that learnt samples ..start-1, then stepped the instants start..stop-1 (a one-input model's
+    input given as a float every other instant: the loop's fast path, the same values)."""
     p = Predictor(model)
     for t in range(start):
         p.learn_one(u[t], y[t])
-    return p, [p.step(u[t], interval=level) for t in range(start, stop)]
+    return p, [p.step(float(u[t, 0]) if t % 2 and u.shape[1] == 1 else u[t], interval=level) for t in range(start, stop)]
 
 
 def _check_equal_to_simulate(model: Model, u: np.ndarray, y: np.ndarray, start: int, steps: list[Step]) -> np.ndarray:
@@ -191,3 +192,16 @@ def test_the_run_is_bounded_however_long_it_steps(damper: tuple[list[Model], np.
     run = p._run  # noqa: SLF001 - the bound is the point
     assert run is not None and run._un.shape[0] == run._ynk.shape[1] == 2 * (L + 1)  # noqa: SLF001
     _check_equal_to_simulate(model, u, y, 50, steps)
+
+
+def test_one_values_domain_tests_are_the_records() -> None:
+    """The step judges one sample at a time (domain.value_excess / value_outside): the same numbers as the record's
+    (signal_excess / signal_outside, behind excess, outside and the band), edges, non-finite values and a zero
+    span included."""
+    x = np.array([-3.0, -2.0 - 5e-9, -2.0 - 3e-9, -2.0, 0.0, 2.0, 2.0 + 3e-9, 2.0 + 5e-9, 7.5, np.nan, np.inf, -np.inf,
+                  1e308, -1e308])
+    for lo, hi in ((-2.0, 2.0), (1.0, 1.0), (-1e-60, 1e-60)):
+        ex, out = signal_excess(x, lo, hi), signal_outside(x, lo, hi)
+        assert [value_excess(float(v), lo, hi) for v in x] == ex.tolist()
+        assert [value_outside(float(v), lo, hi) for v in x] == out.tolist()
+    assert signal_outside(x, -2.0, 2.0).tolist()[1:8] == [True, False, False, False, False, False, True]

@@ -12,13 +12,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import math
+import sys
+
 import numpy as np
 from numpy.typing import NDArray
 
 from streamid.model.regressors import Normalisation, Regressor
 
 __all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "far_from_domain", "outside", "outside_share",
-           "signal_excess", "signal_outside"]
+           "signal_excess", "signal_outside", "value_excess", "value_outside"]
 
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -50,6 +53,25 @@ def signal_excess(values: NDArray[np.float64], low: Any, high: Any) -> NDArray[n
         ex = np.where(span > 0, np.abs(2.0 * (values - low) / np.where(span > 0, span, 1.0) - 1.0) - 1.0, 0.0)
     out: NDArray[np.float64] = np.maximum(np.nan_to_num(ex, nan=np.inf), 0.0)  # a non-finite value: infinitely far
     return out
+
+
+def value_outside(x: float, low: float, high: float) -> bool:
+    """:func:`signal_outside` of one value (the same float operations): a free run's step tests a sample with it
+    (:mod:`~streamid.model.stepping`), where numpy's per-call cost would outweigh the arithmetic."""
+    tol = 1e-9 * (high - low)
+    return x < low - tol or x > high + tol
+
+
+def value_excess(x: float, low: float, high: float) -> float:
+    """:func:`signal_excess` of one value (the same float operations; NaN: inf, inf: the largest float, as
+    ``numpy.nan_to_num`` maps them there)."""
+    span = high - low
+    if not span > 0:
+        return 0.0
+    ex = abs(2.0 * (x - low) / span - 1.0) - 1.0
+    if math.isnan(ex):
+        return math.inf
+    return sys.float_info.max if ex == math.inf else max(ex, 0.0)
 
 
 def outside(normalisation: Normalisation, regressors: Sequence[Regressor], u: NDArray[np.float64],

@@ -288,14 +288,19 @@ class Predictor:
             fewer than ``max_lag`` samples are held; the run is then unchanged.
         """
         m = self._model
-        u_row = _inputs("u", u, m.n_inputs)
+        un: float | NDArray[np.float64]
+        if self._scalar_u and isinstance(u, float) and isfinite(u):  # the common loop, as in learn_one
+            u_row, un = np.array((u,)), 2.0 * (u - self._u_low0) / self._u_span0 - 1.0
+        else:
+            u_row = _inputs("u", u, m.n_inputs)
+            un = 2.0 * (u_row - self._u_low) / self._u_span - 1.0
         q = band_quantile(m, interval)
         if self._run is None:
             L = m.max_lag
             u_held, y_held = self._needed()
             n = self._n
             self._run = FreeRun(m, self._nets, u_held, y_held, self._un[n - L : n], self._yn[n - L : n])
-        return self._run.advance(u_row, 2.0 * (u_row - self._u_low) / self._u_span - 1.0, q)
+        return self._run.advance(u_row, un, q)
 
     @overload
     def forecast(self, u_plan: ArrayLike, interval: None = None) -> NDArray[np.float64]: ...

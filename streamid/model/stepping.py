@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from streamid.errors import DataError
-from streamid.model.domain import signal_excess, signal_outside
+from streamid.model.domain import value_excess, value_outside
 from streamid.model.ensemble import EnsembleModel, members_of
 from streamid.model.narx import Model
 
@@ -103,20 +103,19 @@ class FreeRun:
         self._median = isinstance(model, EnsembleModel) and model.combine == "median"
         norm = model.normalisation
         self._y_low, self._y_half = norm.y_low, norm.y_half_range
-        self._u_low, self._u_high = np.asarray(norm.u_low, dtype=np.float64), np.asarray(norm.u_high, dtype=np.float64)
-        self._yb = (np.float64(norm.y_low), np.float64(norm.y_high))
+        # each signal's estimation range: the inputs', then the output's (the domain rings' columns)
+        self._ranges = [(float(a), float(b)) for a, b in zip(norm.u_low, norm.u_high)] + [(norm.y_low, norm.y_high)]
         interval = model.interval
         self._scale = 0.0 if interval is None else interval.scale
         self._beyond = 0.0 if interval is None else interval.beyond
         regs = {r for m in members for r in (*m.regressors, *(m.linear_regressors or ()))}
-        self._ru = np.array([r.lag for r in regs if r.signal == "u"], dtype=np.int64)
-        self._ri = np.array([r.index for r in regs if r.signal == "u"], dtype=np.int64)
-        self._ry = np.array([r.lag for r in regs if r.signal == "y"], dtype=np.int64)
         rows, n_in = 2 * cap, u.shape[1]
+        self._rlags = np.array([r.lag for r in regs], dtype=np.int64)  # every regressor: its lag and its column
+        self._rcols = np.array([r.index if r.signal == "u" else n_in for r in regs], dtype=np.int64)
         self._un = np.zeros((rows, n_in))
         self._ynk = np.zeros((len(self._nets), rows))  # each network's own normalised outputs
-        self._ex_u, self._out_u = np.zeros((rows, n_in)), np.zeros((rows, n_in), dtype=bool)
-        self._ex_y, self._out_y = np.zeros(rows), np.zeros(rows, dtype=bool)
+        # each sample's signals: how far beyond (domain.excess) and whether outside (domain.outside) their ranges
+        self._ex, self._out = np.zeros((rows, n_in + 1)), np.zeros((rows, n_in + 1), dtype=bool)
         self._j = 0  # instants written (the measured ones first)
         self.steps = 0  #: instants simulated since the start
         for k in range(L):  # the measured samples; a member with a shorter memory runs on from its own max_lag
@@ -128,20 +127,23 @@ class FreeRun:
             self._write_y(y[k])
             self._j += 1
 
-    def _write_u(self, u: NDArray[np.float64], un: NDArray[np.float64]) -> None:
-        p = self._j % self._cap
-        for a, v in ((self._un, un), (self._ex_u, signal_excess(u, self._u_low, self._u_high)),
-                     (self._out_u, signal_outside(u, self._u_low, self._u_high))):
-            a[p] = a[p + self._cap] = v
+    def _write_u(self, u: NDArray[np.float64], un: NDArray[np.float64] | float) -> None:
+        p, q = self._j % self._cap, self._j % self._cap + self._cap
+        self._un[p] = self._un[q] = un
+        for j, (lo, hi) in enumerate(self._ranges[:-1]):
+            v = float(u[j])
+            self._ex[p, j] = self._ex[q, j] = value_excess(v, lo, hi)
+            self._out[p, j] = self._out[q, j] = value_outside(v, lo, hi)
 
     def _write_y(self, y: float) -> None:
-        p = self._j % self._cap
-        ya = np.asarray(y, dtype=np.float64)  # 0-d: the same operations as a record's
-        self._ex_y[p] = self._ex_y[p + self._cap] = signal_excess(ya, *self._yb)
-        self._out_y[p] = self._out_y[p + self._cap] = signal_outside(ya, *self._yb)
+        p, q, j = self._j % self._cap, self._j % self._cap + self._cap, len(self._ranges) - 1
+        lo, hi = self._ranges[j]
+        self._ex[p, j] = self._ex[q, j] = value_excess(y, lo, hi)
+        self._out[p, j] = self._out[q, j] = value_outside(y, lo, hi)
 
-    def advance(self, u: NDArray[np.float64], un: NDArray[np.float64], q: float | None) -> Step:
-        """The next instant from its input ``u`` (n_inputs,) (``un``: normalised), its band's quantile ``q``."""
+    def advance(self, u: NDArray[np.float64], un: NDArray[np.float64] | float, q: float | None) -> Step:
+        """The next instant from its input ``u`` (n_inputs,) (``un``: normalised; a number for one input), its
+        band's quantile ``q`` (None: no band)."""
         cap = self._cap
         self._write_u(u, un)
         n = self._j % cap + cap
@@ -158,8 +160,8 @@ class FreeRun:
             y = math.nan if any(math.isnan(v) for v in outs) else (s[K // 2] if K % 2 else (s[K // 2 - 1] + s[K // 2]) / 2.0)
         else:
             y = sum(outs) / K
-        rows_u, rows_y = n - self._ru, n - self._ry  # the regressors' samples (the y's: the run's own outputs)
-        inside = not (bool(self._out_u[rows_u, self._ri].any()) or bool(self._out_y[rows_y].any()))
+        rows = n - self._rlags  # the regressors' samples (the output's: the run's own past outputs)
+        inside = not bool(self._out[rows, self._rcols].any())
         lower = upper = None
         if q is not None:
             width = self._scale
@@ -167,8 +169,7 @@ class FreeRun:
                 mean = sum(outs) / K
                 width += math.sqrt(sum((v - mean) ** 2 for v in outs) / K)
             if self._beyond > 0.0:
-                ex = max(float(self._ex_u[rows_u, self._ri].max(initial=0.0)), float(self._ex_y[rows_y].max(initial=0.0)))
-                width += self._beyond * (ex * self._y_half)
+                width += self._beyond * (float(self._ex[rows, self._rcols].max(initial=0.0)) * self._y_half)
             half = q * width
             lower, upper = y - half, y + half
         self._write_y(y)
