@@ -15,6 +15,23 @@ same for several candidate plans at once.  They compute exactly what
 <streamid.model.narx.Model.simulate>` compute on the same samples (tested).  A model with direct terms
 (``u(t)``, from ``direct_terms``) needs the input at the predicted instant: ``predict_one(u_next)``.
 
+:meth:`~Predictor.step` runs the model as a simulator, one instant a call, as an FMU's ``doStep`` or the generated
+C code's ``<name>_step`` does: from the newest measured samples, ``step(u(t+1))``, ``step(u(t+2))``, ... give the
+free run's :class:`~streamid.model.stepping.Step` of each instant (``y``, the band's ``lower`` and ``upper`` at the
+level asked, ``in_domain``), what ``forecast(plan, interval=level)`` gives for the plan of those inputs, computed
+as :meth:`Model.simulate <streamid.model.narx.Model.simulate>` computes it (an ensemble's members each on their own
+outputs, the band's spread and growth beyond the domain: :mod:`~streamid.model.stepping`), at a fixed cost an
+instant. The run never sees a measured output: :meth:`~Predictor.learn_one` (a measurement), :meth:`~Predictor.swap`
+and :meth:`~Predictor.reset` end it, and the next ``step`` starts again from the newest measured samples. A
+simulator run in parallel with the device (never corrected) is a second predictor given only its first
+``max_lag`` samples::
+
+    sim = Predictor(model)
+    for u_k, y_k in first_samples:      # max_lag measured samples
+        sim.learn_one(u_k, y_k)
+    for u_k in inputs:                  # then inputs only
+        s = sim.step(u_k)               # s.y, s.lower, s.upper (90 % band), s.in_domain
+
 Trust: :meth:`~Predictor.beyond_range` names the signals of the samples a prediction uses (and of a
 plan) that leave the model's estimation range by more than
 :data:`~streamid.model.domain.BEYOND_RANGE` of its span: a Gaussian RBF network does not
