@@ -91,6 +91,7 @@ def test_every_kind_of_network_steps_as_it_simulates() -> None:
     models = [replace(m, interval=INTERVAL) for m in (a, b, c, d)]
     models += [replace(ensemble_of([a, b, c], combine=k), interval=INTERVAL) for k in ("mean", "median")]
     models.append(replace(ensemble_of([a, d]), interval=INTERVAL))
+    models.append(replace(_net([("u", 0, 0), ("u", 1, 0)], linear="own", seed=4), interval=INTERVAL))  # max_lag 0
     for model in models:
         _, steps = _stepped(model, u, y, 50, 400)
         flags = _check_equal_to_simulate(model, u, y, 50, steps)

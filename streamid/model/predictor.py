@@ -181,7 +181,7 @@ class Predictor:
         self._cap = max(MIN_HISTORY, model.max_lag)
         self._n = 0  # samples in the buffer (the newest at _n - 1): between _cap and 2 _cap once it has wrapped
         self._held = 0  # samples learnt since the start or the last reset
-        self._run: FreeRun | None = None  # the free run of step(), from the newest measured samples
+        self._running = False  # whether step()'s free run (self._run) has started from the newest measured samples
         self._alloc(model.n_inputs)
         self._serve(model)
         self._nets[0].yn(self._un, self._yn, self._lag)  # load (or compile) the kernel now; the value is unused
@@ -206,12 +206,12 @@ class Predictor:
     def stepped(self) -> int:
         """Instants :meth:`step` has simulated since its free run started from the newest measured samples (0:
         the next :meth:`step` starts one)."""
-        return 0 if self._run is None else self._run.steps
+        return self._run.steps if self._running else 0
 
     def reset(self) -> None:
         """Forget the samples and any free run (after a gap in the measurements: a prediction must not span it)."""
         self._n = self._held = 0
-        self._run = None
+        self._running = False
 
     def swap(self, model: Model) -> None:
         """Serve ``model`` from now on, keeping the samples (the model must take the same number of inputs); the
@@ -224,7 +224,6 @@ class Predictor:
             self._n = len(y)
             self._u[: self._n], self._y[: self._n] = u, y
         self._serve(model)
-        self._run = None
 
     # ------------------------------------------------------------------ verbs
     def learn_one(self, u: ArrayLike, y: float) -> None:
@@ -257,7 +256,7 @@ class Predictor:
         self._yn[n] = 2.0 * (y - self._y_low) / self._y_span - 1.0
         self._n = n + 1
         self._held += 1
-        self._run = None
+        self._running = False
 
     def predict_one(self, u_next: ArrayLike | None = None) -> float:
         """``yhat(t+1)``, the next output one step ahead of the newest sample.
@@ -312,11 +311,12 @@ class Predictor:
             u_row = _inputs("u", u, m.n_inputs)
             un = 2.0 * (u_row - self._u_low) / self._u_span - 1.0
         q = band_quantile(m, interval)
-        if self._run is None:
+        if not self._running:
             L = m.max_lag
             u_held, y_held = self._needed()
             n = self._n
-            self._run = FreeRun(m, self._nets, u_held, y_held, self._un[n - L : n], self._yn[n - L : n])
+            self._run.seed(u_held, y_held, self._un[n - L : n], self._yn[n - L : n])
+            self._running = True
         return self._run.advance(u_row, un, q)
 
     @overload
@@ -442,6 +442,8 @@ class Predictor:
         self._nets = [_Network(m) for m in members_of(model)]
         self._median = isinstance(model, EnsembleModel) and model.combine == "median"
         self._direct = has_direct_terms(model)
+        self._run = FreeRun(model, self._nets)  # step()'s free run: its rings, seeded at the first step
+        self._running = False
         self._lag = model.max_lag
         self._model = model
 

@@ -79,7 +79,8 @@ def band_quantile(model: Model, level: object) -> float | None:
 
 
 class FreeRun:
-    """The free run of ``model`` from measured samples (see the module docstring).
+    """The free run of ``model`` from measured samples (see the module docstring): :meth:`seed`, then
+    :meth:`advance` an instant at a time (the rings are allocated once, for every seed).
 
     Parameters
     ----------
@@ -87,14 +88,9 @@ class FreeRun:
         The model (its interval and domain are read here).
     nets
         Its networks prepared for one row each (in :func:`~streamid.model.ensemble.members_of`'s order).
-    u, y
-        The newest ``max_lag`` measured samples, raw: ``u`` (max_lag, n_inputs), ``y`` (max_lag,).
-    un, yn
-        The same in the model's normalised units.
     """
 
-    def __init__(self, model: Model, nets: Sequence[OneRow], u: NDArray[np.float64], y: NDArray[np.float64],
-                 un: NDArray[np.float64], yn: NDArray[np.float64]) -> None:
+    def __init__(self, model: Model, nets: Sequence[OneRow]) -> None:
         members = members_of(model)
         L = model.max_lag
         self._cap = cap = L + 1
@@ -109,7 +105,7 @@ class FreeRun:
         self._scale = 0.0 if interval is None else interval.scale
         self._beyond = 0.0 if interval is None else interval.beyond
         regs = {r for m in members for r in (*m.regressors, *(m.linear_regressors or ()))}
-        rows, n_in = 2 * cap, u.shape[1]
+        rows, n_in = 2 * cap, model.n_inputs
         self._rlags = np.array([r.lag for r in regs], dtype=np.int64)  # every regressor: its lag and its column
         self._rcols = np.array([r.index if r.signal == "u" else n_in for r in regs], dtype=np.int64)
         self._un = np.zeros((rows, n_in))
@@ -117,15 +113,26 @@ class FreeRun:
         # each sample's signals: how far beyond (domain.excess) and whether outside (domain.outside) their ranges
         self._ex, self._out = np.zeros((rows, n_in + 1)), np.zeros((rows, n_in + 1), dtype=bool)
         self._j = 0  # instants written (the measured ones first)
-        self.steps = 0  #: instants simulated since the start
-        for k in range(L):  # the measured samples; a member with a shorter memory runs on from its own max_lag
-            self._write_u(u[k], un[k])
-            n = self._j % cap + cap
-            for c, net in enumerate(self._nets):
-                v = yn[k] if k < self._lags[c] else net.yn(self._un, self._ynk[c], n)
-                self._ynk[c, n] = self._ynk[c, n - cap] = v
-            self._write_y(y[k])
-            self._j += 1
+        self.steps = 0  #: instants simulated since the last seed
+
+    def seed(self, u: NDArray[np.float64], y: NDArray[np.float64], un: NDArray[np.float64],
+             yn: NDArray[np.float64]) -> None:
+        """Start again from the newest ``max_lag`` measured samples: ``u`` (max_lag, n_inputs), ``y`` (max_lag,)
+        raw, ``un``, ``yn`` the same normalised (slots 0 .. max_lag - 1 and their mirrors: no wrap yet)."""
+        cap, L = self._cap, self._cap - 1
+        if L:  # a model of direct terms only (max_lag 0) starts from nothing
+            cols = [*zip(*u.tolist()), y.tolist()]  # each signal's samples: the inputs', the output's
+            # how far beyond and whether outside each signal's range, as advance judges one sample
+            ex = np.array([[value_excess(v, lo, hi) for v in col] for col, (lo, hi) in zip(cols, self._ranges)]).T
+            out = np.array([[value_outside(v, lo, hi) for v in col] for col, (lo, hi) in zip(cols, self._ranges)]).T
+            for a, v in ((self._un, un), (self._ex, ex), (self._out, out)):
+                a[:L] = a[cap : cap + L] = v
+        for c, net in enumerate(self._nets):  # a member with a shorter memory runs on from its own max_lag
+            Lc = self._lags[c]
+            self._ynk[c, :Lc] = self._ynk[c, cap : cap + Lc] = yn[:Lc]
+            for k in range(Lc, L):
+                self._ynk[c, k] = self._ynk[c, k + cap] = net.yn(self._un, self._ynk[c], k + cap)
+        self._j, self.steps = L, 0
 
     def _write_u(self, u: NDArray[np.float64], un: NDArray[np.float64] | float) -> None:
         p, q = self._j % self._cap, self._j % self._cap + self._cap
