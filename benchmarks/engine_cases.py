@@ -151,8 +151,9 @@ def scaling_case(
 def predictor_case(seed: int) -> dict[str, Any]:
     """A controller's loop on the bundled MR damper: a model of the paper's size (M=10, G=50) identified on
     the first 2,000 samples, then every sample of the log through ``learn_one`` and ``predict_one``, a
-    ``forecast`` of 200 samples (1 s) from each of 50 points, and ``forecast_many`` of 50 plans from 10 of
-    them (medians)."""
+    ``forecast`` of 200 samples (1 s) from each of 50 points, ``forecast_many`` of 50 plans from 10 of
+    them, and the model run as a simulator (``step`` with its 90 % band, when it carries one, and domain flag)
+    over the log from its first ``max_lag`` samples (medians)."""
     from streamid.model.predictor import Predictor
 
     u, y, _, _ = mr_damper_data()
@@ -166,6 +167,15 @@ def predictor_case(seed: int) -> dict[str, Any]:
         if p.ready:
             p.predict_one()
         step.append(time.perf_counter() - t0)
+    sim = Predictor(model)
+    for k in range(model.max_lag):
+        sim.learn_one(ua[k], ya[k])
+    stepped: list[float] = []
+    for k in range(model.max_lag, ua.shape[0]):
+        uk = float(ua[k])
+        t0 = time.perf_counter()
+        sim.step(uk)
+        stepped.append(time.perf_counter() - t0)
     q = Predictor(model)
     plans: list[float] = []
     many: list[float] = []  # 50 candidate plans of 1 s at once: the planned inputs scaled by 0.5..1.5
@@ -181,7 +191,8 @@ def predictor_case(seed: int) -> dict[str, Any]:
                 q.forecast_many(gains * ua[None, k + 1 : k + 201])
                 many.append(time.perf_counter() - t0)
     return {"us_per_sample": 1e6 * float(np.median(step)), "us_per_forecast_1s": 1e6 * float(np.median(plans)),
-            "ms_per_50_forecasts_1s": 1e3 * float(np.median(many)), "max_lag": model.max_lag}
+            "ms_per_50_forecasts_1s": 1e3 * float(np.median(many)), "us_per_step": 1e6 * float(np.median(stepped)),
+            "max_lag": model.max_lag, "band": model.interval is not None}
 
 
 def _rows(section: str, case: str, results: list[dict[str, Any]], metrics: Iterable[tuple[str, str, str]]) -> Iterator[Any]:
@@ -255,7 +266,9 @@ def _bench(options: Any, helper: EvalHelper | None) -> Iterator[Any]:
         "engine", "controller loop: Predictor on the MR damper (M=10)", pr,
         [("us_per_sample", "us", "learn_one + predict_one, median over the log's 3,499 samples"),
          ("us_per_forecast_1s", "us", "forecast of 200 samples (1 s) from the newest samples, median of 50"),
-         ("ms_per_50_forecasts_1s", "ms", "forecast_many: 50 candidate plans of 1 s at once, median of 10")],
+         ("ms_per_50_forecasts_1s", "ms", "forecast_many: 50 candidate plans of 1 s at once, median of 10"),
+         ("us_per_step", "us", "step: the model as a simulator, its 90 % band and domain flag, median over the log"
+          + ("" if all(r["band"] for r in pr) else " (a model without interval: no band)"))],
     )
     sizes = (480, 2000) if options.quick else (480, 2000, 10000)
     for n_est in sizes:

@@ -29,6 +29,6 @@ def test_bench_engine_quick_gives_every_row(capsys: pytest.CaptureFixture[str]) 
                  "scaling N=480 M=10", "scaling N=2000 M=40"):
         assert case in cases, (case, sorted(cases))
     loop = {r["metric"]: r for r in rows if r["case"].startswith("controller loop")}
-    assert set(loop) == {"us_per_sample", "us_per_forecast_1s", "ms_per_50_forecasts_1s"}
+    assert set(loop) == {"us_per_sample", "us_per_forecast_1s", "ms_per_50_forecasts_1s", "us_per_step"}
     assert all(r["median"] > 0 for r in loop.values())
     assert all(math.isfinite(r["median"]) for r in rows if r["metric"] != "lags y1,u1,u2(,y2)"), rows

@@ -245,6 +245,14 @@ def test_journeys_2_and_3_replay_subscribe_and_open_the_rrd(tmp_path: Path) -> N
         beyond = re.findall(r"^beyond the model's range: (.+)$", loop.stdout, re.M)
         assert beyond and (beyond[0] == "nothing" or set(re.findall(r"'([^']+)'", beyond[0])) <= {"velocity_cm_s",
                                                                                                    "force_N"}), loop.stdout
+        # the steps are the same free run, with the model's 90 % band (when it carries an interval)
+        L = live.max_lag
+        if live.interval is not None:
+            band = live.simulate(u[400 - L : 600], y[400 - L : 400], interval=0.9)
+            stepped = f"stepped 1 s: {band.y[-1]:.1f} N, 90 % band {band.lower[-1]:.1f} .. {band.upper[-1]:.1f} N, in"
+        else:
+            stepped = f"stepped 1 s: {fr[-1]:.1f} N, 90 % band none (no interval), in"
+        assert stepped in loop.stdout, loop.stdout
         out, err = replay.communicate(timeout=60)
         assert replay.returncode == 0 and out.startswith("replayed 175 messages"), (out, err)
         assert "no subscriber" not in out

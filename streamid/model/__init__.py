@@ -5,7 +5,8 @@ Owns: the JSON document (``streamid.model/1`` .. ``/5``) and its reading limits 
 the regressors and their normalisation (:mod:`~streamid.model.regressors`), the network and its free-run
 simulation (:mod:`~streamid.model.narx`, :mod:`~streamid.model.freerun`, the compiled loops of
 :mod:`~streamid.model.kernels`), ensembles of networks (:mod:`~streamid.model.ensemble`), the estimation domain
-(:mod:`~streamid.model.domain`) and the sample-by-sample :class:`Predictor` (:mod:`~streamid.model.predictor`).
+(:mod:`~streamid.model.domain`) and the sample-by-sample :class:`Predictor` (:mod:`~streamid.model.predictor`; its
+free run one instant a call, :meth:`Predictor.step`, in :mod:`~streamid.model.stepping`).
 
 May import: the stdlib, numpy, numba, ``streamid.errors``, ``streamid.bounded_files``, ``streamid.threads`` and
 ``streamid.model.*``; never the engine, the online core, the daemon or the transport (tests/test_layout.py).
@@ -25,9 +26,10 @@ from streamid.model.narx import MODEL_FORMAT, MODEL_FORMATS, Model
 
 if TYPE_CHECKING:
     from streamid.model.predictor import Predictor
+    from streamid.model.stepping import Step
 
-_EXPORTS = {"Predictor": "streamid.model.predictor"}
+_EXPORTS = {"Predictor": "streamid.model.predictor", "Step": "streamid.model.stepping"}
 
-__all__ = ["EnsembleModel", "MODEL_FORMAT", "MODEL_FORMATS", "Model", "Predictor"]
+__all__ = ["EnsembleModel", "MODEL_FORMAT", "MODEL_FORMATS", "Model", "Predictor", "Step"]
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals(), __all__)

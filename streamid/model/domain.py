@@ -12,12 +12,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import math
+import sys
+
 import numpy as np
 from numpy.typing import NDArray
 
 from streamid.model.regressors import Normalisation, Regressor
 
-__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "far_from_domain", "outside", "outside_share"]
+__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "far_from_domain", "outside", "outside_share",
+           "signal_excess", "signal_outside", "value_excess", "value_outside"]
 
 
 #: A validation signal counts as beyond the estimation range when it leaves it by more than this fraction of the
@@ -32,6 +36,44 @@ def beyond_range(lo: float, hi: float, values: NDArray[np.float64]) -> bool:
                 BEYOND_RANGE * span)
 
 
+def signal_outside(values: NDArray[np.float64], low: Any, high: Any) -> NDArray[np.bool_]:
+    """Whether each value lies outside ``low .. high`` (per column when they are arrays) widened by a relative
+    1e-9 of the span: one signal's part of :func:`outside` (NaN: never outside, as the C code's comparisons)."""
+    tol = 1e-9 * (high - low)
+    out: NDArray[np.bool_] = (values < low - tol) | (values > high + tol)
+    return out
+
+
+def signal_excess(values: NDArray[np.float64], low: Any, high: Any) -> NDArray[np.float64]:
+    """How far each value lies beyond ``low .. high`` (per column when they are arrays), in half-spans of the
+    range (``max(|x_n| - 1, 0)``, ``x_n`` normalised; 0 for a zero span; a non-finite value: inf): one signal's
+    part of :func:`excess`."""
+    span = high - low
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        ex = np.where(span > 0, np.abs(2.0 * (values - low) / np.where(span > 0, span, 1.0) - 1.0) - 1.0, 0.0)
+    out: NDArray[np.float64] = np.maximum(np.nan_to_num(ex, nan=np.inf), 0.0)  # a non-finite value: infinitely far
+    return out
+
+
+def value_outside(x: float, low: float, high: float) -> bool:
+    """:func:`signal_outside` of one value (the same float operations): a free run's step tests a sample with it
+    (:mod:`~streamid.model.stepping`), where numpy's per-call cost would outweigh the arithmetic."""
+    tol = 1e-9 * (high - low)
+    return x < low - tol or x > high + tol
+
+
+def value_excess(x: float, low: float, high: float) -> float:
+    """:func:`signal_excess` of one value (the same float operations; NaN: inf, inf: the largest float, as
+    ``numpy.nan_to_num`` maps them there)."""
+    span = high - low
+    if not span > 0:
+        return 0.0
+    ex = abs(2.0 * (x - low) / span - 1.0) - 1.0
+    if math.isnan(ex):
+        return math.inf
+    return sys.float_info.max if ex == math.inf else max(ex, 0.0)
+
+
 def outside(normalisation: Normalisation, regressors: Sequence[Regressor], u: NDArray[np.float64],
             y: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
     """For each sample ``t`` of ``u`` (N, n_inputs) (and measured outputs ``y``, when given), whether a regressor of
@@ -39,10 +81,8 @@ def outside(normalisation: Normalisation, regressors: Sequence[Regressor], u: ND
     the range the estimation data spanned (the normalisation's ``low .. high``, to a relative 1e-9). The first
     samples, which a regressor reaches before the record's start, count by the samples they can see."""
     n = u.shape[0]
-    tol_u = 1e-9 * (np.asarray(normalisation.u_high) - np.asarray(normalisation.u_low))
-    out_u = (u < np.asarray(normalisation.u_low) - tol_u) | (u > np.asarray(normalisation.u_high) + tol_u)
-    tol_y = 1e-9 * (normalisation.y_high - normalisation.y_low)
-    out_y = None if y is None else (y < normalisation.y_low - tol_y) | (y > normalisation.y_high + tol_y)
+    out_u = signal_outside(u, np.asarray(normalisation.u_low), np.asarray(normalisation.u_high))
+    out_y = None if y is None else signal_outside(y, normalisation.y_low, normalisation.y_high)
     flags = np.zeros(n, dtype=bool)
     for r in regressors:
         src = out_u[:, r.index] if r.signal == "u" else out_y
@@ -61,13 +101,8 @@ def excess(normalisation: Normalisation, regressors: Sequence[Regressor], u: NDA
     start is not counted, as in :func:`outside`."""
     n = u.shape[0]
     lo, hi = np.asarray(normalisation.u_low, dtype=np.float64), np.asarray(normalisation.u_high, dtype=np.float64)
-    span = hi - lo
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        ex_u = np.where(span > 0, np.abs(2.0 * (u - lo) / np.where(span > 0, span, 1.0) - 1.0) - 1.0, 0.0)
-        y_span = normalisation.y_high - normalisation.y_low
-        ex_y = np.abs(2.0 * (y - normalisation.y_low) / y_span - 1.0) - 1.0 if y_span > 0 else np.zeros(n)
-    ex_u = np.maximum(np.nan_to_num(ex_u, nan=np.inf), 0.0)  # a non-finite value: infinitely far
-    ex_y = np.maximum(np.nan_to_num(ex_y, nan=np.inf), 0.0)
+    ex_u = signal_excess(u, lo, hi)
+    ex_y = signal_excess(y, np.float64(normalisation.y_low), np.float64(normalisation.y_high))
     d = np.zeros(n)
     for r in regressors:
         src = ex_u[:, r.index] if r.signal == "u" else ex_y

@@ -15,6 +15,23 @@ same for several candidate plans at once.  They compute exactly what
 <streamid.model.narx.Model.simulate>` compute on the same samples (tested).  A model with direct terms
 (``u(t)``, from ``direct_terms``) needs the input at the predicted instant: ``predict_one(u_next)``.
 
+:meth:`~Predictor.step` runs the model as a simulator, one instant a call, as an FMU's ``doStep`` or the generated
+C code's ``<name>_step`` does: from the newest measured samples, ``step(u(t+1))``, ``step(u(t+2))``, ... give the
+free run's :class:`~streamid.model.stepping.Step` of each instant (``y``, the band's ``lower`` and ``upper`` at the
+level asked, ``in_domain``), what ``forecast(plan, interval=level)`` gives for the plan of those inputs, computed
+as :meth:`Model.simulate <streamid.model.narx.Model.simulate>` computes it (an ensemble's members each on their own
+outputs, the band's spread and growth beyond the domain: :mod:`~streamid.model.stepping`), at a fixed cost an
+instant. The run never sees a measured output: :meth:`~Predictor.learn_one` (a measurement), :meth:`~Predictor.swap`
+and :meth:`~Predictor.reset` end it, and the next ``step`` starts again from the newest measured samples. A
+simulator run in parallel with the device (never corrected) is a second predictor given only its first
+``max_lag`` samples::
+
+    sim = Predictor(model)
+    for u_k, y_k in first_samples:      # max_lag measured samples
+        sim.learn_one(u_k, y_k)
+    for u_k in inputs:                  # then inputs only
+        s = sim.step(u_k)               # s.y, s.lower, s.upper (90 % band), s.in_domain
+
 Trust: :meth:`~Predictor.beyond_range` names the signals of the samples a prediction uses (and of a
 plan) that leave the model's estimation range by more than
 :data:`~streamid.model.domain.BEYOND_RANGE` of its span: a Gaussian RBF network does not
@@ -46,10 +63,11 @@ from streamid.model.narx import Model
 from streamid.model.limits import MAX_INPUTS, MAX_LAG, MAX_NEURONS
 from streamid.model.regressors import Normalisation, Regressor
 from streamid.model.regressors import check_finite
-from streamid.model.uncertainty import Band
+from streamid.model.stepping import FreeRun, Step, band_quantile
+from streamid.model.uncertainty import DEFAULT_LEVEL, Band
 from streamid.errors import DataError
 
-__all__ = ["Predictor", "has_direct_terms", "one_step"]
+__all__ = ["Predictor", "Step", "has_direct_terms", "one_step"]
 
 #: samples a predictor keeps at least (a model swapped in with a longer memory is ready at once up to this)
 MIN_HISTORY = 256
@@ -163,6 +181,7 @@ class Predictor:
         self._cap = max(MIN_HISTORY, model.max_lag)
         self._n = 0  # samples in the buffer (the newest at _n - 1): between _cap and 2 _cap once it has wrapped
         self._held = 0  # samples learnt since the start or the last reset
+        self._running = False  # whether step()'s free run (self._run) has started from the newest measured samples
         self._alloc(model.n_inputs)
         self._serve(model)
         self._nets[0].yn(self._un, self._yn, self._lag)  # load (or compile) the kernel now; the value is unused
@@ -183,12 +202,20 @@ class Predictor:
         """Whether ``max_lag`` samples are held: predictions can be made."""
         return self.held >= self._model.max_lag
 
+    @property
+    def stepped(self) -> int:
+        """Instants :meth:`step` has simulated since its free run started from the newest measured samples (0:
+        the next :meth:`step` starts one)."""
+        return self._run.steps if self._running else 0
+
     def reset(self) -> None:
-        """Forget the samples (after a gap in the measurements: a prediction must not span it)."""
+        """Forget the samples and any free run (after a gap in the measurements: a prediction must not span it)."""
         self._n = self._held = 0
+        self._running = False
 
     def swap(self, model: Model) -> None:
-        """Serve ``model`` from now on, keeping the samples (the model must take the same number of inputs)."""
+        """Serve ``model`` from now on, keeping the samples (the model must take the same number of inputs); the
+        next :meth:`step` starts the new model's free run from the newest measured samples."""
         model = self._checked(model, self._model)
         if model.max_lag > self._cap:  # a longer memory: keep what is held, in a larger buffer
             u, y = (a.copy() for a in self._recent(self.held))
@@ -200,7 +227,8 @@ class Predictor:
 
     # ------------------------------------------------------------------ verbs
     def learn_one(self, u: ArrayLike, y: float) -> None:
-        """Add the newest measured sample: the input(s) ``u(t)`` and the output ``y(t)``.
+        """Add the newest measured sample: the input(s) ``u(t)`` and the output ``y(t)``; the next :meth:`step`
+        starts a free run from it (a measurement ends the free run of the earlier ones).
 
         Raises
         ------
@@ -228,6 +256,7 @@ class Predictor:
         self._yn[n] = 2.0 * (y - self._y_low) / self._y_span - 1.0
         self._n = n + 1
         self._held += 1
+        self._running = False
 
     def predict_one(self, u_next: ArrayLike | None = None) -> float:
         """``yhat(t+1)``, the next output one step ahead of the newest sample.
@@ -254,6 +283,42 @@ class Predictor:
         for net in self._nets:  # an ensemble's prediction is its members' mean (in output units, as predict_osa's)
             total += (net.yn(self._un, self._yn, n) + 1.0) * self._y_half + self._y_low
         return total / len(self._nets)
+
+    def step(self, u: ArrayLike, interval: float | None = DEFAULT_LEVEL) -> Step:
+        """The model run as a simulator, one instant a call: the next instant's :class:`~streamid.model.stepping.Step`
+        (``y``, its band's ``lower`` and ``upper``, ``in_domain``) for ``u``, the input at that instant.
+
+        The first call after measured samples (:meth:`learn_one`; or after :meth:`swap` or :meth:`reset`) starts a
+        free run from the newest ``max_lag`` of them and gives ``yhat(t+1)`` for ``u = u(t+1)``; each further call
+        gives the instant after, feeding back the run's own outputs only (never a measured one): ``k`` calls give
+        what :meth:`forecast` gives for the plan of their inputs (a direct term, lag 0, reads ``u`` at its own
+        instant; other models use it from the next instant on). A :meth:`learn_one` in between ends the run: the
+        next call starts again from the measurements. ``interval``: a level of the model's interval (``lower`` and
+        ``upper`` None when the model carries none, or with None). Each call costs the same bounded work
+        (:mod:`~streamid.model.stepping`): about 12 us for a 10-neuron network with its band on a 2-core VM
+        (``streamid bench --only engine``), the first after measurements about 2 us more per ``max_lag`` sample.
+
+        Raises
+        ------
+        DataError
+            If ``u`` is not finite or not one value per input, ``interval`` is not a level the model carries, or
+            fewer than ``max_lag`` samples are held; the run is then unchanged.
+        """
+        m = self._model
+        un: float | NDArray[np.float64]
+        if self._scalar_u and isinstance(u, float) and isfinite(u):  # the common loop, as in learn_one
+            u_row, un = np.array((u,)), 2.0 * (u - self._u_low0) / self._u_span0 - 1.0
+        else:
+            u_row = _inputs("u", u, m.n_inputs)
+            un = 2.0 * (u_row - self._u_low) / self._u_span - 1.0
+        q = band_quantile(m, interval)
+        if not self._running:
+            L = m.max_lag
+            u_held, y_held = self._needed()
+            n = self._n
+            self._run.seed(u_held, y_held, self._un[n - L : n], self._yn[n - L : n])
+            self._running = True
+        return self._run.advance(u_row, un, q)
 
     @overload
     def forecast(self, u_plan: ArrayLike, interval: None = None) -> NDArray[np.float64]: ...
@@ -378,6 +443,8 @@ class Predictor:
         self._nets = [_Network(m) for m in members_of(model)]
         self._median = isinstance(model, EnsembleModel) and model.combine == "median"
         self._direct = has_direct_terms(model)
+        self._run = FreeRun(model, self._nets)  # step()'s free run: its rings, seeded at the first step
+        self._running = False
         self._lag = model.max_lag
         self._model = model
 
