@@ -32,7 +32,8 @@ from streamid.engine.settings import DEFAULT
 from streamid.engine.validation import r2_or_none
 
 #: The modules whose ``CHUNK_ROWS`` decides the bounded path (raised together for the "every row" arm).
-_THRESHOLDS = ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection")
+_THRESHOLDS = ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection",
+               "streamid.model.ensemble")
 
 
 @contextlib.contextmanager

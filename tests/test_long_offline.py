@@ -288,3 +288,39 @@ def test_an_ensemble_s_one_step_prediction_beyond_one_chunk_is_made_a_chunk_at_a
     for threads in (1, 2):
         np.testing.assert_allclose(ens.predict_osa(u, y, threads=threads), want, rtol=1e-12, atol=1e-12)
     assert max(seen) <= 700 + ens.max_lag and len(seen) == 2 * 2 * 5  # members x thread counts x chunks
+
+
+def test_a_record_judged_a_chunk_at_a_time_gives_the_whole_record_s_report(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``assess`` beyond one chunk: the free run cut in pieces is the whole one to the bit (each network carries its
+    last outputs), the figures the whole record's to rounding (sums added piece by piece), the band's coverage and
+    width the same, the domain's excess reading back across a piece's start; ``keep=False`` holds no prediction."""
+    from dataclasses import replace
+
+    import streamid.engine.validation as validation
+    from streamid.model.ensemble import ensemble_of
+    from streamid.model.freerun import chunked_paths
+    from streamid.model.uncertainty import BEYOND, LEVELS, Interval
+
+    u, y = _plant(5_000, seed=13)
+    ens = ensemble_of([_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4),
+                       _osa_net(u, y, (("y", 1), ("u", 1), ("u", 3)), 5, 5)])
+    ens = replace(ens, interval=Interval(LEVELS, (0.5, 1.0, 1.5, 2.0, 3.0), 0.02, 100, beyond=BEYOND))
+    uu = u.copy()
+    uu[2_780:2_820] *= 1.6  # leaves the estimation range across a piece's start (2,800 below): the band grows
+    whole = validation.assess(ens, uu, y)
+    pieces = list(chunked_paths(ens, uu[:, None], y, 700))
+    assert [a for a, _ in pieces] == list(range(0, 5_000, 700))
+    assert np.array_equal(np.concatenate([p for _, p in pieces], axis=1), ens.member_paths(uu, y[:3]))
+    monkeypatch.setattr(validation, "CHUNK_ROWS", 700)  # eight pieces, the last partial
+    cut = validation.assess(ens, uu, y)
+    assert np.array_equal(cut.predictions["fr"], whole.predictions["fr"])
+    np.testing.assert_allclose(cut.predictions["osa"], whole.predictions["osa"], rtol=1e-13, atol=1e-13)
+    for k in ("osa", "fr", "rmse_osa", "rmse_fr", "outside_domain"):
+        assert getattr(cut, k) == pytest.approx(getattr(whole, k), rel=1e-12), k
+    assert cut.interval is not None and whole.interval is not None and 0.0 < whole.outside_domain
+    assert cut.interval["coverage"] == whole.interval["coverage"]
+    assert cut.interval["width"] == pytest.approx(whole.interval["width"], rel=1e-12)
+    for t, w in zip(cut.correlation.tests, whole.correlation.tests):
+        np.testing.assert_allclose(t.values, w.values, rtol=1e-9, atol=1e-12)
+    bare = validation.assess(ens, uu, y, keep=False)
+    assert bare.predictions == {} and bare.to_dict() == cut.to_dict()

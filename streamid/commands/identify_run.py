@@ -51,11 +51,11 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
 
 
 def validated_run(model: Model, ds: Dataset, *, seed: int, seconds: float, evaluations: int, fitness: float,
-                  history: list[float], threads: int = 1) -> dict[str, Any]:
-    """A run's row of the report: ``model`` validated on the data set (JSON-able; its predictions in ``threads``
-    threads, the same row). A free run that diverges is a row with its R² None and the sample it diverged at
+                  history: list[float]) -> dict[str, Any]:
+    """A run's row of the report: ``model`` validated on the data set (JSON-able; its figures only: a drawing
+    validates again). A free run that diverges is a row with its R² None and the sample it diverged at
     (``diverged``), never an error (issue 37)."""
-    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, threads=threads)
+    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, keep=False)
     model = model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
     return {
         "seed": seed,

@@ -189,7 +189,8 @@ def validate_command(args: argparse.Namespace) -> int:
     if len(rec.y) < model.max_lag + 2 + 20:
         raise DataError(f"{rec.path} has {len(rec.y)} samples; judging a model of max lag {model.max_lag} needs at "
                         f"least {model.max_lag + 22} (its first {model.max_lag} start the predictions)")
-    rep = assess(model, rec.u, rec.y, threads=cores())  # this command's cores: the same report, sooner
+    # this command's cores (the same report, sooner); the full-length predictions only for the drawing
+    rep = assess(model, rec.u, rec.y, threads=cores(), keep=args.rrd is not None)
     caveats = record_caveats(model, rep.osa, rep.fr, rec.u, rec.y, rep.fr_diverged_at)
     passed = None if args.min_r2_fr is None else bool(rep.fr is not None and rep.fr >= args.min_r2_fr)
     files = _draw(args.rrd, model, rec, rep, notes, caveats) if args.rrd is not None else []

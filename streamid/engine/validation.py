@@ -14,12 +14,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.correlation import (PASS_FRACTION, STRICT_Z, TESTS, CorrelationReport, CorrelationTest, ccf,
                                          correlation_test_name, correlation_tests)
-from streamid.model.domain import outside_share
-from streamid.model.ensemble import members_of
+from streamid.model.domain import far_from_domain, outside_share
+from streamid.model.freerun import chunked_paths
+from streamid.model.limits import CHUNK_ROWS
 from streamid.model.regressors import as_data
-from streamid.model.uncertainty import interval_report
+from streamid.model.uncertainty import DEFAULT_LEVEL, coverage_figures
 from streamid.errors import DataError
-from streamid.threads import thread_map
 
 if TYPE_CHECKING:
     from streamid.model.narx import Model
@@ -114,6 +114,8 @@ class ValidationReport:
 
     def diverged(self) -> dict[str, int]:
         """``{"est" | "val": first non-finite sample}`` of the free runs that diverged (empty: none did)."""
+        if "diverged" in self.extra:  # validate's, found as it judged the records (with or without predictions)
+            return dict(self.extra["diverged"])
         out = {}
         for part in ("est", "val"):
             k = diverged_at(self.predictions[f"fr_{part}"]) if f"fr_{part}" in self.predictions else None
@@ -179,44 +181,81 @@ class RecordReport:
         }
 
 
-def _paths(model: Model, records: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
-           threads: int) -> list[NDArray[np.float64]]:
-    """The model's networks' free runs (``model.member_paths``) on each record, from its first ``max_lag``
-    outputs: an ensemble's members in ``threads`` threads, a single network's records so (the same values to
-    the bit either way: each network's and record's arithmetic is its own)."""
-    L = model.max_lag
-    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (fr None), not warned about
-        if len(members_of(model)) > 1:
-            return [model.member_paths(u, y[:L], threads=threads) for u, y in records]
-        return thread_map(lambda r: model.member_paths(r[0], r[1][:L]), records, threads)
-
-
-def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], paths: NDArray[np.float64],
-            max_lag: int, threads: int = 1, band: bool = True) -> RecordReport:
-    """The report on one record from the model's networks' free runs ``paths`` on it; ``band`` False: without the
-    interval's coverage and the domain's share (``validate``'s estimation record, whose are not reported)."""
-    L = model.max_lag
-    with np.errstate(over="ignore", invalid="ignore"):  # the free run once: its R^2 and its interval's band
-        fr = model.combine_paths(paths, y[:L])
-    osa_r2, fr_r2, res, osa, _ = _predictions(model, u, y, fr=fr, threads=threads)
+def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_lag: int, threads: int = 1,
+            band: bool = True, keep: bool = True) -> RecordReport:
+    """The report on one record, made :data:`~streamid.model.limits.CHUNK_ROWS` samples at a time: the free run
+    once (:func:`~streamid.model.freerun.chunked_paths`: its R^2 and its interval's band from the same paths),
+    the one-step prediction, the sums of the figures. Memory: a piece's, plus the one-step residual the
+    correlation tests read (one value a sample) and, with ``keep``, the two predictions. Up to one chunk the
+    figures are the whole-record formulas' to the bit (one piece); beyond it their sums are added piece by piece
+    (equal to rounding). ``band`` False: without the interval's coverage and the domain's share (``validate``'s
+    estimation record, whose are not reported); ``threads``: an ensemble's members in that many threads."""
+    L, n = model.max_lag, int(y.shape[0])
+    ys = y[L:]
+    mean = ys.mean()
+    ss = sse_osa = sse_fr = width_sum = 0.0
+    inside, diverged = 0, None
+    res = np.empty(n - L)
+    osa_all, fr_all = (y.copy(), np.empty(n)) if keep else (None, None)
+    interval = getattr(model, "interval", None) if band else None
+    H = model.max_lag  # the domain's excess at t reads the inputs and the run back to t - H
+    tail_u, tail_c = u[:0], np.empty(0)
+    for a, paths in chunked_paths(model, u, y[:L], CHUNK_ROWS, threads):
+        b = a + paths.shape[1]
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (fr None)
+            centre = paths[0].copy() if paths.shape[0] == 1 else model.combine_rows(paths)  # type: ignore[attr-defined]
+            if a == 0:
+                centre[:L] = paths[0, :L]  # the measured initial outputs
+            d = diverged_at(centre)
+            diverged = a + d if diverged is None and d is not None else diverged
+            s = max(a, L)  # the piece's first scored sample
+            if s < b:
+                osa = model.predict_osa(u[s - L : b], y[s - L : b], threads=threads)[L:]
+                if not np.all(np.isfinite(osa)):
+                    raise DataError("r2 needs finite values (no NaN or inf)")
+                e = res[s - L : b - L]
+                np.subtract(y[s:b], osa, out=e)
+                sse_osa += float(np.sum(e**2))
+                ss += float(np.sum((y[s:b] - mean) ** 2))
+                sse_fr += float(np.sum((y[s:b] - centre[s - a :]) ** 2))
+                if osa_all is not None:
+                    osa_all[s:b] = osa
+            if fr_all is not None:
+                fr_all[a:b] = centre
+            if interval is not None:
+                far = far_from_domain(model, np.concatenate([tail_u, u[a:b]]), np.concatenate([tail_c, centre]))
+                bd = interval.band(centre, paths, DEFAULT_LEVEL, L if a == 0 else 0, far[tail_c.shape[0] :])
+                lo, hi = bd.lower[s - a :], bd.upper[s - a :]
+                inside += int(np.count_nonzero((y[s:b] >= lo) & (y[s:b] <= hi)))
+                width_sum += float(np.sum(hi - lo))
+                tail_u, tail_c = u[max(0, b - H) : b], centre[max(0, centre.shape[0] - H) :]
+    m = n - L
+    if ss == 0.0:
+        raise DataError(f"r2 is undefined for a constant measured signal (all values {ys[0]!r})")
     with np.errstate(over="ignore", invalid="ignore"):
-        rmse_fr = float(np.sqrt(np.mean((y[L:] - fr[L:]) ** 2)))
+        fr_r2 = None if diverged is not None else 1.0 - sse_fr / ss
+        rmse_fr = float(np.sqrt(sse_fr / m))
+    figures = None
+    if interval is not None:
+        figures = {"level": float(DEFAULT_LEVEL), **coverage_figures(inside / m, width_sum / m, float(np.sqrt(ss / m)))}
     return RecordReport(
-        n=int(y.shape[0]), n_scored=int(y.shape[0] - L), osa=osa_r2, fr=fr_r2,
-        rmse_osa=float(np.sqrt(np.mean(res**2))), rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
+        n=n, n_scored=m, osa=1.0 - sse_osa / ss, fr=fr_r2, rmse_osa=float(np.sqrt(sse_osa / m)),
+        rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,
         correlation=correlation_tests(res, u[L:], max_lag, model.input_names),
-        predictions={"osa": osa, "fr": fr}, fr_diverged_at=diverged_at(fr),
-        interval=interval_report(model, u, y, paths=paths) if band else None,
-        outside_domain=outside_share(model, u, y) if band else 0.0,
+        predictions={"osa": osa_all, "fr": fr_all} if osa_all is not None and fr_all is not None else {},
+        fr_diverged_at=diverged, interval=figures, outside_domain=outside_share(model, u, y) if band else 0.0,
     )
 
 
-def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20, threads: int = 1) -> RecordReport:
+def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20, threads: int = 1,
+           keep: bool = True) -> RecordReport:
     """One-step-ahead and free-run R^2, RMSE and the correlation tests of ``model`` on one record.
 
     The record is typically one the model has never seen (``streamid validate``; a second experiment with
     another excitation is the real test).  Pure: numbers in, a :class:`RecordReport` out. ``threads`` > 1: the
     predictions computed in that many threads (for a caller with cores to spare; the same report to the bit).
+    Made a chunk of samples at a time (memory bounded by the chunk, not the record); ``keep`` False: without the
+    full-length predictions (``predictions`` empty), which are what a long record would hold.
 
     Raises
     ------
@@ -227,7 +266,7 @@ def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20, threa
     if ua.shape[1] != model.n_inputs:
         raise DataError(f"the model has {model.n_inputs} input(s) {list(model.input_names)}; the data give "
                         f"{ua.shape[1]}: pass one input column per model input, in the model's order")
-    return _record(model, ua, ya, _paths(model, [(ua, ya)], threads)[0], max_lag, threads)
+    return _record(model, ua, ya, max_lag, threads, keep=keep)
 
 
 def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, float | None, NDArray[np.float64]]:
@@ -258,6 +297,7 @@ def validate(
     *,
     max_lag: int = 20,
     threads: int = 1,
+    keep: bool = True,
 ) -> ValidationReport:
     """OSA and free-run R^2 on estimation and validation data, and the correlation tests of both.
 
@@ -271,6 +311,9 @@ def validate(
     threads : int
         The predictions computed in that many threads (for a caller with cores to spare; the same report to
         the bit).
+    keep : bool
+        Keep the four full-length predictions (``predictions``); False: the report's figures only, in memory
+        bounded by the chunk (a long record's).
 
     Returns
     -------
@@ -280,11 +323,8 @@ def validate(
     L = model.max_lag
     ue, ye = as_data(u_est, y_est, min_samples=L + 2)
     uv, yv = as_data(u_val, y_val, min_samples=L + 2)
-    paths_e, paths_v = _paths(model, [(ue, ye), (uv, yv)], threads)
-    e = _record(model, ue, ye, paths_e, max_lag, threads, band=False)  # its band and domain share are not reported
-    del paths_e
-    v = _record(model, uv, yv, paths_v, max_lag, threads)
-    p_fr_e, p_fr_v = e.predictions["fr"], v.predictions["fr"]
+    e = _record(model, ue, ye, max_lag, threads, band=False, keep=keep)  # its band and domain share: not reported
+    v = _record(model, uv, yv, max_lag, threads, keep=keep)
     return ValidationReport(
         osa_est=e.osa,
         osa_val=v.osa,
@@ -292,7 +332,8 @@ def validate(
         fr_val=v.fr,
         correlation_est=e.correlation,
         correlation_val=v.correlation,
-        predictions={"osa_est": e.predictions["osa"], "fr_est": p_fr_e, "osa_val": v.predictions["osa"],
-                     "fr_val": p_fr_v},
-        extra={"interval_val": v.interval, "outside_domain_val": v.outside_domain},
+        predictions={f"{k}_{part}": r.predictions[k] for part, r in (("est", e), ("val", v)) for k in ("osa", "fr")
+                     if k in r.predictions},
+        extra={"interval_val": v.interval, "outside_domain_val": v.outside_domain,
+               "diverged": {p: r.fr_diverged_at for p, r in (("est", e), ("val", v)) if r.fr_diverged_at is not None}},
     )

@@ -214,6 +214,11 @@ class EnsembleModel(Model):
         thread_map(block, range(L, n, CHUNK_ROWS), threads)
         return out
 
+    def combine_rows(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The members' outputs ``rows`` (K, n) at the same samples combined as the model combines them (their mean
+        or per-sample median): e.g. a piece of :func:`~streamid.model.freerun.chunked_paths`."""
+        return self._combined(rows)
+
     def _combined(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
         """The members' outputs ``rows`` (K, n) combined: their mean or their per-sample median."""
         out: NDArray[np.float64] = np.median(rows, axis=0) if self.combine == "median" else np.mean(rows, axis=0)

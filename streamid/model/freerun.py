@@ -9,13 +9,16 @@ Without it (``linear=None``) the computation is exactly the RBF-only one.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
 from streamid.threads import thread_map
 from streamid.model.regressors import Regressor
 
-__all__ = ["free_run"]
+__all__ = ["chunked_paths", "free_run"]
 
 
 def free_run(
@@ -137,3 +140,38 @@ def _linear_inputs(
             col[reg.lag :] = un[:, : n - reg.lag, reg.index].T
             out += col * linear[None, :, j]
     return out
+
+
+def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64], rows: int,
+                  threads: int = 1) -> Iterator[tuple[int, NDArray[np.float64]]]:
+    """A model's networks' free runs over a record, ``rows`` samples at a time: ``(a, paths)`` for consecutive
+    spans ``a .. a + len`` covering the record, ``paths`` ``(K, len)`` in output units (a member's each for an
+    ensemble), the first ``max_lag`` samples measured: ``model.member_paths(u, y_init)`` cut in pieces, the same
+    values to the bit (each network carries its own last ``max_lag`` outputs, normalised, from one piece to the
+    next: the recursion's arithmetic is unchanged). Memory: a piece's, whatever the record's length.
+
+    ``model`` a Model or an ensemble (read, not imported); ``u`` (N, n_inputs) float64 as
+    :func:`~streamid.model.regressors.as_data` gives it; ``y_init`` at least ``max_lag`` measured outputs;
+    ``threads``: an ensemble's members in that many threads (the same values).
+    """
+    members = tuple(getattr(model, "members", (model,)))
+    L, n, norm = int(model.max_lag), int(u.shape[0]), model.normalisation
+    yi = np.asarray(y_init, dtype=np.float64).reshape(-1)[:L]
+    tails = [norm.y(yi[: m.max_lag]) for m in members]  # each network's last outputs, normalised
+
+    def piece(k: int, a: int, b: int) -> NDArray[np.float64]:
+        m, lm = members[k], int(members[k].max_lag)
+        s = a - lm if a else 0  # a later piece starts from its network's own last outputs
+        yn = free_run(m.regressors, m.centres[None], m.widths[None], m.weights[None], norm.u(u[s:b]),
+                      tails[k][None, :], None if m.linear is None else m.linear[None],
+                      linear_regressors=m.linear_regressors)[0]
+        tails[k] = yn[yn.shape[0] - lm:].copy() if lm else yn[:0]
+        out: NDArray[np.float64] = norm.y_inverse(yn[a - s:])
+        return out
+
+    for a in range(0, n, max(int(rows), L + 1)):
+        b = min(n, a + max(int(rows), L + 1))
+        paths = np.array(thread_map(lambda k: piece(k, a, b), range(len(members)), threads))
+        if a == 0:
+            paths[:, :L] = yi[:L]  # the measured initial outputs (as simulate and member_paths give them)
+        yield a, paths

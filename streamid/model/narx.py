@@ -294,9 +294,7 @@ class Model:
         u : array_like, shape (N,) or (N, n_inputs)
         y : array_like, shape (N,)
         threads : int
-            The record's blocks computed in that many threads (numpy releases the GIL in them): for a caller
-            with cores to spare (``streamid validate``). Each block's arithmetic is its own: the same values
-            to the bit with any number.
+            The record's blocks in that many threads (``streamid validate``'s cores): the same values to the bit.
 
         Returns
         -------

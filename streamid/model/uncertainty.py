@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.errors import DataError, ModelFormatError
 from streamid.model.domain import far_from_domain
 
-__all__ = ["BEYOND", "Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "band_coverage", "conformal_quantiles",
+__all__ = ["BEYOND", "Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "band_coverage", "coverage_figures", "conformal_quantiles",
            "interval_report", "interval_text", "member_spread"]
 
 #: The levels whose quantiles a model carries; the default one is drawn and reported.
@@ -163,8 +163,13 @@ def band_coverage(y: ArrayLike, band: Band, start: int = 0) -> dict[str, float]:
     with np.errstate(invalid="ignore", over="ignore"):
         inside = (ya >= lo) & (ya <= hi)
         width = float(np.mean(hi - lo))
-    std = float(np.std(ya))
-    return {"coverage": float(np.mean(inside)), "width": width if math.isfinite(width) else math.inf,
+    return coverage_figures(float(np.mean(inside)), width, float(np.std(ya)))
+
+
+def coverage_figures(coverage: float, width: float, std: float) -> dict[str, float]:
+    """:func:`band_coverage`'s figures from the share inside, the mean width and the measured output's standard
+    deviation (a record judged a piece at a time sums them itself: ``streamid.engine.validation``)."""
+    return {"coverage": coverage, "width": width if math.isfinite(width) else math.inf,
             "width_over_std": (width / std) if std > 0 and math.isfinite(width) else math.inf}
 
 
