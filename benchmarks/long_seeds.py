@@ -69,14 +69,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--val", type=int, default=20_000)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--device", choices=("reactor", "mr_damper"), default="reactor")
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--bounded-rows", type=int, default=0,
+                    help="the bounded arm's search rows (search_rows; 0: the default's), e.g. 6528 for the online bound")
+    ap.add_argument("--arms", choices=("both", "bounded"), default="both")
     a = ap.parse_args(argv)
     (u, y), (uv, yv) = records(a.device, a.est, a.val)
-    res: dict[str, list[tuple[float, float]]] = {"bounded": [], "every row": []}
-    for seed in range(a.seeds):
+    res: dict[str, list[tuple[float, float]]] = {"bounded": []} if a.arms == "bounded" else {"bounded": [], "every row": []}
+    for seed in range(a.first_seed, a.first_seed + a.seeds):
         for arm in res:
+            cfg = DEFAULT.replace(search_rows=a.bounded_rows) if (arm == "bounded" and a.bounded_rows) else DEFAULT
             with one_chunk_path(a.est) if arm == "every row" else contextlib.nullcontext():
                 t0 = time.perf_counter()
-                m = identify(u[:, None], y, DEFAULT, seed).model
+                m = identify(u[:, None], y, cfg, seed).model
                 s = time.perf_counter() - t0
             L = m.max_lag
             with np.errstate(over="ignore", invalid="ignore"):

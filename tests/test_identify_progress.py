@@ -34,6 +34,8 @@ def test_restarts_in_process_report_every_generation() -> None:
     assert evals == sorted(evals) and evals[-1] == res.evaluations
     best = [p.best_fitness for p in seen]
     assert all(np.isfinite(best)) and min(best) > 0
+    # then one report of the stage after the search: the kept model's choice (size, ensemble, refinement, interval)
+    assert [p.stage for p in seen] == ["search"] * (len(seen) - 1) + ["choice"]
 
 
 def test_cli_bar_moves_within_one_run_on_a_pipe() -> None:
@@ -60,3 +62,6 @@ def test_cli_bar_moves_within_one_run_on_a_pipe() -> None:
     evals = [int(e) for *_, e in draws]
     assert evals == sorted(evals) and evals[-1] == __import__("json").loads(stdout)["runs"][0]["evaluations"]
     assert stderr.endswith("\n")  # the bar's line is ended
+    # the stages after the search are said on the same line, in order (a long record spends seconds in them)
+    choosing, validating = stderr.rfind("choosing the kept model"), stderr.rfind("validating the kept model")
+    assert 0 < choosing < validating and choosing > stderr.rfind("generation 500/500"), stderr[-400:]

@@ -31,6 +31,11 @@ def r2_text(v: float | None, digits: int = 5, width: int = 0) -> str:
     return f"{'diverged' if v is None else format(v, f'.{digits}f'):>{width}}"
 
 
+#: What the progress line says in an identification's stages after its search (``Progress.stage``).
+STAGES = {"choice": "choosing the kept model: its size, ensemble, refinement and interval",
+          "validation": "validating the kept model on the estimation and validation records"}
+
+
 class Bar:
     """A one-line progress bar on a stream, redrawn at most every ``every_s``; shown after ``delay_s``
     (``streamid identify --progress auto`` waits a second, so that a quick run does not flash one)."""
@@ -59,10 +64,15 @@ class Bar:
         self.shown = True
 
     def generation(self, p: Progress, run: str = "") -> None:
-        """Draw one identification's progress (a generation of one of its restarts, in order)."""
-        self.update(p.generation, p.generations,
-                    f"{run}generation {p.generation}/{p.generations}, {p.evaluations} evaluations, "
-                    f"best fitness {p.best_fitness:.5g}")
+        """Draw one identification's progress (a generation of one of its restarts, in order; then its later
+        stages: the kept model's choice, the validation)."""
+        if p.stage == "search":
+            self.update(p.generation, p.generations,
+                        f"{run}generation {p.generation}/{p.generations}, {p.evaluations} evaluations, "
+                        f"best fitness {p.best_fitness:.5g}")
+        else:
+            self.update(p.generation, p.generations, f"{run}{STAGES.get(p.stage, p.stage)} "
+                        f"(search done: {p.evaluations} evaluations, best fitness {p.best_fitness:.5g})")
 
     def close(self) -> None:
         if self.shown:

@@ -23,6 +23,7 @@ from streamid.model.ensemble import members_of
 from streamid.engine.search.fanout import fan_out
 from streamid.engine.identification import identify
 from streamid.model.narx import Model
+from streamid.engine.search.coevolution import Progress
 from streamid.engine.search.parallel import EvalHelper
 from streamid.engine.validation import CorrelationTest, validate
 from streamid.model.limits import CHUNK_ROWS
@@ -46,6 +47,8 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
         helper=helper,
         workers=job.get("workers", 1),
     )
+    if job.get("callback") is not None:  # the last stage of a long record's progress line
+        job["callback"](Progress(1, 1, res.fitness, res.evaluations, "validation"))
     return validated_run(res.model, ds, seed=job["seed"], seconds=res.seconds, evaluations=res.evaluations,
                          fitness=res.fitness, history=[float(f) for f in res.fitness_history])
 

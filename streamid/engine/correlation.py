@@ -272,7 +272,7 @@ def correlation_tests(
         Test names (:data:`TESTS`): ``ee``, ``ue``, ``e_eu``, ``u2_e``, ``u2_e2``; with several
         inputs the input tests once per input, named ``ue[<input name>]`` and so on.
     """
-    ua, e = as_data(u, residual, min_samples=3)
+    ua, e = as_data(u, residual, min_samples=3, copy=False)  # read only: no copy of a long record
     if not (isinstance(max_lag, (int, np.integer)) and max_lag >= 1):
         raise DataError(f"max_lag must be an integer >= 1; got {max_lag!r}")
     n = e.size

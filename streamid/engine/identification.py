@@ -379,6 +379,9 @@ def identify(
                               on_result=partial(report_after, report, made))
 
     post = _threads(helper)  # threads of the work after the restarts (a helper's core is idle then)
+    if callback is not None:  # the search is done: what follows is the kept model's choice (a stage of its own)
+        callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs),
+                          "choice"))
     models = [o["model"] if isinstance(o["model"], Model) else Model.from_json(o["model"]) for o in outs]
     scores, paths = [float(o["score"]) for o in outs], [o.get("path") for o in outs]  # paths: estimation free runs
     complexity: dict[str, Any] | None = None

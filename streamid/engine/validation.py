@@ -262,7 +262,7 @@ def assess(model: Model, u: ArrayLike, y: ArrayLike, *, max_lag: int = 20, threa
     DataError
         A record shorter than ``model.max_lag + 2`` samples, or inputs that do not match the model's count.
     """
-    ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
+    ua, ya = as_data(u, y, min_samples=model.max_lag + 2, copy=False)  # read only
     if ua.shape[1] != model.n_inputs:
         raise DataError(f"the model has {model.n_inputs} input(s) {list(model.input_names)}; the data give "
                         f"{ua.shape[1]}: pass one input column per model input, in the model's order")
@@ -321,8 +321,8 @@ def validate(
         Also carries the four prediction arrays in ``predictions``.
     """
     L = model.max_lag
-    ue, ye = as_data(u_est, y_est, min_samples=L + 2)
-    uv, yv = as_data(u_val, y_val, min_samples=L + 2)
+    ue, ye = as_data(u_est, y_est, min_samples=L + 2, copy=False)  # read only: no copy of a long record
+    uv, yv = as_data(u_val, y_val, min_samples=L + 2, copy=False)
     e = _record(model, ue, ye, max_lag, threads, band=False, keep=keep)  # its band and domain share: not reported
     v = _record(model, uv, yv, max_lag, threads, keep=keep)
     return ValidationReport(

@@ -102,7 +102,8 @@ def check_finite(name: str, a: NDArray[np.float64]) -> None:
         )
 
 
-def as_data(u: ArrayLike, y: ArrayLike, *, min_samples: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def as_data(u: ArrayLike, y: ArrayLike, *, min_samples: int = 1,
+            copy: bool = True) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Validate and convert identification data.
 
     Parameters
@@ -113,6 +114,9 @@ def as_data(u: ArrayLike, y: ArrayLike, *, min_samples: int = 1) -> tuple[NDArra
         Output.
     min_samples : int
         Minimum number of samples accepted.
+    copy : bool
+        False: float64 arrays are used as they are (a view, no copy of the record), for a reader that never writes
+        them (a long record's validation and correlation tests).
 
     Returns
     -------
@@ -125,8 +129,8 @@ def as_data(u: ArrayLike, y: ArrayLike, *, min_samples: int = 1) -> tuple[NDArra
         On wrong shapes, different lengths, NaN/inf, or fewer than ``min_samples`` samples.
     """
     try:
-        ua = np.array(u, dtype=np.float64, copy=True)
-        ya = np.array(y, dtype=np.float64, copy=True)
+        ua = np.array(u, dtype=np.float64, copy=True) if copy else np.asarray(u, dtype=np.float64)
+        ya = np.array(y, dtype=np.float64, copy=True) if copy else np.asarray(y, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise DataError(f"u and y must be arrays of numbers; conversion failed: {exc}") from None
     if ua.ndim == 1:

@@ -64,12 +64,15 @@ _BLOCK = 50
 _BLOCK_VALUES = 1 << 18
 
 class Progress(NamedTuple):
-    """What one generation reports: its number (1-based count done), the best fitness, evaluations so far."""
+    """What one generation reports: its number (1-based count done), the best fitness, evaluations so far; and
+    ``stage``: "search" while generations run, then what an identification does after them ("choice": the kept
+    model's size, ensemble, refinement and interval; a command adds its own, e.g. "validation")."""
 
     generation: int
     generations: int
     best_fitness: float
     evaluations: int
+    stage: str = "search"
 
 
 class Coevolution(CandidateModels):
