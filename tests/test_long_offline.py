@@ -49,20 +49,19 @@ def test_correlation_tests_over_several_chunks_equal_the_whole_record(monkeypatc
     assert not rep.passed
 
 
-def test_one_chunk_or_less_keeps_the_old_sample_and_beyond_it_as_many_rows_stratified() -> None:
+def test_one_chunk_or_less_keeps_the_old_sample_and_beyond_it_the_online_rule() -> None:
     cfg = DEFAULT
     g = np.random.default_rng(0)
     assert rows.long_record_rows(rows.CHUNK_ROWS, cfg, 1, g) is None  # one chunk: as before (hash-identical)
     assert rows.long_record_rows(10 * rows.CHUNK_ROWS, cfg.replace(search_rows=0), 1, g) is None  # every row, asked
+    bound = rows.search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, 1, {})
+    assert bound == max(rows.SEARCH_ROWS, rows.ROWS_PER_WEIGHT * (cfg.neurons + cfg.max_lag_y + cfg.max_lag_u + 1))
     for n in (rows.CHUNK_ROWS + 1, 10 * rows.CHUNK_ROWS, 150 * rows.CHUNK_ROWS):  # the search's cost: not the record's
         s = rows.long_record_rows(n, cfg, 1, g)
-        assert s is not None and s.rows.size == s.bound == cfg.search_rows == 2000 and s.of == n
+        assert s is not None and s.rows.size == s.bound == bound and s.of == n
         assert np.all(np.diff(s.rows) > 0) and s.rows[-1] < n
-        strata = (np.arange(cfg.search_rows + 1) * n) // cfg.search_rows  # one row in each stratum
-        assert np.array_equal(np.searchsorted(strata, s.rows, side="right") - 1, np.arange(cfg.search_rows))
-    # the online bound (a window's search, engine/search/rows.py) is another rule and stays what it was
-    assert rows.search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, 1, {}) == max(
-        rows.SEARCH_ROWS, rows.ROWS_PER_WEIGHT * (cfg.neurons + cfg.max_lag_y + cfg.max_lag_u + 1))
+        strata = (np.arange(bound + 1) * n) // bound  # one row in each stratum
+        assert np.array_equal(np.searchsorted(strata, s.rows, side="right") - 1, np.arange(bound))
 
 
 def test_an_identification_beyond_one_chunk_searches_on_the_stratified_sample(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -70,6 +69,8 @@ def test_an_identification_beyond_one_chunk_searches_on_the_stratified_sample(mo
 
     u, y = reactor_record(1_500, "uniform", 41)
     monkeypatch.setattr(rows, "CHUNK_ROWS", 600)  # the record is more than two chunks
+    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
+    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
     cfg = DEFAULT.replace(restarts=1, more_restarts=0, generations=5, lag_search_neurons=0, neurons=8,
                           max_lag_cap=0, max_lag_y=3, max_lag_u=3, fallback_neurons=(), search_rows=300, prune_runs=0,
                           run_ensembles=False, long_linear=0, refine_iterations=0)

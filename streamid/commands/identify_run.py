@@ -313,15 +313,14 @@ def identify_command(args: argparse.Namespace, cfg: CoEAConfig) -> int:
         for note in ds.notes:
             print(f"streamid identify: warning: {note}", file=sys.stderr, flush=True)
         if args.runs == 1 and len(ds.y_est) > CHUNK_ROWS:
-            # A record beyond one chunk: its restarts here, one after the other, on one core. Their search is
-            # bounded (engine/search/rows.py), so a pool's start and its copies of the record cost more than the
-            # second core saves, and a helper's second thread doubles the temporaries of the work after them
-            # (1,000,000 samples: 8.6 s and 389 MB here; a pool of 2 8.8 s and 432 MB, a helper 8.1-8.5 s and
-            # 482 MB: docs/benchmarks.md, "Long records offline")
+            # A record beyond one chunk: its restarts here, one after the other, and the second core (when
+            # allowed) evaluates half of every search batch in a helper. A pool's start and its copies of the record
+            # cost more than its parallel restarts save (1,000,000 samples: in this process 16.4 s and 403 MB; a
+            # pool of 2 13.1-13.5 s, 395 MB and two more processes holding the record; a helper 13.2-13.3 s and
+            # 400-404 MB: docs/benchmarks.md, "Long records offline")
             restart_workers = 1
-            if helper is not None:
-                helper.close()
-                helper = None
+            if helper is None and args.workers >= 2 and EvalHelper.supported():
+                helper = EvalHelper(wait=False)
         bar = Bar(sys.stderr, show, "identify", delay_s=1.0 if args.progress == "auto" else 0.0)
         seeds = list(range(args.seed, args.seed + args.runs))
         try:

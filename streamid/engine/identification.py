@@ -56,6 +56,7 @@ from streamid.engine.search.fanout import fan_out
 from streamid.engine.search.feedthrough import direct_terms
 from streamid.engine.search.lagspace import memory_lag, with_input_term
 from streamid.engine.search.rows import long_record_rows
+from streamid.model.limits import CHUNK_ROWS
 from streamid.engine.choice.longlinear import long_linear_choice
 from streamid.model.narx import Model
 from streamid.engine.search.parallel import EvalHelper
@@ -378,7 +379,9 @@ def identify(
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
                               on_result=partial(report_after, report, made))
 
-    post = _threads(helper)  # threads of the work after the restarts (a helper's core is idle then)
+    # threads of the work after the restarts: a helper's core is idle then, but beyond one chunk a second thread
+    # doubles that work's temporaries for little (1,000,000 samples: 0.3 s saved, 80-100 MB more at the peak)
+    post = 1 if n > CHUNK_ROWS else _threads(helper)
     if callback is not None:  # the search is done: what follows is the kept model's choice (a stage of its own)
         callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs),
                           "choice"))

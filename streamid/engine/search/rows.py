@@ -2,8 +2,7 @@
 
 Used by every online update, and offline (:func:`long_record_rows`) by each run of an identification whose
 estimation record has more than one chunk (:data:`~streamid.model.limits.CHUNK_ROWS`, 65,536) of regressor rows:
-one sampling (:func:`informative_rows`), not two. Up to one chunk an offline run keeps its ``search_rows`` random
-rows (the same models as before); beyond it, the same number of rows, one per stratum.
+one rule, not two. Up to one chunk an offline run keeps its ``search_rows`` random rows (the same models as before).
 
 Why a bound
     The search (:class:`~streamid.engine.Coevolution`) evaluates every member of
@@ -125,20 +124,20 @@ def informative_rows(n_rows: int, bound: int, rng: np.random.Generator) -> RowSa
 
 def long_record_rows(n_rows: int, cfg: CoEAConfig, n_inputs: int, rng: np.random.Generator) -> RowSample | None:
     """The rows an offline run's search evaluates on a record of more than one chunk (:data:`CHUNK_ROWS`) of
-    regressor rows: ``cfg.search_rows`` of them (2,000 with the defaults), as many as a record of one chunk or less
-    is searched on, one per stratum (:func:`informative_rows`, drawn from a child of ``rng``: the run's own random
-    stream is the one it had), so the search costs what a short record's does whatever the record's length. None: a
-    record of one chunk or less (searched as before, on ``cfg.search_rows`` random rows: the same models to the bit)
-    or ``cfg.search_rows = 0`` (every row, asked for).
+    regressor rows: the online rule (:func:`search_row_bound`, at least ``cfg.search_rows``; one row per stratum,
+    drawn from a child of ``rng``: the run's own random stream is the one it had). None: a record of one chunk or
+    less (searched as before, on ``cfg.search_rows`` random rows: the same models to the bit) or
+    ``cfg.search_rows = 0`` (every row, asked for).
 
-    Not the online bound (:func:`search_row_bound`, 6,528 rows with the defaults): offline the search's rows only
-    rank the candidates; each run's chosen one is refitted on :data:`CHUNK_ROWS` spaced rows and judged by its free
-    run over every row, so the 1 % optimism rule does not bind, and the one-chunk path has searched on 2,000 rows
-    since issue 38. Measured (docs/benchmarks.md, "Long records offline"): the search at 1,000,000 samples 8.8 -> 2.5 s
-    in one process, the validation R^2 over seeds as before (``benchmarks.long_seeds``)."""
+    Not ``cfg.search_rows`` alone (2,000, what a record of one chunk or less is searched on): on the simulated MR
+    damper's long record (``benchmarks.long_seeds --device mr_damper``, 100,000 + 20,000 samples, seeds 0-19) the
+    bounded path with 2,000 stratified rows validated at median 0.9289, worst 0.786 (3 seeds under 0.9); with this
+    bound (6,528 rows with the defaults) at median 0.9287, worst 0.898 (1 seed). Worst case first: this bound,
+    though its search costs about three times as much (docs/benchmarks.md, "Long records offline")."""
     if n_rows <= CHUNK_ROWS or not cfg.search_rows:
         return None
-    return informative_rows(n_rows, int(cfg.search_rows), rng.spawn(1)[0])
+    bound = max(int(cfg.search_rows), search_row_bound(cfg.neurons, cfg.max_lag_y, cfg.max_lag_u, n_inputs, {}))
+    return informative_rows(n_rows, bound, rng.spawn(1)[0])
 
 
 def spaced_rows(n_rows: int, most: int | None = None) -> NDArray[np.intp] | None:
