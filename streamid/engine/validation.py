@@ -14,8 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.correlation import (PASS_FRACTION, STRICT_Z, TESTS, CorrelationReport, CorrelationTest, ccf,
                                          correlation_test_name, correlation_tests)
-from streamid.model.domain import far_from_domain, outside_share
-from streamid.model.freerun import chunked_paths
+from streamid.model.domain import outside_share
+from streamid.model.freerun import chunked_runs
 from streamid.model.limits import CHUNK_ROWS
 from streamid.model.regressors import as_data
 from streamid.model.uncertainty import DEFAULT_LEVEL, coverage_figures
@@ -198,14 +198,9 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_la
     res = np.empty(n - L)
     osa_all, fr_all = (y.copy(), np.empty(n)) if keep else (None, None)
     interval = getattr(model, "interval", None) if band else None
-    H = model.max_lag  # the domain's excess at t reads the inputs and the run back to t - H
-    tail_u, tail_c = u[:0], np.empty(0)
-    for a, paths in chunked_paths(model, u, y[:L], CHUNK_ROWS, threads):
+    for a, paths, centre, far in chunked_runs(model, u, y[:L], CHUNK_ROWS, threads, far=interval is not None):
         b = a + paths.shape[1]
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported (fr None)
-            centre = paths[0].copy() if paths.shape[0] == 1 else model.combine_rows(paths)  # type: ignore[attr-defined]
-            if a == 0:
-                centre[:L] = paths[0, :L]  # the measured initial outputs
             d = diverged_at(centre)
             diverged = a + d if diverged is None and d is not None else diverged
             s = max(a, L)  # the piece's first scored sample
@@ -223,12 +218,10 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_la
             if fr_all is not None:
                 fr_all[a:b] = centre
             if interval is not None:
-                far = far_from_domain(model, np.concatenate([tail_u, u[a:b]]), np.concatenate([tail_c, centre]))
-                bd = interval.band(centre, paths, DEFAULT_LEVEL, L if a == 0 else 0, far[tail_c.shape[0] :])
+                bd = interval.band(centre, paths, DEFAULT_LEVEL, L if a == 0 else 0, far)
                 lo, hi = bd.lower[s - a :], bd.upper[s - a :]
                 inside += int(np.count_nonzero((y[s:b] >= lo) & (y[s:b] <= hi)))
                 width_sum += float(np.sum(hi - lo))
-                tail_u, tail_c = u[max(0, b - H) : b], centre[max(0, centre.shape[0] - H) :]
     m = n - L
     if ss == 0.0:
         raise DataError(f"r2 is undefined for a constant measured signal (all values {ys[0]!r})")

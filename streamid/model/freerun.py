@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from streamid.threads import thread_map
 from streamid.model.regressors import Regressor
 
-__all__ = ["chunked_paths", "free_run"]
+__all__ = ["chunked_paths", "chunked_runs", "free_run"]
 
 
 def free_run(
@@ -175,3 +175,30 @@ def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64
         if a == 0:
             paths[:, :L] = yi[:L]  # the measured initial outputs (as simulate and member_paths give them)
         yield a, paths
+
+
+def chunked_runs(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64], rows: int, threads: int = 1,
+                 far: bool = True, far_from: int = 0) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np.float64],
+                                                     NDArray[np.float64] | None]]:
+    """:func:`chunked_paths` with each piece's free run and how far it lies beyond the estimation domain:
+    ``(a, paths, centre, beyond)``, ``centre`` the model's free run (its networks' combined, the first ``max_lag``
+    measured: :meth:`Model.simulate`'s values), ``beyond`` :func:`~streamid.model.domain.far_from_domain` of the
+    piece (its regressors read back across the piece's start: the whole run's values), None without ``far`` or
+    for a piece that ends before sample ``far_from``.
+    What a record's report and the interval's calibration read, a piece at a time."""
+    from streamid.model.domain import far_from_domain
+
+    L, H = int(model.max_lag), int(model.max_lag)
+    tail_u, tail_c = u[:0], np.empty(0)
+    for a, paths in chunked_paths(model, u, y_init, rows, threads):
+        b = a + paths.shape[1]
+        with np.errstate(over="ignore", invalid="ignore"):
+            centre = paths[0].copy() if paths.shape[0] == 1 else model.combine_rows(paths)
+            if a == 0:
+                centre[:L] = paths[0, :L]  # the measured initial outputs
+            ex = None
+            if far and b > far_from:
+                ex = far_from_domain(model, np.concatenate([tail_u, u[a:b]]),
+                                     np.concatenate([tail_c, centre]))[tail_c.shape[0]:]
+        tail_u, tail_c = u[max(0, b - H) : b], centre[max(0, centre.shape[0] - H) :]
+        yield a, paths, centre, ex

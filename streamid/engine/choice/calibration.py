@@ -19,7 +19,8 @@ from numpy.typing import NDArray
 from streamid.engine.choice.selection import refit_weights
 from streamid.engine.search.rows import spaced_rows
 from streamid.errors import DataError
-from streamid.model.domain import far_from_domain
+from streamid.model.freerun import chunked_runs
+from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model
 from streamid.model.uncertainty import BEYOND, LEVELS, MIN_CALIBRATION, Interval, conformal_quantiles, member_spread
 
@@ -52,11 +53,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
         half = refit_weights(model, u[:h], y[:h], ridge, samples)
     except DataError as exc:
         return None, {"reason": f"the model could not be refitted on the first half ({exc})"}
-    with np.errstate(over="ignore", invalid="ignore"):
-        paths = half.member_paths(u, y[: half.max_lag], threads=threads)
-        centre = half.combine_paths(paths, y)
-        err = y[h:] - centre[h:]
-        spread = member_spread(paths)[h:] + BEYOND * far_from_domain(half, u, centre)[h:]  # the band's own terms
+    err, spread = _held_out(half, u, y, h, threads)  # the free run's error and the band's own terms there
     if not (np.all(np.isfinite(err)) and np.all(np.isfinite(spread))):
         return None, {"reason": "the model refitted on the first half diverged in free run over the second half",
                       "samples": n - h}
@@ -64,17 +61,13 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     r2 = 1.0 - float(np.mean(err**2)) / var if var > 0 else None
     method, held_out, own_r2 = METHOD, True, None
     if r2 is not None and r2 < UNSTABLE_HALF_R2:  # only then is the model's own free run needed (one more run)
-        with np.errstate(over="ignore", invalid="ignore"):
-            own_paths = model.member_paths(u, y[: model.max_lag], threads=threads)
-            own_centre = model.combine_paths(own_paths, y)
-            own_err = y[h:] - own_centre[h:]
+        own_err, own_spread = _held_out(model, u, y, h, threads)
         own_r2 = 1.0 - float(np.mean(own_err**2)) / var if np.all(np.isfinite(own_err)) else None
         if own_r2 is not None and own_r2 >= UNSTABLE_HALF_R2:
             # the half's refit leaves the record (a structure too large for half the rows, e.g. a long linear part
             # of hundreds of lags) where the model itself does not: its errors say nothing of the model's; the
             # model's own errors on the second half are used instead (in sample: narrower than a held-out band)
-            err, method, held_out = own_err, METHOD_IN_SAMPLE, False
-            spread = member_spread(own_paths)[h:] + BEYOND * far_from_domain(model, u, own_centre)[h:]
+            err, method, held_out, spread = own_err, METHOD_IN_SAMPLE, False, own_spread
     scale = float(np.sqrt(np.mean(err**2)))
     den = scale + spread
     scores = np.divide(np.abs(err), den, out=np.zeros_like(err), where=den > 0)
@@ -84,6 +77,24 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
                 "quantile_90": quantiles[LEVELS.index(0.9)],
                 **({} if samples is None else {"fit_rows": int(samples.size)})}
     return Interval(LEVELS, quantiles, scale, n - h, method, BEYOND), evidence
+
+
+def _held_out(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], h: int,
+              threads: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Over samples ``h ..`` of the record: the model's free-run error and the band's own terms (the members'
+    spread and the growth past the domain), its free run made a chunk at a time (only that part kept: a long
+    record's memory is its held-out half's, not its members' paths)."""
+    L, n = model.max_lag, int(y.shape[0])
+    ua = u.reshape(n, -1)
+    err, terms = np.empty(n - h), np.empty(n - h)
+    for a, paths, centre, far in chunked_runs(model, ua, y[:L], CHUNK_ROWS, threads, far_from=h):
+        b = a + paths.shape[1]
+        if b > h and far is not None:
+            s = max(a, h)
+            with np.errstate(over="ignore", invalid="ignore"):
+                err[s - h : b - h] = y[s:b] - centre[s - a :]
+                terms[s - h : b - h] = member_spread(paths[:, s - a :]) + BEYOND * far[s - a :]
+    return err, terms
 
 
 def with_interval(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridge: float,

@@ -89,8 +89,12 @@ def choose_ensemble(
         if any(p is None for p in got):
             continue
         L = max(models[i].max_lag for i in members)
-        with np.errstate(over="ignore", invalid="ignore"):
-            mean = np.mean([p for p in got if p is not None], axis=0)
+        with np.errstate(over="ignore", invalid="ignore"):  # np.mean(axis=0)'s sum, row after row: no (k, N) copy
+            ps = [p for p in got if p is not None]
+            mean = np.array(ps[0], dtype=np.float64)
+            for p in ps[1:]:
+                mean += p
+            mean /= len(ps)
         if not np.all(np.isfinite(mean[L:])):
             continue
         score, excursion = path_score(mean, y, L, L, lo, hi, range_margin)

@@ -256,7 +256,8 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
                          spaced_rows(len(y) - model.max_lag))  # beyond one chunk: fitted on evenly spaced rows
         if not smaller:
             return model, score, path
-        fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin)  # one batched run
+        long = len(y) - model.max_lag > CHUNK_ROWS  # beyond one chunk: scored a chunk at a time, no path kept
+        fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin, keep_paths=not long)
     rows = [(model, score, 0.0), *zip(smaller, fr.scores, fr.excursions)]
     crit = [criterion(s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
             for m, s, e in rows]
@@ -264,6 +265,7 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     ev = {"rule": RULE, "neurons": rows[k][0].neurons,
           "candidates": [{"neurons": m.neurons, "r2_fr_est": s if e == 0.0 else None,
                           "criterion": c if np.isfinite(c) else None} for (m, s, e), c in zip(rows, crit)]}
+    # a pruned network's path: None beyond one chunk (the ensembles' choice simulates it again if it needs it)
     return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1]), path if k == 0 else fr.paths[k - 1]
 
 
