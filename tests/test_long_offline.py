@@ -325,3 +325,55 @@ def test_a_record_judged_a_chunk_at_a_time_gives_the_whole_record_s_report(monke
         np.testing.assert_allclose(t.values, w.values, rtol=1e-9, atol=1e-12)
     bare = validation.assess(ens, uu, y, keep=False)
     assert bare.predictions == {} and bare.to_dict() == cut.to_dict()
+
+
+def test_identify_and_assess_never_write_the_caller_s_arrays(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long record is read, not copied (``as_data(copy=False)``): so every step must only read it. Read-only
+    arrays through the whole of an identification beyond one chunk (search sample, screen, pruning, ensembles,
+    refinement, interval) and through a report raise on any write."""
+    from benchmarks.long_records import reactor_record
+    from streamid.engine.validation import assess
+
+    u, y = reactor_record(1_500, "uniform", 41)
+    u.flags.writeable = False
+    y.flags.writeable = False
+    import importlib
+
+    for name in ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection",
+                 "streamid.engine.choice.calibration", "streamid.engine.identification", "streamid.engine.validation",
+                 "streamid.model.ensemble"):  # every step's own threshold: the record is beyond one chunk for all
+        monkeypatch.setattr(importlib.import_module(name), "CHUNK_ROWS", 600)
+    monkeypatch.setattr(importlib.import_module("streamid.engine.choice.scores"), "SEGMENT_ROWS", 400)  # 8 x 50
+    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
+    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
+    cfg = DEFAULT.replace(restarts=2, more_restarts=0, generations=4, lag_search_neurons=4, neurons=6,
+                          max_lag_cap=0, max_lag_y=3, max_lag_u=3, search_rows=300)
+    res = identify(u, y, cfg, 0)
+    rep = assess(res.model, u, y)
+    assert rep.fr is not None and res.model.interval is not None
+
+
+def test_ensembles_beyond_one_chunk_are_scored_a_chunk_at_a_time_as_their_whole_mean(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Beyond one chunk the runs keep no free run; the ensembles offered are scored in one pass a chunk at a time
+    (``ensemble_choice._chunked_scores``): the score and range guard of the whole mean path, to rounding."""
+    import streamid.engine.choice.ensemble_choice as ensemble_choice
+    from streamid.engine.choice.scores import path_score
+
+    u, y = _plant(5_000, seed=13)
+    nets = [_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4),
+            _osa_net(u, y, (("y", 1), ("u", 1), ("u", 3)), 5, 5), _osa_net(u, y, (("y", 1), ("u", 1)), 4, 6)]
+    lo, hi = float(y.min()), float(y.max())
+    offered = [[0, 1], [0, 1, 2], [2, 0]]
+    want = []
+    for m in offered:
+        L = max(nets[i].max_lag for i in m)
+        mean = np.mean([nets[i].simulate(u, y[: nets[i].max_lag]) for i in m], axis=0)
+        want.append(path_score(mean, y, L, L, lo, hi, 0.25))
+    monkeypatch.setattr(ensemble_choice, "CHUNK_ROWS", 700)  # eight pieces, the last partial
+    got = ensemble_choice._chunked_scores(nets, offered, u[:, None], y, lo, hi, 0.25)
+    for g, w in zip(got, want):
+        assert g is not None and g[1] == w[1] == 0.0
+        assert g[0] == pytest.approx(w[0], rel=1e-12, abs=1e-14)
+    tight = ensemble_choice._chunked_scores(nets, offered, u[:, None], y, lo, hi, -0.45)  # a narrow range: guarded
+    assert [t[1] > 0 and t[0] == -np.inf for t in tight if t is not None] == [True] * 3

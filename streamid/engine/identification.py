@@ -270,7 +270,7 @@ def identify(
     if not (isinstance(workers, int) and not isinstance(workers, bool) and 1 <= workers <= 1024):
         raise ConfigError(f"workers must be an integer in [1, 1024] (processes for the restarts); got {workers!r}")
     gen = _as_rng(rng)
-    ua, ya = as_data(u, y)
+    ua, ya = as_data(u, y, copy=False)  # read only (a test passes read-only arrays): no copy of a long record
     names = tuple(input_names) if input_names else tuple(f"u{i}" for i in range(ua.shape[1]))
     win = dict(window) if window else {"n_samples": int(ya.shape[0])}
 

@@ -143,7 +143,7 @@ def _linear_inputs(
 
 
 def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64], rows: int,
-                  threads: int = 1) -> Iterator[tuple[int, NDArray[np.float64]]]:
+                  threads: int = 1, measured: bool = True) -> Iterator[tuple[int, NDArray[np.float64]]]:
     """A model's networks' free runs over a record, ``rows`` samples at a time: ``(a, paths)`` for consecutive
     spans ``a .. a + len`` covering the record, ``paths`` ``(K, len)`` in output units (a member's each for an
     ensemble), the first ``max_lag`` samples measured: ``model.member_paths(u, y_init)`` cut in pieces, the same
@@ -152,7 +152,9 @@ def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64
 
     ``model`` a Model or an ensemble (read, not imported); ``u`` (N, n_inputs) float64 as
     :func:`~streamid.model.regressors.as_data` gives it; ``y_init`` at least ``max_lag`` measured outputs;
-    ``threads``: an ensemble's members in that many threads (the same values).
+    ``threads``: an ensemble's members in that many threads (the same values); ``measured`` False: each network's
+    path is its own free run from its own ``max_lag`` measured outputs (``network.simulate``'s), the samples before
+    the model's ``max_lag`` not replaced by the measured ones.
     """
     members = tuple(getattr(model, "members", (model,)))
     L, n, norm = int(model.max_lag), int(u.shape[0]), model.normalisation
@@ -172,7 +174,7 @@ def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64
     for a in range(0, n, max(int(rows), L + 1)):
         b = min(n, a + max(int(rows), L + 1))
         paths = np.array(thread_map(lambda k: piece(k, a, b), range(len(members)), threads))
-        if a == 0:
+        if a == 0 and measured:
             paths[:, :L] = yi[:L]  # the measured initial outputs (as simulate and member_paths give them)
         yield a, paths
 

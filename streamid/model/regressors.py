@@ -248,6 +248,16 @@ class Normalisation:
         return out
 
 
+def regressors_at(norm: Normalisation, regs: Sequence[Regressor], u: NDArray[np.float64], y: NDArray[np.float64],
+                  samples: NDArray[np.intp]) -> NDArray[np.float64]:
+    """The normalised lagged terms ``regs`` of the record ``(u, y)`` (``u`` (N, n_inputs)) at the sample indices
+    ``samples`` (each at least their lags), one row each: :func:`regressor_columns`' rows ``samples - start`` of
+    ``norm.u(u)``, ``norm.y(y)`` (the same values: the normalisation is elementwise), gathered and normalised
+    without the others (a long record's memory is the samples')."""
+    return np.column_stack([norm.y(y[samples - g.lag]) if g.signal == "y" else norm.u(u[samples - g.lag])[:, g.index]
+                            for g in regs])
+
+
 def regressor_columns(regs: Sequence[Regressor], un: NDArray[np.float64], yn: NDArray[np.float64],
                       start: int) -> NDArray[np.float64]:
     """The normalised lagged terms ``regs`` of rows ``t >= start`` (one column each; ``start`` at least their lags)."""

@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 
 from streamid.model.ensemble import members_of
 from streamid.model.narx import Model
+from streamid.model.regressors import as_data, regressors_at
 from streamid.engine.fit.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.errors import ModelFormatError
 
@@ -134,9 +135,12 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
     if model.linear_regressors is not None:
         raise ModelFormatError("pruned takes networks whose linear part (if any) is on their own regressors; "
                                "got one with a long linear part")
-    r, target = model.regressor_rows(u, y)
-    if rows is not None:
-        r, target = r[rows], target[rows]
+    if rows is None:
+        r, target = model.regressor_rows(u, y)
+    else:  # only those rows' regressors (not every row's, then a few: a long record's memory)
+        ua, ya = as_data(u, y, copy=False)
+        samples = np.asarray(rows, dtype=np.intp) + model.max_lag
+        r, target = regressors_at(model.normalisation, model.regressors, ua, ya, samples), model.normalisation.y(ya[samples])
     phi = activations(r, model.centres, model.widths)
     order = ols_order(phi, target)
     out: list[Model] = []

@@ -27,14 +27,17 @@ The evidence (each ensemble's members, R^2, p, criterion, whether taken) goes to
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from streamid.engine.choice.scores import path_score
+from streamid.engine.choice.scores import _excursion, path_score
 from streamid.engine.choice.complexity import criterion, parameter_count
 from streamid.model.ensemble import MAX_MEMBERS, ensemble_of
+from streamid.model.freerun import chunked_paths
+from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model
 
 __all__ = ["ENSEMBLE_SIZES", "choose_ensemble"]
@@ -71,6 +74,12 @@ def choose_ensemble(
     evidence: list[dict[str, Any]] = []
     best: tuple[float, Model | None, list[int]] = (single, None, [])
     seen: set[int] = set()
+    # beyond one chunk the runs keep no free run (their memory): every ensemble offered is scored in one pass over
+    # the record a chunk at a time (_chunked_scores), its members' paths made once
+    offered = [ranked[: (min(len(ranked), MAX_MEMBERS) if size == 0 else size)] for size in ENSEMBLE_SIZES]
+    offered = [m for k, m in enumerate(offered) if len(m) >= 2 and m not in offered[:k]]
+    chunked = (_chunked_scores(models, offered, u, y, lo, hi, range_margin)
+               if len(y) > CHUNK_ROWS and any(paths[i] is None for m in offered for i in m) else None)
     for size in ENSEMBLE_SIZES:
         k = min(len(ranked), MAX_MEMBERS) if size == 0 else size
         if k > len(ranked) or k in seen:
@@ -78,26 +87,32 @@ def choose_ensemble(
         seen.add(k)
         members = ranked[:k]
         for i in members:
-            if i not in runs:
+            if i not in runs and chunked is None:
                 runs[i] = paths[i] if paths[i] is not None else _simulate(models[i], u, y)
         row: dict[str, Any] = {"name": "all" if size == 0 else f"top{size}", "members": members,
                                "neurons": [models[i].neurons for i in members], "r2_fr_est": None,
                                "params": sum(parameter_count(models[i]) for i in members) / k, "criterion": None,
                                "taken": False}
         evidence.append(row)
-        got = [runs[i] for i in members]
-        if any(p is None for p in got):
-            continue
         L = max(models[i].max_lag for i in members)
-        with np.errstate(over="ignore", invalid="ignore"):  # np.mean(axis=0)'s sum, row after row: no (k, N) copy
-            ps = [p for p in got if p is not None]
-            mean = np.array(ps[0], dtype=np.float64)
-            for p in ps[1:]:
-                mean += p
-            mean /= len(ps)
-        if not np.all(np.isfinite(mean[L:])):
-            continue
-        score, excursion = path_score(mean, y, L, L, lo, hi, range_margin)
+        if chunked is not None:
+            got_score = chunked[offered.index(members)]
+            if got_score is None:  # not finite
+                continue
+            score, excursion = got_score
+        else:
+            got = [runs[i] for i in members]
+            if any(p is None for p in got):
+                continue
+            with np.errstate(over="ignore", invalid="ignore"):  # np.mean(axis=0)'s sum, row after row: no (k, N) copy
+                ps = [p for p in got if p is not None]
+                mean = np.array(ps[0], dtype=np.float64)
+                for p in ps[1:]:
+                    mean += p
+                mean /= len(ps)
+            if not np.all(np.isfinite(mean[L:])):
+                continue
+            score, excursion = path_score(mean, y, L, L, lo, hi, range_margin)
         if excursion > 0.0:
             row["excursion_spans"] = excursion
             continue
@@ -121,6 +136,50 @@ def choose_ensemble(
               "run_ensemble": len(members)}  # the mean's free run on the estimation record, as a single model's
     return ens.with_metrics(fitness=fitness, free_run_choice=choice, ensemble={
         k: taken[k] for k in ("name", "members", "neurons", "r2_fr_est", "params", "criterion")}), members, evidence
+
+
+def _chunked_scores(models: Sequence[Model], offered: list[list[int]], u: NDArray[np.float64], y: NDArray[np.float64],
+                    lo: float, hi: float, range_margin: float) -> list[tuple[float, float] | None]:
+    """:func:`~streamid.engine.choice.scores.path_score` of the mean free run of each ensemble ``offered`` (lists of
+    run indices), its members' free runs made together a chunk at a time (:func:`~streamid.model.freerun.
+    chunked_paths`, each from its own measured outputs: the same values as whole runs), the means summed in the
+    members' order as the whole-record way does; the sums of the score added chunk by chunk (equal to rounding).
+    None where a mean is not finite. Memory: a chunk of every member's path, whatever the record's length."""
+    union = sorted({i for m in offered for i in m})
+    row = {i: k for k, i in enumerate(union)}
+    nets = [models[i] for i in union]
+    holder = SimpleNamespace(members=tuple(nets), max_lag=max(n.max_lag for n in nets),
+                             normalisation=nets[0].normalisation)
+    Ls = [max(models[i].max_lag for i in m) for m in offered]
+    mu = {L: float(np.mean(y[L:])) for L in set(Ls)}
+    sse, ss = [0.0] * len(offered), [0.0] * len(offered)
+    top, bottom, finite = [-np.inf] * len(offered), [np.inf] * len(offered), [True] * len(offered)
+    ua = u.reshape(len(y), -1)
+    for a, paths in chunked_paths(holder, ua, y[: holder.max_lag], CHUNK_ROWS, measured=False):
+        b = a + paths.shape[1]
+        for k, m in enumerate(offered):
+            s = max(a, Ls[k])
+            if s >= b or not finite[k]:
+                continue
+            with np.errstate(over="ignore", invalid="ignore"):
+                mean = np.array(paths[row[m[0]], s - a :])
+                for i in m[1:]:
+                    mean += paths[row[i], s - a :]
+                mean /= len(m)
+                if not np.all(np.isfinite(mean)):
+                    finite[k] = False
+                    continue
+                top[k], bottom[k] = max(top[k], float(mean.max())), min(bottom[k], float(mean.min()))
+                sse[k] += float(np.sum((y[s:b] - mean) ** 2))
+                ss[k] += float(np.sum((y[s:b] - mu[Ls[k]]) ** 2))
+    out: list[tuple[float, float] | None] = []
+    for k in range(len(offered)):
+        if not finite[k]:
+            out.append(None)
+            continue
+        e = _excursion(top[k], bottom[k], lo, hi, range_margin)
+        out.append(((1.0 - sse[k] / ss[k]) if e == 0.0 else -np.inf, e))
+    return out
 
 
 def _simulate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64] | None:

@@ -188,7 +188,6 @@ def _streamed(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64
     m0 = models[0]
     L, n, C = m0.max_lag, len(y), len(models)
     norm = m0.normalisation
-    un = norm.u(u)
     centres, widths = np.stack([m.centres for m in models]), np.stack([m.widths for m in models])
     weights, linear = np.stack([m.weights for m in models]), _linear_parts(models)
     init = np.ascontiguousarray(np.broadcast_to(norm.y(y[:L]), (C, L)))
@@ -197,7 +196,7 @@ def _streamed(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64
     for a in range(L, n, SCORE_CHUNK_ROWS):
         b = min(n, a + SCORE_CHUNK_ROWS)
         with np.errstate(over="ignore", invalid="ignore"):
-            path = free_run(m0.regressors, centres, widths, weights, un[a - L : b], init, linear, threads=threads,
+            path = free_run(m0.regressors, centres, widths, weights, norm.u(u[a - L : b]), init, linear, threads=threads,
                             linear_regressors=m0.linear_regressors)  # rows a - L .. b - 1, the first L given
             out = norm.y_inverse(path[:, L:])
             finite &= np.all(np.isfinite(out), axis=1)

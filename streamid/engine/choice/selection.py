@@ -22,7 +22,7 @@ from streamid.engine.choice.longlinear import long_linear_fit
 from streamid.engine.fit.rbf import activations, fit_in_blocks, fit_linear_rbf, fit_weights
 from streamid.model.limits import CHUNK_ROWS
 from streamid.engine.search.rows import spaced_rows
-from streamid.model.regressors import Regressor, as_data
+from streamid.model.regressors import as_data, regressors_at
 from streamid.engine.settings import RIDGE
 from streamid.engine.validation import r2
 from streamid.errors import ConfigError, DataError
@@ -88,13 +88,9 @@ def _rows_at(model: Model, u: NDArray[np.float64], y: NDArray[np.float64],
              samples: NDArray[np.intp]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """A network's normalised regressors at ``samples`` (one row each), its linear part's, and its one-step
     prediction there (output units): what :meth:`Model.predict_osa` computes at those samples."""
-    un, yn = model.normalisation.u(u), model.normalisation.y(y)
-
-    def gather(regs: tuple[Regressor, ...]) -> NDArray[np.float64]:
-        return np.column_stack([(yn if g.signal == "y" else un[:, g.index])[samples - g.lag] for g in regs])
-
-    r = gather(model.regressors)
-    rl = r if model.linear_regressors is None else gather(model.linear_regressors)
+    norm = model.normalisation
+    r = regressors_at(norm, model.regressors, u, y, samples)
+    rl = r if model.linear_regressors is None else regressors_at(norm, model.linear_regressors, u, y, samples)
     yn_hat = activations(r, model.centres, model.widths) @ model.weights
     if model.linear is not None:
         yn_hat = yn_hat + rl @ model.linear[:-1] + model.linear[-1]
@@ -302,7 +298,8 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
         tried: list[tuple[float, Model, FreeRunScores]] = []
         for k in order[: 1 if parts is None else REFITS_TRIED]:
             final = refit(k)
-            again = free_run_scores([final], u, y, range_margin=margin)
+            # beyond one chunk scored a chunk at a time, no path kept (the ensembles' choice makes its own)
+            again = free_run_scores([final], u, y, range_margin=margin, keep_paths=parts is None)
             if again.admissible:
                 ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible,
                       "screened_on_rows": run.search_rows}

@@ -153,7 +153,7 @@ class Coevolution(CandidateModels):
         self.config = cfg
         self._config_doc = cfg.to_dict()  # every model of the run records it (asdict is ~0.4 ms a call)
         self.rng = _as_rng(rng)
-        ua, ya = as_data(u, y)
+        ua, ya = as_data(u, y, copy=False)  # read only: normalised below, not kept
         L, M, P = cfg.max_lag, cfg.neurons, cfg.population
         need = L + 2 * M
         if ya.shape[0] < need:
