@@ -88,7 +88,9 @@ def _header(p: ExportPlan) -> str:
  * Added outputs (x[], {N}_outputs_all and {N}_step_all):
 {extras}
  *   <output>_lower, <output>_upper: the model's {100 * BAND_LEVEL:g} % free-run band (present when the model carries a
- *     prediction interval): y -+ q * (scale + the standard deviation of its networks' outputs at the sample);
+ *     prediction interval): y -+ q * (scale + the standard deviation of its networks' outputs at the sample
+ *     + beyond * how far its farthest regressor lies past its estimation range, in output units: the band
+ *     grows where the model extrapolates; beyond 0 for a model calibrated before that rule);
  *     equal to y over the first max_lag samples (the initial history).
  *   <output>_in_domain: 1.0 when every regressor of the output at the sample (an input, or the output's own
  *     past value, at each lag the model uses) lies within the range the model saw, else 0.0: beyond it

@@ -46,12 +46,12 @@ def signal_outside(values: NDArray[np.float64], low: Any, high: Any) -> NDArray[
 
 def signal_excess(values: NDArray[np.float64], low: Any, high: Any) -> NDArray[np.float64]:
     """How far each value lies beyond ``low .. high`` (per column when they are arrays), in half-spans of the
-    range (``max(|x_n| - 1, 0)``, ``x_n`` normalised; 0 for a zero span; a non-finite value: inf): one signal's
+    range (``max(|x_n| - 1, 0)``, ``x_n`` normalised; 0 for a zero span; NaN: inf, inf: the largest float): one signal's
     part of :func:`excess`."""
     span = high - low
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         ex = np.where(span > 0, np.abs(2.0 * (values - low) / np.where(span > 0, span, 1.0) - 1.0) - 1.0, 0.0)
-    out: NDArray[np.float64] = np.maximum(np.nan_to_num(ex, nan=np.inf), 0.0)  # a non-finite value: infinitely far
+    out: NDArray[np.float64] = np.maximum(np.nan_to_num(ex, nan=np.inf), 0.0)  # NaN: inf; inf: the largest float (nan_to_num)
     return out
 
 
