@@ -449,25 +449,28 @@ class Daemon(SlotKeeping):
         if not self.shares.serving(name):
             self._global["results_handed_over"] += 1  # served elsewhere since the job began: not ours to publish
             return
-        persist = self.versions.persist if self.store is not None else None
-        self.versions.settle(st.ident, self.bus, st.lock)  # once per stream without state: the network's version
-        with st.lock:
-            up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
-            # the state for a successor (~2 ms and ~100 kB for the MR damper): only when there may be one
-            state = st.ident.state(now_ns=time.time_ns()).to_json() if self.link.has_successor() else None
-        latency_s = None
-        with st.lock:
-            st.recent_updates.append((time.monotonic(), up.kind, (time.time_ns() - window.received_ns) / 1e9))
-        with self.shares.publish_lock:  # a release waits for this put to end; no put after it
-            if not self.shares.serving(name):
-                self._global["results_handed_over"] += 1
-                return
-            if state is not None:
-                self.link.hand_off(name, state)  # before the model: the next owner never reuses its version
-            if up.kind == "rejected" and up.payload is not None and (rej := self._pubs.get(f"{name}/rejected")):
-                rej.put(up.payload)  # a rejected challenger, for subscribers that asked (include_rejected)
-            if up.accepted and up.payload is not None and (pub := self._pubs.get(f"{name}/model")) is not None:
-                pub.put(up.payload)
+        # versions leave in the order they are given: a job of this stream that finishes meanwhile (a worker may
+        # stall between its version and its put) waits here, so subscribers never see v8 before v7
+        with st.publish_order:
+            persist = self.versions.persist if self.store is not None else None
+            self.versions.settle(st.ident, self.bus, st.lock)  # once per stream without state: the network's version
+            with st.lock:
+                up = st.ident.finish(job, out, now_ns=time.time_ns(), persist=persist)
+                # the state for a successor (~2 ms and ~100 kB for the MR damper): only when there may be one
+                state = st.ident.state(now_ns=time.time_ns()).to_json() if self.link.has_successor() else None
+            latency_s = None
+            with st.lock:
+                st.recent_updates.append((time.monotonic(), up.kind, (time.time_ns() - window.received_ns) / 1e9))
+            with self.shares.publish_lock:  # a release waits for this put to end; no put after it
+                if not self.shares.serving(name):
+                    self._global["results_handed_over"] += 1
+                    return
+                if state is not None:
+                    self.link.hand_off(name, state)  # before the model: the next owner never reuses its version
+                if up.kind == "rejected" and up.payload is not None and (rej := self._pubs.get(f"{name}/rejected")):
+                    rej.put(up.payload)  # a rejected challenger, for subscribers that asked (include_rejected)
+                if up.accepted and up.payload is not None and (pub := self._pubs.get(f"{name}/model")) is not None:
+                    pub.put(up.payload)
         if up.accepted:
             latency_s = (time.time_ns() - window.received_ns) / 1e9
             with st.lock:

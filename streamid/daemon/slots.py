@@ -26,6 +26,7 @@ class StreamSlot:
     def __init__(self, ident: OnlineIdentifier, configured: bool = False) -> None:
         self.ident = ident
         self.lock = threading.Lock()  # every call into ident holds it (Zenoh callbacks, workers, housekeeping)
+        self.publish_order = threading.Lock()  # held from a result's version to its put (service._finish)
         self.configured = configured  # named in daemon.streams: never released for idleness
         self.declared = False
         self.handles: list[Any] = []  # its publishers and queryables (closed when the slot is released)
