@@ -270,14 +270,13 @@ def prediction_r2(model: Model, u: ArrayLike, y: ArrayLike) -> tuple[float, floa
 
 
 def _predictions(
-    model: Model, u: ArrayLike, y: ArrayLike, fr: NDArray[np.float64] | None = None, threads: int = 1
+    model: Model, u: ArrayLike, y: ArrayLike
 ) -> tuple[float, float | None, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     ua, ya = as_data(u, y, min_samples=model.max_lag + 2)
     L = model.max_lag
-    osa = model.predict_osa(ua, ya, threads=threads)
-    if fr is None:
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported, not warned about
-            fr = model.simulate(ua, ya[:L])
+    osa = model.predict_osa(ua, ya)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging free run is reported, not warned about
+        fr = model.simulate(ua, ya[:L])
     return r2(ya[L:], osa[L:]), r2_or_none(ya[L:], fr[L:]), ya[L:] - osa[L:], osa, fr
 
 

@@ -224,7 +224,7 @@ class EnsembleModel(Model):
         out: NDArray[np.float64] = np.median(rows, axis=0) if self.combine == "median" else np.mean(rows, axis=0)
         return out
 
-    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]], threads: int = 1) -> list[NDArray[np.float64]]:
+    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
         """Free runs: each member simulates on its own past outputs, the outputs averaged (module docstring).
 
         Each run's ``y_init`` must hold at least :attr:`max_lag` measured outputs; member ``i`` starts
@@ -234,7 +234,7 @@ class EnsembleModel(Model):
         inits = [initial_outputs(y_init, L) for _, y_init in runs]
         if not inits:
             return []
-        per_member = thread_map(lambda m: m.simulate_many(runs), self.members, threads)
+        per_member = [m.simulate_many(runs) for m in self.members]
         out = []
         for c, yi in enumerate(inits):
             avg = self._combined(np.array([sims[c] for sims in per_member]))
@@ -242,9 +242,8 @@ class EnsembleModel(Model):
             out.append(avg)
         return out
 
-    def member_paths(self, u: ArrayLike, y_init: ArrayLike, threads: int = 1) -> NDArray[np.float64]:
-        """Each member's free run (rows), from its own past outputs; the first :attr:`max_lag` samples measured
-        (``threads``: the members simulated in that many threads, the same values to the bit)."""
+    def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
+        """Each member's free run (rows), from its own past outputs; the first :attr:`max_lag` samples measured."""
         L = self.max_lag
         yi = initial_outputs(y_init, L)
         try:
@@ -252,11 +251,8 @@ class EnsembleModel(Model):
         except (IndexError, TypeError):
             raise DataError(f"u must have shape (N,) or (N, n_inputs); got {u!r}") from None
         paths = np.empty((len(self.members), n))  # filled in place: no second copy of K records
-
-        def one(i: int) -> None:
-            paths[i] = self.members[i].simulate(u, yi)
-
-        thread_map(one, range(len(self.members)), threads)
+        for i, m in enumerate(self.members):
+            paths[i] = m.simulate(u, yi)
         paths[:, :L] = yi[:L]
         return paths
 

@@ -190,7 +190,7 @@ def chunked_runs(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64]
     What a record's report and the interval's calibration read, a piece at a time."""
     from streamid.model.domain import far_from_domain
 
-    L, H = int(model.max_lag), int(model.max_lag)
+    L = int(model.max_lag)  # also how far back a piece's domain excess reads
     tail_u, tail_c = u[:0], np.empty(0)
     for a, paths in chunked_paths(model, u, y_init, rows, threads):
         b = a + paths.shape[1]
@@ -202,5 +202,5 @@ def chunked_runs(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64]
             if far and b > far_from:
                 ex = far_from_domain(model, np.concatenate([tail_u, u[a:b]]),
                                      np.concatenate([tail_c, centre]))[tail_c.shape[0]:]
-        tail_u, tail_c = u[max(0, b - H) : b], centre[max(0, centre.shape[0] - H) :]
+        tail_u, tail_c = u[max(0, b - L) : b], centre[max(0, centre.shape[0] - L) :]
         yield a, paths, centre, ex

@@ -353,22 +353,21 @@ class Model:
         centre = self.combine_paths(paths, y_init)
         return self.interval.band(centre, paths, float(interval), self.max_lag, far_from_domain(self, u, centre))
 
-    def member_paths(self, u: ArrayLike, y_init: ArrayLike, threads: int = 1) -> NDArray[np.float64]:
+    def member_paths(self, u: ArrayLike, y_init: ArrayLike) -> NDArray[np.float64]:
         """The free runs of the model's networks, shape ``(K, N)``: one row for a single network, a member's each
-        for an ensemble (each from its own past outputs; the first ``max_lag`` samples measured). ``threads``: an
-        ensemble's members simulated in that many threads (the same values to the bit)."""
+        for an ensemble (each from its own past outputs; the first ``max_lag`` samples measured)."""
         return self.simulate_many([(u, y_init)])[0][None, :]
 
     def combine_paths(self, paths: NDArray[np.float64], y_init: ArrayLike) -> NDArray[np.float64]:
         """The model's free run from its networks' (:meth:`member_paths`): the one network's path itself."""
         return np.array(paths[0])
 
-    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]], threads: int = 1) -> list[NDArray[np.float64]]:
+    def simulate_many(self, runs: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[NDArray[np.float64]]:
         """Several free runs of this model at once, e.g. on the estimation and the validation data.
 
         Equal to ``[self.simulate(u, y_init) for u, y_init in runs]`` (to rounding), in one
-        recursion over the longest input (``threads`` > 1: the runs split over that many threads,
-        the same values to the bit).
+        recursion over the longest input: the runs advance together, so two runs cost
+        about as much as the longer one alone.
 
         Parameters
         ----------
@@ -406,7 +405,7 @@ class Model:
             un,
             np.stack([self.normalisation.y(yi) for _, yi in parts]),
             None if self.linear is None else np.broadcast_to(self.linear, (C, self.linear.shape[0])),
-            linear_regressors=self.linear_regressors, threads=threads,
+            linear_regressors=self.linear_regressors,
         )
         out = []
         for c, (ua, yi) in enumerate(parts):

@@ -174,22 +174,17 @@ def coverage_figures(coverage: float, width: float, std: float) -> dict[str, flo
 
 
 def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], level: float = DEFAULT_LEVEL,
-                    free_run: NDArray[np.float64] | None = None,
-                    paths: NDArray[np.float64] | None = None) -> dict[str, Any] | None:
+                    free_run: NDArray[np.float64] | None = None) -> dict[str, Any] | None:
     """The model's interval of ``level`` on a measured record (free run from its first ``max_lag`` outputs):
     ``level``, ``coverage``, mean ``width`` and ``width_over_std`` over the scored samples; None when the model
-    carries no interval. ``model`` a Model (read, not imported); ``paths``: its networks' free runs on the record
-    (``model.member_paths``) when the caller has them, ``free_run``: its free run (a single network's band is
-    then made from it): the band is then not simulated again."""
+    carries no interval. ``model`` a Model (read, not imported); ``free_run``: its free run on the record when the
+    caller has it (a single network's band is then made from it, not simulated again)."""
     interval = getattr(model, "interval", None)
     if interval is None:
         return None
     L = int(model.max_lag)
     with np.errstate(over="ignore", invalid="ignore"):
-        if paths is not None:  # what model.simulate(u, y[:L], interval=level) computes, from these paths
-            centre = model.combine_paths(paths, y[:L])
-            band = interval.band(centre, paths, float(level), L, far_from_domain(model, u, centre))
-        elif free_run is not None and len(getattr(model, "members", (model,))) == 1:
+        if free_run is not None and len(getattr(model, "members", (model,))) == 1:
             band = interval.band(free_run, free_run[None, :], float(level), L, far_from_domain(model, u, free_run))
         else:
             band = model.simulate(u, y[:L], interval=level)

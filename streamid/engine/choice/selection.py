@@ -50,7 +50,7 @@ def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float,
         L = ens.max_lag
         if samples is not None:
             at = np.array([_rows_at(m, ua, ya, samples)[2] for m in ens.members])  # each member's OSA there
-            err = ens.combine_paths(np.hstack([np.zeros((len(at), L)), at]), ya[:L])[L:] - ya[samples]
+            err = ens.combine_rows(at) - ya[samples]
             return ens.with_metrics(fitness=float(np.mean(err**2)))
         return ens.with_metrics(fitness=float(np.mean((ens.predict_osa(ua, ya)[L:] - ya[L:]) ** 2)))
     ua, ya = as_data(u, y, min_samples=model.max_lag + model.neurons + 1)
