@@ -210,3 +210,20 @@ def test_save_and_load_round_trip_and_name_a_bad_file(tmp_path) -> None:
     bad.write_text("{not json", encoding="utf-8")
     with pytest.raises(ModelFormatError, match="bad.json.*must be JSON"):
         Model.load(bad)
+
+
+@pytest.mark.parametrize("k, M", [(1, 1), (3, 4), (9, 30)])
+def test_the_compiled_exponents_are_the_numpy_loop_s_bits(k: int, M: int) -> None:
+    # only subtractions, products, sums and one division, each correctly rounded in both (no fused multiply-add):
+    # the same bits on any IEEE machine, so a one-step prediction's figures are those recorded before the kernel
+    from streamid.model.kernels import scaled_distances
+
+    rng = np.random.default_rng(k * 100 + M)
+    r, c, w = rng.normal(size=(257, k)), rng.normal(size=(M, k)), rng.uniform(0.05, 3.0, M)
+    d2 = np.zeros((257, M))
+    for j in range(k):  # the loop Model._phi ran before
+        d2 += np.square(r[:, j : j + 1] - c[None, :, j])
+    expected = d2 / -(2.0 * w**2)
+    got = np.empty((257, M))
+    scaled_distances(r, c, -(2.0 * w**2), got)
+    assert np.array_equal(got, expected)

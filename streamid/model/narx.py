@@ -263,13 +263,10 @@ class Model:
         return ua, ya
 
     def _phi(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
-        d2 = np.zeros((r.shape[0], self.neurons))
-        tmp = np.empty_like(d2)  # in place: one temporary, not three per regressor (the same values to the bit)
-        for j in range(r.shape[1]):
-            np.subtract(r[:, j : j + 1], self.centres[None, :, j], out=tmp)
-            np.square(tmp, out=tmp)
-            d2 += tmp
-        np.divide(d2, -(2.0 * self.widths**2), out=d2)  # -d2 / (2 w^2): negation is exact
+        from streamid.model.kernels import scaled_distances  # numba, loaded on the first prediction (not on import)
+
+        d2 = np.empty((r.shape[0], self.neurons))
+        scaled_distances(np.ascontiguousarray(r), self.centres, -(2.0 * self.widths**2), d2)  # -d2 / (2 w^2)
         return np.exp(d2, out=d2)
 
     def regressor_rows(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
