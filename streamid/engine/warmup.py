@@ -6,7 +6,7 @@ import numpy as np
 
 from streamid.engine.choice.sensitivities import free_run_sensitivities
 from streamid.engine.fit.kernels import exp2_rows, gram_rows
-from streamid.model.kernels import recursion
+from streamid.model.kernels import recursion, scaled_distances
 
 __all__ = ["warm_up_kernels"]
 
@@ -22,5 +22,6 @@ def warm_up_kernels() -> None:
               np.zeros((1, 1)), one, np.zeros((1, 1)), np.zeros((3, 1)), np.zeros((3, 1)), 1)
     free_run_sensitivities(np.zeros((3, 1)), np.zeros((1, 1)), np.ones(1), np.ones(1, dtype=np.int64), np.zeros(1),
                            np.zeros(1), np.zeros(3), np.zeros(3), 1, np.zeros((3, 0)), 0, np.zeros((1, 1)))
+    scaled_distances(np.zeros((1, 1)), np.zeros((1, 1)), -np.ones(1), np.empty((1, 1)))
     exp2_rows(np.zeros((1, 2, 3)), 1, 2)
     gram_rows(np.zeros((1, 3, 4)), 1, 3, np.empty((1, 3, 2)))

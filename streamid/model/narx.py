@@ -266,7 +266,8 @@ class Model:
         from streamid.model.kernels import scaled_distances  # numba, loaded on the first prediction (not on import)
 
         d2 = np.empty((r.shape[0], self.neurons))
-        scaled_distances(np.ascontiguousarray(r), self.centres, -(2.0 * self.widths**2), d2)  # -d2 / (2 w^2)
+        c = np.ascontiguousarray(self.centres)
+        scaled_distances(np.ascontiguousarray(r), c, -(2.0 * self.widths**2), d2)  # -d2 / (2 w^2)
         return np.exp(d2, out=d2)
 
     def regressor_rows(self, u: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
