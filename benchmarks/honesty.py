@@ -32,6 +32,22 @@ from streamid.engine.settings import DEFAULT, RIDGE
 from streamid.model.narx import Model
 
 KINDS = ("paper", "kept", "median")
+#: What ``--read`` summarises: the kinds scored, and ``hybrid``: the kept model where it carries a long linear part
+#: (the networks alone free-ran the estimation record below MORE_BELOW, an estimation-record fact), else the median
+#: of the finished restarts (a rule measured on the saved models, not the engine's: issue 51).
+SUMMARISED = (*KINDS, "hybrid")
+
+
+def long_linear(doc: dict[str, Any]) -> bool:
+    """Whether a model document (a network or an ensemble) carries a long linear part."""
+    return any(m.get("linear_regressors") for m in [doc, *doc.get("members", [])])
+
+
+def hybrid(row: dict[str, Any]) -> dict[str, Any]:
+    """A row's ``hybrid`` score (see :data:`SUMMARISED`): the kept model's with a long linear part or no median."""
+    kept = (row.get("models") or {}).get("kept")
+    keep = row.get("median") is None or kept is None or long_linear(kept)
+    return dict(row["kept"] if keep else row["median"])
 
 
 def _score(model: Model, t: Target) -> dict[str, Any]:
@@ -87,12 +103,13 @@ def summarise(rows: list[dict[str, Any]]) -> list[str]:
     by: dict[str, list[dict[str, Any]]] = {}
     for r in rows:
         by.setdefault(r["target"], []).append(r)
-    lines, silent_total = [], dict.fromkeys(KINDS, 0)
+    lines, silent_total = [], dict.fromkeys(SUMMARISED, 0)
     for name, rs in by.items():
         paper_median = statistics.median(r["paper"]["fr_val"] for r in rs)
         cells = []
-        for kind in KINDS:
-            got = [r[kind] if r.get(kind) is not None else r["kept"] for r in rs]  # no median: the kept model stands
+        for kind in SUMMARISED:
+            got = [hybrid(r) if kind == "hybrid" else r[kind] if r.get(kind) is not None else r["kept"]
+                   for r in rs]  # no median: the kept model stands
             frs = [g["fr_val"] for g in got]
             bands = [g["band"] for g in got if g["band"] is not None]
             cov = statistics.median(b["coverage"] for b in bands) if bands else math.nan
@@ -118,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args(argv)
     if a.read:
-        print("| target | " + " | ".join(KINDS) + " |")
+        print("| target | " + " | ".join(SUMMARISED) + " |")
         rows = read_rows(a.read)
         print("\n".join(summarise(rows if a.beyond is None else rescored(rows, a.beyond))))
         return 0
