@@ -280,7 +280,7 @@ def correlation_tests(
     n_in = ua.shape[1]
     lags = tested_lags(L)
     res: Part = partial(_piece, e, None, 0, 1, 0.0)  # chunks of the residual and its products, made on demand
-    values = {("ee", None): streamed_ccf(res, res, n, lags["ee"])}
+    values: dict[tuple[str, int | None], NDArray[np.float64]] = {("ee", None): streamed_ccf(res, res, n, lags["ee"])}
     for i in range(n_in):
         ui, m2 = ua[:, i], float(ua[:, i].mean()) ** 2  # (eu)(t) = e(t+1) u(t+1), t < n - 1; (u^2)' = u^2 - mean(u)^2
         u2: Part = partial(_piece, ui, None, 0, 2, m2)

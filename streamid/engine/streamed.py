@@ -137,7 +137,7 @@ class ArxSums:
 
     def __init__(self, n_inputs: int) -> None:
         self.regs = dense_regressors(self.ORDER, n_inputs, direct=False)
-        self.r = np.zeros((0, len(self.regs) + 2))
+        self.r: NDArray[np.float64] = np.zeros((0, len(self.regs) + 2))
         self.rows = 0
 
     def add(self, u_ext: NDArray[np.float64], y_ext: NDArray[np.float64], first: int) -> None:
@@ -147,7 +147,7 @@ class ArxSums:
             return
         X = regressor_columns(self.regs, u_ext[first - k :], y_ext[first - k :], k)
         block = np.column_stack([X, np.ones(X.shape[0]), y_ext[first:]])
-        self.r = np.linalg.qr(np.vstack([self.r, block]), mode="r")
+        self.r = np.asarray(np.linalg.qr(np.vstack([self.r, block]), mode="r"))
         self.rows += X.shape[0]
 
     def radius(self) -> float:

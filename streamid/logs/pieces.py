@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from streamid.errors import DataError
 from streamid.logs.columns import ColumnStats
-from streamid.logs.csv_table import DELIMITER_NAMES, csv_layout, time_unit_ns
+from streamid.logs.csv_table import DELIMITER_NAMES, CsvLayout, csv_layout, time_unit_ns
 
 __all__ = ["MAX_STEPS", "NotStreamable", "PieceReader"]
 
@@ -110,6 +110,7 @@ class PieceReader:
         self.info: dict[str, Any] = {}
         self.stats = ColumnStats(inputs, output)
         self.rows = 0
+        self.csv: CsvLayout | None = None
         if kind in ("csv", "tsv"):
             try:
                 lay = csv_layout(Path(path), delimiter, self.used)
@@ -124,7 +125,7 @@ class PieceReader:
         elif kind in COLUMNAR_KINDS:
             from streamid.logs.arrow_tables import open_columnar
 
-            self.csv, self.kind = None, COLUMNAR_KINDS[kind]
+            self.kind = COLUMNAR_KINDS[kind]
             try:
                 names, temporal, unreadable, _, self.batches = open_columnar(path, self.kind)
             except Exception as exc:  # noqa: BLE001 - read whole, which names the fault
