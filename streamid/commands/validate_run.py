@@ -69,11 +69,7 @@ def _span(rec: Record, start_s: float | None, end_s: float | None,
     the first one's index."""
     if start_s is None and end_s is None:
         return rec, "", 0
-    for flag, v in (("--start", start_s), ("--end", end_s)):
-        if v is not None and not (math.isfinite(v) and v >= 0):
-            raise ConfigError(f"{flag} must be a number of seconds >= 0 after the record's first sample; got {v}")
-    if start_s is not None and end_s is not None and not end_s > start_s:
-        raise ConfigError(f"--end must be later than --start; got --start {start_s:g} --end {end_s:g}")
+    _check_span(start_s, end_s)
     n = len(rec.y)
     if rec.t_ns is not None:
         t = rec.t_ns - rec.t_ns[0]
@@ -92,7 +88,83 @@ def _span(rec: Record, start_s: float | None, end_s: float | None,
         raise DataError(f"{rec.path} has no sample between --start and --end: it spans {t[-1] / 1e9:.6g} s")
     a, b = int(rows[0]), int(rows[-1]) + 1
     part = replace(rec, u=rec.u[a:b], y=rec.y[a:b], t_ns=None if rec.t_ns is None else rec.t_ns[a:b])
-    return part, f"rows {a}..{b - 1} ({t[a] / 1e9:.6g}-{t[b - 1] / 1e9:.6g} s) of {n}", a
+    return part, _span_text(a, b, int(t[a]), int(t[b - 1]), n), a
+
+
+def _check_span(start_s: float | None, end_s: float | None) -> None:
+    for flag, v in (("--start", start_s), ("--end", end_s)):
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            raise ConfigError(f"{flag} must be a number of seconds >= 0 after the record's first sample; got {v}")
+    if start_s is not None and end_s is not None and not end_s > start_s:
+        raise ConfigError(f"--end must be later than --start; got --start {start_s:g} --end {end_s:g}")
+
+
+def _span_text(a: int, b: int, t_a: int, t_b: int, n: int) -> str:
+    """How the rows ``a..b-1`` of ``n`` were chosen by --start/--end (``t_a``, ``t_b``: the first and last one's
+    time after the record's first sample, ns)."""
+    return f"rows {a}..{b - 1} ({t_a / 1e9:.6g}-{t_b / 1e9:.6g} s) of {n}"
+
+
+def _streamed(args: argparse.Namespace, model: Model, inputs: list[str], output: str,
+              path: Path) -> tuple[Record, RecordReport, list[str], list[str], str] | None:
+    """The report read and made a piece at a time (:mod:`streamid.logs.pieces`, :mod:`streamid.engine.streamed`):
+    memory bounded by the piece, for a CSV, Parquet or Arrow file longer than one chunk; None for any other (or
+    one that reader does not read as the whole-file reader does), which is then read whole."""
+    from streamid.engine.choice.caveats import summed_record_caveats
+    from streamid.engine.streamed import StreamedRecord
+    from streamid.logs.pieces import NotStreamable, PieceReader
+
+    how = reading(args)
+    try:
+        reader = PieceReader(str(path), inputs, output, how["delimiter"])
+    except NotStreamable:
+        return None
+    span = args.start is not None or args.end is not None
+    if span:
+        _check_span(args.start, args.end)
+    if span and reader.assumed is None and not model_period_ns(model):
+        return None  # no times: the whole-file path says so
+    lo = -1 if args.start is None else round(args.start * 1e9)
+    hi = None if args.end is None else round(args.end * 1e9)
+    acc = StreamedRecord(model, threads=cores())
+    row, t0, first, last = 0, 0, -1, -1
+    t_first = t_last = 0
+    try:
+        for u, y, t in reader.pieces():
+            k = y.shape[0]
+            if span:
+                if t is not None:
+                    t0 = int(t[0]) if row == 0 else t0
+                    tt = t - t0
+                else:
+                    tt = np.arange(row, row + k, dtype=np.int64) * int(model_period_ns(model) or 0)
+                kept = np.flatnonzero((tt >= lo) & (tt <= (tt[-1] if hi is None else hi)))
+                if kept.size:
+                    i, j = int(kept[0]), int(kept[-1]) + 1
+                    first, t_first = (row + i, int(tt[i])) if first < 0 else (first, t_first)
+                    last, t_last = row + j - 1, int(tt[j - 1])
+                    acc.feed(u[i:j], y[i:j])
+            else:
+                acc.feed(u, y)
+            row += k
+        notes_r, info, period_ns, clock = reader.finish(how["missing"], how["allow_time_input"])
+    except NotStreamable:
+        return None
+    if not acc.started or (span and clock != reader.assumed):
+        return None  # one chunk or less (assess's own path, to the bit), or times that were not the clock's
+    rec = Record(str(path), tuple(inputs), output, np.empty((0, len(inputs))), np.empty(0), None, tuple(notes_r),
+                 info, period_ns)
+    for note in rec.notes:
+        print(f"streamid validate: warning: {note}", file=sys.stderr, flush=True)
+    notes = _period_notes(model, rec)
+    a = max(first, 0) if span else 0
+    text = _span_text(a, last + 1, t_first, t_last, row) if span else ""
+    notes += _seen_notes(model, rec.path, a, acc.buffered + acc.a)
+    acc.finish()
+    rep = acc.report()
+    caveats = summed_record_caveats(model, rep.osa, rep.fr, acc.ranges(), rep.n, acc.arx.radius(),
+                                    rep.fr_diverged_at)
+    return rec, rep, notes, caveats, text
 
 
 def _seen_notes(model: Model, path: str, first: int, n: int) -> list[str]:
@@ -124,7 +196,7 @@ def _print(out: TextIO, args: argparse.Namespace, model: Model, rec: Record, rep
     w = out.write
     w(f"streamid validate: {args.model} on {rec.path}\n")
     w(f"  model     {_model_text(model)}\n")
-    w(f"  read      {read_text(rec.info, rec.period_ns, len(rec.y))}\n")
+    w(f"  read      {read_text(rec.info, rec.period_ns, rep.n)}\n")
     mapped = [f"{c} as {m}" for c, m in zip([*rec.input_names, rec.output_name], [*model.input_names, model.output_name])
               if c != m]
     w(f"  data      {rep.n} samples of {', '.join(rec.input_names)} -> {rec.output_name}"
@@ -164,14 +236,9 @@ def _draw(path: str, model: Model, rec: Record, rep: RecordReport, notes: list[s
     return files
 
 
-def validate_command(args: argparse.Namespace) -> int:
-    """``streamid validate``'s work, with its options ``args``; the exit status."""
-    if args.rrd is not None:
-        check_rrd_target(args.rrd)
-    if args.min_r2_fr is not None and not (math.isfinite(args.min_r2_fr) and args.min_r2_fr <= 1.0):
-        raise ConfigError(f"--min-r2-fr must be a finite number <= 1 (an R²); got {args.min_r2_fr}")
-    model = Model.load(args.model)
-    inputs, output = _columns(args, model)
+def _whole(args: argparse.Namespace, model: Model, inputs: list[str],
+           output: str) -> tuple[Record, RecordReport, list[str], list[str], str]:
+    """The report on the record read whole (any format; a record of one chunk or less; with --rrd)."""
     try:
         rec = load_record(data_file(args.data), inputs, output, stream=args.stream, **reading(args))
     except DataError as exc:
@@ -192,6 +259,22 @@ def validate_command(args: argparse.Namespace) -> int:
     # this command's cores (the same report, sooner); the full-length predictions only for the drawing
     rep = assess(model, rec.u, rec.y, threads=cores(), keep=args.rrd is not None)
     caveats = record_caveats(model, rep.osa, rep.fr, rec.u, rec.y, rep.fr_diverged_at)
+    return rec, rep, notes, caveats, span
+
+
+def validate_command(args: argparse.Namespace) -> int:
+    """``streamid validate``'s work, with its options ``args``; the exit status."""
+    if args.rrd is not None:
+        check_rrd_target(args.rrd)
+    if args.min_r2_fr is not None and not (math.isfinite(args.min_r2_fr) and args.min_r2_fr <= 1.0):
+        raise ConfigError(f"--min-r2-fr must be a finite number <= 1 (an R²); got {args.min_r2_fr}")
+    model = Model.load(args.model)
+    inputs, output = _columns(args, model)
+    streamed = None if args.rrd is not None else _streamed(args, model, inputs, output, data_file(args.data))
+    if streamed is not None:  # a long CSV, Parquet or Arrow file, read and judged a piece at a time
+        rec, rep, notes, caveats, span = streamed
+    else:
+        rec, rep, notes, caveats, span = _whole(args, model, inputs, output)
     passed = None if args.min_r2_fr is None else bool(rep.fr is not None and rep.fr >= args.min_r2_fr)
     files = _draw(args.rrd, model, rec, rep, notes, caveats) if args.rrd is not None else []
     if not args.json:

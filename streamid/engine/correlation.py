@@ -48,7 +48,7 @@ from streamid.model.limits import CHUNK_ROWS
 from streamid.model.regressors import as_data
 
 __all__ = ["PASS_FRACTION", "STRICT_Z", "TESTS", "CorrelationReport", "CorrelationTest", "ccf", "correlation_test_name",
-           "correlation_tests", "streamed_ccf"]
+           "correlation_report", "correlation_tests", "streamed_ccf", "tested_lags"]
 
 #: A test passes when at least this fraction of its lags lies inside the 95 % band...
 PASS_FRACTION = 0.95
@@ -277,28 +277,43 @@ def correlation_tests(
         raise DataError(f"max_lag must be an integer >= 1; got {max_lag!r}")
     n = e.size
     L = int(min(max_lag, n - 2))
-    band = float(1.96 / np.sqrt(n))
-    pos = np.arange(1, L + 1)
-    nonneg = np.arange(0, L + 1)
-    both = np.arange(-L, L + 1)
     n_in = ua.shape[1]
-    names = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(n_in))
-    if len(names) != n_in:
-        raise DataError(f"input_names must name the {n_in} input(s); got {list(names)}")
-
-    def mk(kind: str, i: int | None, lags: NDArray[np.int64], values: NDArray[np.float64]) -> CorrelationTest:
-        nm = correlation_test_name(kind, None if i is None or n_in == 1 else names[i])
-        return CorrelationTest(nm, TESTS[kind][0], tuple(lags.tolist()), tuple(values.tolist()), band)
-
+    lags = tested_lags(L)
     res: Part = partial(_piece, e, None, 0, 1, 0.0)  # chunks of the residual and its products, made on demand
-    tests = [mk("ee", None, pos, streamed_ccf(res, res, n, pos))]
+    values: dict[tuple[str, int | None], NDArray[np.float64]] = {("ee", None): streamed_ccf(res, res, n, lags["ee"])}
     for i in range(n_in):
         ui, m2 = ua[:, i], float(ua[:, i].mean()) ** 2  # (eu)(t) = e(t+1) u(t+1), t < n - 1; (u^2)' = u^2 - mean(u)^2
         u2: Part = partial(_piece, ui, None, 0, 2, m2)
-        tests += [
-            mk("ue", i, both, streamed_ccf(partial(_piece, ui, None, 0, 1, 0.0), res, n, both)),
-            mk("e_eu", i, nonneg, streamed_ccf(res, partial(_piece, e, ui, 1, 1, 0.0), n - 1, nonneg)),
-            mk("u2_e", i, both, streamed_ccf(u2, res, n, both)),
-            mk("u2_e2", i, both, streamed_ccf(u2, partial(_piece, e, None, 0, 2, 0.0), n, both)),
-        ]
+        values[("ue", i)] = streamed_ccf(partial(_piece, ui, None, 0, 1, 0.0), res, n, lags["ue"])
+        values[("e_eu", i)] = streamed_ccf(res, partial(_piece, e, ui, 1, 1, 0.0), n - 1, lags["e_eu"])
+        values[("u2_e", i)] = streamed_ccf(u2, res, n, lags["u2_e"])
+        values[("u2_e2", i)] = streamed_ccf(u2, partial(_piece, e, None, 0, 2, 0.0), n, lags["u2_e2"])
+    return correlation_report(n, L, n_in, input_names, values)
+
+
+def tested_lags(max_lag: int) -> dict[str, NDArray[np.int64]]:
+    """Each test's lags (:data:`TESTS`' kinds) up to ``max_lag``: ``ee`` 1..L, ``e_eu`` 0..L, the others -L..L."""
+    both = np.arange(-max_lag, max_lag + 1)
+    return {"ee": np.arange(1, max_lag + 1), "ue": both, "e_eu": np.arange(0, max_lag + 1), "u2_e": both,
+            "u2_e2": both}
+
+
+def correlation_report(n: int, max_lag: int, n_in: int, input_names: tuple[str, ...] | list[str] | None,
+                       values: dict[tuple[str, int | None], NDArray[np.float64]]) -> CorrelationReport:
+    """The report of the tests' ``values`` (``(kind, input index)`` -> values at :func:`tested_lags`' lags; ``ee``'s
+    index None) on ``n`` residual samples (its band ``1.96 / sqrt(n)``): :func:`correlation_tests`' and the
+    streamed validation's (:mod:`streamid.engine.streamed`)."""
+    band = float(1.96 / np.sqrt(n))
+    names = tuple(input_names) if input_names is not None else tuple(f"u{i}" for i in range(n_in))
+    if len(names) != n_in:
+        raise DataError(f"input_names must name the {n_in} input(s); got {list(names)}")
+    lags = tested_lags(max_lag)
+
+    def mk(kind: str, i: int | None) -> CorrelationTest:
+        nm = correlation_test_name(kind, None if i is None or n_in == 1 else names[i])
+        return CorrelationTest(nm, TESTS[kind][0], tuple(lags[kind].tolist()), tuple(values[(kind, i)].tolist()), band)
+
+    tests = [mk("ee", None)]
+    for i in range(n_in):
+        tests += [mk(kind, i) for kind in ("ue", "e_eu", "u2_e", "u2_e2")]
     return CorrelationReport(n, float(band), tuple(tests))

@@ -13,7 +13,7 @@ that module then reads the file in Python to name the row and column at fault, w
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any, BinaryIO
 
 import numpy as np
@@ -23,7 +23,8 @@ from numpy.typing import NDArray
 
 from streamid.errors import DataError
 
-__all__ = ["BLOCK_BYTES", "Refused", "stream_csv", "read_columnar", "write_float_columns"]
+__all__ = ["BLOCK_BYTES", "Refused", "csv_batches", "float_pieces", "open_columnar", "stream_csv", "read_columnar",
+           "write_float_columns"]
 
 #: Bytes of CSV text parsed at a time; a row must fit in one (csv_table.MAX_LINE_CHARS is the same 1 MiB).
 BLOCK_BYTES = 1 << 20
@@ -89,15 +90,53 @@ def stream_csv(source: str | BinaryIO, names: Sequence[str], skip_lines: int, wa
         A row with another number of fields, a cell in a wanted column that is neither a number nor a
         missing token, a row longer than :data:`BLOCK_BYTES`, undecodable text.
     """
+    try:
+        return _fill(csv_batches(source, names, skip_lines, wanted, delimiter=delimiter, decimal=decimal,
+                                 quoting=quoting), wanted, n_max, progress, n_max)
+    except (pa.ArrowException, UnicodeDecodeError, ValueError) as exc:
+        raise Refused(str(exc)) from None
+
+
+def csv_batches(source: str | BinaryIO, names: Sequence[str], skip_lines: int, wanted: Sequence[str], *,
+                delimiter: str, decimal: str, quoting: bool) -> Iterator[Any]:
+    """Arrow's streaming CSV reader over ``source`` (:func:`stream_csv`'s settings): record batches of the
+    ``wanted`` columns as float64, a block (:data:`BLOCK_BYTES`) at a time."""
     read = pacsv.ReadOptions(column_names=list(names), skip_rows=skip_lines, block_size=BLOCK_BYTES, use_threads=True)
     parse = pacsv.ParseOptions(delimiter=delimiter, quote_char='"' if quoting else False)
     convert = pacsv.ConvertOptions(column_types={c: pa.float64() for c in wanted}, include_columns=list(wanted),
                                    null_values=NULL_TOKENS, strings_can_be_null=True, decimal_point=decimal)
+    yield from pacsv.open_csv(source, read_options=read, parse_options=parse, convert_options=convert)
+
+
+def float_pieces(batches: Iterable[Any], names: Sequence[str],
+                 ns: Sequence[str] = ()) -> Iterator[tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.int64]]]]:
+    """Record batches as float64 arrays of ``names`` (nulls as NaN, as :func:`_fill` reads them) and integer ns of
+    the timestamp or duration columns ``ns``, a batch at a time.
+
+    Raises
+    ------
+    Refused
+        A batch Arrow cannot read (a ragged row, text in a column read...) or a null time.
+    """
     try:
-        reader = pacsv.open_csv(source, read_options=read, parse_options=parse, convert_options=convert)
-        return _fill(reader, wanted, n_max, progress, n_max)
+        for b in batches:
+            out = {}
+            for c in names:
+                out[c] = np.empty(b.num_rows)
+                _into(out[c], b.column(c))
+            times = {}
+            for c in ns:
+                t = _ns([b], c, _ns_unit(b.schema.field(c).type), b.num_rows)
+                if t is None:
+                    raise Refused(f"a null time in {c!r}")
+                times[c] = t
+            yield out, times
     except (pa.ArrowException, UnicodeDecodeError, ValueError) as exc:
         raise Refused(str(exc)) from None
+
+
+def _ns_unit(t: Any) -> Any:
+    return pa.timestamp("ns", t.tz) if pa.types.is_timestamp(t) else pa.duration("ns")
 
 
 def _numeric(t: Any) -> bool:
@@ -118,6 +157,44 @@ def _ns(batches: Iterable[Any], name: str, unit: Any, rows: int) -> NDArray[np.i
     return out[:k]
 
 
+def open_columnar(path: str, kind: str) -> tuple[list[str], dict[str, Any], dict[str, str], int,
+                                                Callable[[list[str]], Iterable[Any]]]:
+    """A Parquet or Arrow IPC file opened (:func:`read_columnar`'s ``kind``): every column's name, the timestamp
+    and duration columns' types, why each column that is not numeric cannot be a signal, the rows, and
+    ``batches(columns)``: its record batches of those columns (~65,536 rows each for Parquet, the file's own for
+    IPC). Raises Arrow's or the system's error."""
+    if kind == "parquet":
+        import pyarrow.parquet as pq
+
+        pf = pq.ParquetFile(path, pre_buffer=False)  # row groups not read ahead whole: ~35 MB less at 10 M rows
+        schema, rows = pf.schema_arrow, int(pf.metadata.num_rows)
+
+        def batches(cols: list[str]) -> Iterable[Any]:
+            return pf.iter_batches(batch_size=1 << 16, columns=cols)
+    else:
+        try:
+            ipc = pa.ipc.open_file(pa.OSFile(path))
+            schema, rows = ipc.schema, int(ipc.count_rows())
+
+            def batches(cols: list[str]) -> Iterable[Any]:
+                return (ipc.get_batch(i).select(cols) for i in range(ipc.num_record_batches))
+        except pa.ArrowInvalid:  # the IPC stream format (no footer): rows counted in a first pass
+            stream = pa.ipc.open_stream(pa.OSFile(path))
+            schema, rows = stream.schema, sum(b.num_rows for b in stream)
+
+            def batches(cols: list[str]) -> Iterable[Any]:
+                return (b.select(cols) for b in pa.ipc.open_stream(pa.OSFile(path)))
+    names = list(schema.names)
+    if len(set(names)) != len(names):
+        raise DataError(f"{path}: the column names must be distinct; got {names}")
+    temporal = {f.name: f.type for f in schema if pa.types.is_timestamp(f.type) or pa.types.is_duration(f.type)}
+    unreadable = {f.name: (f"{path}: column {f.name!r} holds {f.type} values, not numbers; only numeric "
+                           "columns (integer, float, boolean, decimal) are signals"
+                           + (" (a timestamp or duration column gives the clock)" if f.name in temporal else ""))
+                  for f in schema if not _numeric(f.type)}
+    return names, temporal, unreadable, rows, batches
+
+
 def read_columnar(path: str, kind: str, keep: Callable[[str], bool] | None = None, progress: Progress | None = None
                   ) -> tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.int64]], list[str], dict[str, str]]:
     """A Parquet (``kind="parquet"``) or Arrow IPC (``"ipc"``: Feather v2, file or stream format) file's columns.
@@ -130,41 +207,12 @@ def read_columnar(path: str, kind: str, keep: Callable[[str], bool] | None = Non
         other column cannot be used as a signal.
     """
     try:
-        if kind == "parquet":
-            import pyarrow.parquet as pq
-
-            pf = pq.ParquetFile(path, pre_buffer=False)  # row groups not read ahead whole: ~35 MB less at 10 M rows
-            schema, rows = pf.schema_arrow, int(pf.metadata.num_rows)
-
-            def batches(cols: list[str]) -> Iterable[Any]:
-                return pf.iter_batches(batch_size=1 << 16, columns=cols)
-        else:
-            try:
-                ipc = pa.ipc.open_file(pa.OSFile(path))
-                schema, rows = ipc.schema, int(ipc.count_rows())
-
-                def batches(cols: list[str]) -> Iterable[Any]:
-                    return (ipc.get_batch(i).select(cols) for i in range(ipc.num_record_batches))
-            except pa.ArrowInvalid:  # the IPC stream format (no footer): rows counted in a first pass
-                stream = pa.ipc.open_stream(pa.OSFile(path))
-                schema, rows = stream.schema, sum(b.num_rows for b in stream)
-
-                def batches(cols: list[str]) -> Iterable[Any]:
-                    return (b.select(cols) for b in pa.ipc.open_stream(pa.OSFile(path)))
-        names = list(schema.names)
-        if len(set(names)) != len(names):
-            raise DataError(f"{path}: the column names must be distinct; got {names}")
-        temporal = {f.name: f.type for f in schema if pa.types.is_timestamp(f.type) or pa.types.is_duration(f.type)}
-        unreadable = {f.name: (f"{path}: column {f.name!r} holds {f.type} values, not numbers; only numeric "
-                               "columns (integer, float, boolean, decimal) are signals"
-                               + (" (a timestamp or duration column gives the clock)" if f.name in temporal else ""))
-                      for f in schema if not _numeric(f.type)}
+        names, temporal, unreadable, rows, batches = open_columnar(path, kind)
         take = [c for c in names if c not in unreadable and (keep is None or keep(c))]
         times: dict[str, NDArray[np.int64]] = {}
         for c, t in temporal.items():
             if keep is None or keep(c):
-                unit = (pa.timestamp("ns", t.tz) if pa.types.is_timestamp(t) else pa.duration("ns"))
-                ns = _ns(batches([c]), c, unit, rows)
+                ns = _ns(batches([c]), c, _ns_unit(t), rows)
                 if ns is not None:
                     times[c] = ns
         try:

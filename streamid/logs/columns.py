@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from streamid.errors import DataError
 from streamid.logs.csv_table import time_unit_ns
 
-__all__ = ["MISSING_POLICIES", "Cleaned", "check_columns", "handle_missing", "row_label"]
+__all__ = ["MISSING_POLICIES", "Cleaned", "ColumnStats", "check_columns", "handle_missing", "row_label"]
 
 MISSING_POLICIES = ("error", "drop", "fill")
 
@@ -44,20 +44,91 @@ def row_label(i: int, lines: Lines | None) -> str:
     return f"line {int(lines[i])}" if lines is not None else f"sample {i + 1}"
 
 
-def _monotonic(v: NDArray[np.float64]) -> str | None:
-    """'increasing'/'decreasing' when the finite values never go the other way and move at >= 90 % of steps.
+def _monotonic(steps: int, up: int, down: int) -> str | None:
+    """'increasing'/'decreasing' when the finite values never go the other way and move at >= 90 % of steps, from
+    the count of steps between consecutive finite values, those up and those down.
 
     Judged on 10 samples or more (a random column of 10 is monotonic by chance with probability 2/10! = 6e-7).
     """
-    f = v[np.isfinite(v)]
-    if f.size < 10:
+    if steps + 1 < 10:
         return None
-    d = np.diff(f)
-    for sign, word in ((1.0, "increasing"), (-1.0, "decreasing")):
-        s = sign * d
-        if np.all(s >= 0) and np.mean(s > 0) >= 0.9:
+    for moved, back, word in ((up, down, "increasing"), (down, up, "decreasing")):
+        if not back and moved / steps >= 0.9:
             return word
     return None
+
+
+class ColumnStats:
+    """What :func:`check_columns` judges, summed over a file read a piece at a time (:meth:`add` each piece's
+    columns, in order): per input whether it equals the output, its first finite value and whether every one
+    equals it, and the steps between its consecutive finite values (up, down)."""
+
+    def __init__(self, inputs: Sequence[str], output: str) -> None:
+        self.inputs, self.output = list(inputs), output
+        self.same = dict.fromkeys(self.inputs, True)
+        self.first: dict[str, float | None] = dict.fromkeys(self.inputs)
+        self.constant = dict.fromkeys(self.inputs, True)
+        self.last: dict[str, float | None] = dict.fromkeys(self.inputs)
+        self.steps = {c: [0, 0, 0] for c in self.inputs}  # steps, up, down
+
+    def add(self, columns: dict[str, NDArray[np.float64]]) -> None:
+        y = columns[self.output]
+        for name in self.inputs:
+            u = columns[name]
+            self.same[name] = self.same[name] and u.shape == y.shape and bool(np.array_equal(u, y, equal_nan=True))
+            f = u[np.isfinite(u)]
+            if not f.size:
+                continue
+            if self.first[name] is None:
+                self.first[name] = float(f[0])
+            self.constant[name] = self.constant[name] and bool(np.all(f == self.first[name]))
+            last = self.last[name]
+            d = np.diff(f) if last is None else np.diff(np.concatenate([[last], f]))
+            st = self.steps[name]
+            st[0] += int(d.size)
+            st[1] += int(np.count_nonzero(d > 0))
+            st[2] += int(np.count_nonzero(d < 0))
+            self.last[name] = float(f[-1])
+
+    def judge(self, allow_time_input: bool = False) -> list[str]:
+        """:func:`check_columns`' verdict: its errors raised, its warnings returned."""
+        inputs, output = self.inputs, self.output
+        if output in inputs:
+            raise DataError(
+                f"--input {output}: the column {output!r} is the --output too; a model of {output} from its own present "
+                f"value would be trivial (its past values are regressors already, up to --max-lag-y); choose other inputs"
+            )
+        seen: set[str] = set()
+        for name in inputs:
+            if name in seen:
+                raise DataError(f"--input {name} is given twice; give each input column once")
+            seen.add(name)
+        warnings: list[str] = []
+        for name in inputs:
+            if self.same[name]:
+                raise DataError(
+                    f"--input {name}: the column {name!r} holds exactly the values of the output {output!r}; a model "
+                    f"of {output} from itself would be trivial; choose other inputs"
+                )
+            first = self.first[name]
+            if first is not None and self.constant[name]:
+                raise DataError(
+                    f"--input {name}: the column {name!r} is constant (every value {first!r}); it carries nothing "
+                    "to identify from; choose inputs that vary"
+                )
+            steps = self.steps[name]
+            trend = _monotonic(*steps)
+            if trend is not None:
+                msg = (
+                    f"--input {name}: the column {name!r} is {trend} over all its {steps[0] + 1} samples (a time "
+                    f"column?); a model of {output} from it meets, on the validation part and later, values it never saw"
+                )
+                if not allow_time_input:
+                    raise DataError(msg + "; pass --allow-time-input to use it anyway")
+                warnings.append(msg + " (used, --allow-time-input)")
+            elif time_unit_ns(name) is not None:
+                warnings.append(f"--input {name}: the column {name!r} is named like a time; it is used as an input signal")
+        return warnings
 
 
 def check_columns(
@@ -68,50 +139,18 @@ def check_columns(
     *,
     allow_time_input: bool = False,
 ) -> list[str]:
-    """Refuse inputs a model cannot be made of; return the warnings (see the module's rules).
+    """Refuse inputs a model cannot be made of; return the warnings (see the module's rules; :class:`ColumnStats`
+    judges a file read a piece at a time the same way).
 
     Raises
     ------
     DataError
         Naming the column, what is wrong and what to do.
     """
-    if output in inputs:
-        raise DataError(
-            f"--input {output}: the column {output!r} is the --output too; a model of {output} from its own present "
-            f"value would be trivial (its past values are regressors already, up to --max-lag-y); choose other inputs"
-        )
-    seen: set[str] = set()
-    for name in inputs:
-        if name in seen:
-            raise DataError(f"--input {name} is given twice; give each input column once")
-        seen.add(name)
-    y = columns[output]
-    warnings: list[str] = []
-    for name in inputs:
-        u = columns[name]
-        if u.shape == y.shape and np.array_equal(u, y, equal_nan=True):
-            raise DataError(
-                f"--input {name}: the column {name!r} holds exactly the values of the output {output!r}; a model of "
-                f"{output} from itself would be trivial; choose other inputs"
-            )
-        f = u[np.isfinite(u)]
-        if f.size and np.all(f == f[0]):
-            raise DataError(
-                f"--input {name}: the column {name!r} is constant (every value {float(f[0])!r}); it carries nothing "
-                "to identify from; choose inputs that vary"
-            )
-        trend = _monotonic(u)
-        if trend is not None:
-            msg = (
-                f"--input {name}: the column {name!r} is {trend} over all its {f.size} samples (a time column?); a "
-                f"model of {output} from it meets, on the validation part and later, values it never saw"
-            )
-            if not allow_time_input:
-                raise DataError(msg + "; pass --allow-time-input to use it anyway")
-            warnings.append(msg + " (used, --allow-time-input)")
-        elif time_unit_ns(name) is not None:
-            warnings.append(f"--input {name}: the column {name!r} is named like a time; it is used as an input signal")
-    return warnings
+    stats = ColumnStats(inputs, output)
+    if output not in inputs and len(set(inputs)) == len(inputs):
+        stats.add(columns)
+    return stats.judge(allow_time_input)
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from __future__ import annotations
 import csv
 import io
 import re
+from dataclasses import dataclass
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -56,6 +57,8 @@ __all__ = [
     "RowLines",
     "time_unit_ns",
     "clock_of",
+    "CsvLayout",
+    "csv_layout",
 ]
 
 #: Longest line read (characters); a longer one stops the file with an error (1 MiB: ~50,000 numbers).
@@ -323,33 +326,36 @@ def _python_read(path: Path, enc: str, header_line: int, header: list[str], d: s
 Progress = Callable[[float, float], Any]
 
 
-def read_delimited(
-    path: Path, delimiter: str | None = None, columns: Sequence[str] | None = None, progress: Progress | None = None,
-) -> tuple[dict[str, NDArray[np.float64]], RowLines, dict[str, Any], dict[str, str]]:
-    """Columns (NaN where a cell is missing), the 1-based file line of every row, how the file was read, and why
-    each unreadable column cannot be used.
+@dataclass(frozen=True)
+class CsvLayout:
+    """How a CSV is laid out, judged on its header and first lines (the module's rules)."""
 
-    Parameters
-    ----------
-    columns : optional
-        The columns to read (names not in the header are left out; the time-like ones are read too, for the
-        clock); default every column.
-    progress : optional
-        Called as ``progress(rows_read, rows_at_most)`` as the rows are read.
+    enc: str
+    header_no: int  # the header's 1-based file line
+    header: list[str]
+    delimiter: str
+    comma: bool  # decimal comma
+    wanted: list[str]  # the columns read: those asked for and the time-like ones, in the header's order
+    plain: bool  # every line ends where Arrow's reader sees a line end
 
-    Returns
-    -------
-    columns, lines, how, unreadable
-        ``how`` holds ``delimiter`` (its name), ``decimal`` (``"."`` or ``","``) and ``columns`` (every name of
-        the header). ``unreadable`` maps a column holding a cell that is neither a number nor a missing value to
-        the error naming its first such cell: it is raised only if the column is used (a notes column beside the
-        signals does not stop a file).
+    def source(self, path: Path) -> Any:
+        """What Arrow's reader reads: the path, or the text normalised (:class:`_Normalised`; close it)."""
+        return str(path) if self.enc == "utf-8-sig" and self.delimiter != " " else _Normalised(
+            path, self.enc, self.delimiter == " ")
+
+    def arrow_options(self) -> dict[str, Any]:
+        """:func:`streamid.logs.arrow_tables.stream_csv`'s delimiter, decimal and quoting."""
+        d = self.delimiter
+        return {"delimiter": "\t" if d == " " else d, "decimal": "," if self.comma else ".", "quoting": d != " "}
+
+
+def csv_layout(path: Path, delimiter: str | None = None, columns: Sequence[str] | None = None) -> CsvLayout:
+    """The layout of the CSV at ``path`` (:func:`read_delimited`'s first step; a reader a piece at a time's too).
 
     Raises
     ------
     DataError
-        Unreadable file, no header or data, duplicate names, a row with another number of
-        fields than the header.
+        Unreadable file, no header or data, duplicate names, an undetectable delimiter.
     """
     enc = _file_encoding(path)
     head: list[tuple[int, str]] = []
@@ -381,6 +387,40 @@ def read_delimited(
     comma = d != "," and _decimal_comma([_split(ln, d) for ln in body])
     asked = set(header if columns is None else columns)
     wanted = [c for c in header if c in asked or time_unit_ns(c) is not None]
+    return CsvLayout(enc, header_no, header, d, comma, wanted, plain)
+
+
+def read_delimited(
+    path: Path, delimiter: str | None = None, columns: Sequence[str] | None = None, progress: Progress | None = None,
+) -> tuple[dict[str, NDArray[np.float64]], RowLines, dict[str, Any], dict[str, str]]:
+    """Columns (NaN where a cell is missing), the 1-based file line of every row, how the file was read, and why
+    each unreadable column cannot be used.
+
+    Parameters
+    ----------
+    columns : optional
+        The columns to read (names not in the header are left out; the time-like ones are read too, for the
+        clock); default every column.
+    progress : optional
+        Called as ``progress(rows_read, rows_at_most)`` as the rows are read.
+
+    Returns
+    -------
+    columns, lines, how, unreadable
+        ``how`` holds ``delimiter`` (its name), ``decimal`` (``"."`` or ``","``) and ``columns`` (every name of
+        the header). ``unreadable`` maps a column holding a cell that is neither a number nor a missing value to
+        the error naming its first such cell: it is raised only if the column is used (a notes column beside the
+        signals does not stop a file).
+
+    Raises
+    ------
+    DataError
+        Unreadable file, no header or data, duplicate names, a row with another number of
+        fields than the header.
+    """
+    lay = csv_layout(path, delimiter, columns)
+    enc, header_no, header, d, comma, wanted, plain = (lay.enc, lay.header_no, lay.header, lay.delimiter, lay.comma,
+                                                        lay.wanted, lay.plain)
     n_max = _line_breaks(path)
     cols: dict[str, NDArray[np.float64]] | None = None
     unreadable: dict[str, str] = {}
@@ -389,10 +429,9 @@ def read_delimited(
     elif plain:
         from streamid.logs.arrow_tables import Refused, stream_csv
 
-        source: Any = str(path) if enc == "utf-8-sig" and d != " " else _Normalised(path, enc, d == " ")
+        source: Any = lay.source(path)
         try:
-            cols = stream_csv(source, header, header_no, wanted, delimiter="\t" if d == " " else d,
-                              decimal="," if comma else ".", quoting=d != " ", n_max=n_max, progress=progress)
+            cols = stream_csv(source, header, header_no, wanted, n_max=n_max, progress=progress, **lay.arrow_options())
         except Refused:
             cols = None
         finally:

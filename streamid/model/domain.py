@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from streamid.model.regressors import Normalisation, Regressor
 
-__all__ = ["BEYOND_RANGE", "beyond_range", "domain_text", "excess", "far_from_domain", "outside", "outside_share",
+__all__ = ["BEYOND_RANGE", "beyond_bounds", "beyond_range", "domain_regressors", "domain_text", "excess", "far_from_domain", "outside", "outside_share",
            "signal_excess", "signal_outside", "value_excess", "value_outside"]
 
 
@@ -31,9 +31,13 @@ BEYOND_RANGE = 0.25
 
 def beyond_range(lo: float, hi: float, values: NDArray[np.float64]) -> bool:
     """Whether ``values`` leave ``[lo, hi]`` by more than :data:`BEYOND_RANGE` of its span (never for a zero span)."""
+    return bool(len(values)) and beyond_bounds(lo, hi, float(np.min(values)), float(np.max(values)))
+
+
+def beyond_bounds(lo: float, hi: float, vlo: float, vhi: float) -> bool:
+    """:func:`beyond_range` of values whose least is ``vlo`` and greatest ``vhi``."""
     span = hi - lo
-    return bool(span > 0 and len(values) and max(float(np.max(values)) - hi, lo - float(np.min(values))) >
-                BEYOND_RANGE * span)
+    return bool(span > 0 and max(vhi - hi, lo - vlo) > BEYOND_RANGE * span)
 
 
 def signal_outside(values: NDArray[np.float64], low: Any, high: Any) -> NDArray[np.bool_]:
@@ -120,19 +124,24 @@ def far_from_domain(model: Any, u: Any, path: NDArray[np.float64]) -> NDArray[np
     (:mod:`streamid.model.uncertainty`)."""
     ua = np.asarray(u, dtype=np.float64)
     ua = ua.reshape(ua.shape[0], -1)
-    regs = {r for m in getattr(model, "members", (model,)) for r in (*m.regressors, *(m.linear_regressors or ()))}
-    ex = excess(model.normalisation, sorted(regs, key=lambda r: (r.signal, r.index, r.lag)), ua,
+    ex = excess(model.normalisation, domain_regressors(model), ua,
                 np.asarray(path, dtype=np.float64))
     far: NDArray[np.float64] = ex * model.normalisation.y_half_range
     return far
+
+
+def domain_regressors(model: Any) -> list[Regressor]:
+    """Every regressor of a model (any member's, for an ensemble; the linear part's too), in one fixed order: what
+    :func:`outside_share` and :func:`far_from_domain` read."""
+    regs = {r for m in getattr(model, "members", (model,)) for r in (*m.regressors, *(m.linear_regressors or ()))}
+    return sorted(regs, key=lambda r: (r.signal, r.index, r.lag))
 
 
 def outside_share(model: Any, u: NDArray[np.float64], y: NDArray[np.float64] | None = None) -> float:
     """The share of the samples of a record (from ``model.max_lag`` on) at which one of the model's regressors (any
     member's, for an ensemble) lies outside its estimation domain (:func:`outside`); ``model`` a Model (read, not
     imported)."""
-    regs = {r for m in getattr(model, "members", (model,)) for r in (*m.regressors, *(m.linear_regressors or ()))}
-    flags = outside(model.normalisation, sorted(regs, key=lambda r: (r.signal, r.index, r.lag)), u, y)
+    flags = outside(model.normalisation, domain_regressors(model), u, y)
     scored = flags[model.max_lag:]
     return float(np.mean(scored)) if scored.shape[0] else 0.0
 

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from streamid.threads import thread_map
 from streamid.model.regressors import Regressor
 
-__all__ = ["chunked_paths", "chunked_runs", "free_run"]
+__all__ = ["RunCarry", "chunked_paths", "chunked_runs", "free_run"]
 
 
 def free_run(
@@ -142,13 +142,72 @@ def _linear_inputs(
     return out
 
 
+class RunCarry:
+    """A model's free run over a record that arrives a piece at a time: what :func:`chunked_paths` and
+    :func:`chunked_runs` carry from one piece to the next (each network's last ``max_lag`` outputs, normalised; the
+    combined run's last ``max_lag`` values and the inputs before the piece, which its domain excess reads back).
+
+    :meth:`next` takes the piece's inputs with the ``min(a, max_lag)`` rows before it (``a`` its first sample) and
+    gives ``(a, paths, centre, beyond)`` as :func:`chunked_runs` yields them: the same values to the bit, whatever
+    the pieces' lengths (each at least ``max_lag + 1`` rows but the last). Memory: a piece's. ``model`` a Model or an
+    ensemble (read, not imported); ``y_init`` at least ``max_lag`` measured outputs; ``measured`` as in
+    :func:`chunked_paths`."""
+
+    def __init__(self, model: Any, y_init: NDArray[np.float64], threads: int = 1, measured: bool = True) -> None:
+        self.model, self.threads, self.measured = model, threads, measured
+        self.members = tuple(getattr(model, "members", (model,)))
+        self.L, self.norm = int(model.max_lag), model.normalisation
+        self.yi = np.asarray(y_init, dtype=np.float64).reshape(-1)[: self.L]
+        self.tails = [self.norm.y(self.yi[: m.max_lag]) for m in self.members]  # each network's last outputs
+        self.a = 0  # the next piece's first sample
+        self.tail_c = np.empty(0)
+
+    def _piece(self, k: int, u_ext: NDArray[np.float64], h: int) -> NDArray[np.float64]:
+        m, lm = self.members[k], int(self.members[k].max_lag)
+        s = h - lm if self.a else 0  # a later piece starts from its network's own last outputs
+        yn = free_run(m.regressors, m.centres[None], m.widths[None], m.weights[None], self.norm.u(u_ext[s:]),
+                      self.tails[k][None, :], None if m.linear is None else m.linear[None],
+                      linear_regressors=m.linear_regressors)[0]
+        self.tails[k] = yn[yn.shape[0] - lm:].copy() if lm else yn[:0]
+        out: NDArray[np.float64] = self.norm.y_inverse(yn[h - s:])
+        return out
+
+    def paths(self, u_ext: NDArray[np.float64]) -> tuple[int, NDArray[np.float64]]:
+        """``(a, paths)`` of the next piece (:func:`chunked_paths`'); ``u_ext`` its inputs after the
+        ``min(a, max_lag)`` rows before it."""
+        a, h = self.a, min(self.a, self.L)
+        paths = np.array(thread_map(lambda k: self._piece(k, u_ext, h), range(len(self.members)), self.threads))
+        if a == 0 and self.measured:
+            paths[:, : self.L] = self.yi[: self.L]  # the measured initial outputs (as simulate and member_paths give them)
+        self.a = a + paths.shape[1]
+        return a, paths
+
+    def next(self, u_ext: NDArray[np.float64], far: bool = True) -> tuple[
+            int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+        """``(a, paths, centre, beyond)`` of the next piece (:func:`chunked_runs`'); ``far`` False: ``beyond`` None."""
+        from streamid.model.domain import far_from_domain
+
+        L, model = self.L, self.model
+        a, paths = self.paths(u_ext)
+        with np.errstate(over="ignore", invalid="ignore"):
+            centre = paths[0].copy() if paths.shape[0] == 1 else model.combine_rows(paths)
+            if a == 0:
+                centre[:L] = paths[0, :L]  # the measured initial outputs
+            ex = None
+            if far:
+                ex = far_from_domain(model, u_ext, np.concatenate([self.tail_c, centre]))[self.tail_c.shape[0]:]
+        self.tail_c = centre[max(0, centre.shape[0] - L):]
+        return a, paths, centre, ex
+
+
 def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64], rows: int,
                   threads: int = 1, measured: bool = True) -> Iterator[tuple[int, NDArray[np.float64]]]:
     """A model's networks' free runs over a record, ``rows`` samples at a time: ``(a, paths)`` for consecutive
     spans ``a .. a + len`` covering the record, ``paths`` ``(K, len)`` in output units (a member's each for an
     ensemble), the first ``max_lag`` samples measured: ``model.member_paths(u, y_init)`` cut in pieces, the same
     values to the bit (each network carries its own last ``max_lag`` outputs, normalised, from one piece to the
-    next: the recursion's arithmetic is unchanged). Memory: a piece's, whatever the record's length.
+    next: the recursion's arithmetic is unchanged; :class:`RunCarry`). Memory: a piece's, whatever the record's
+    length.
 
     ``model`` a Model or an ensemble (read, not imported); ``u`` (N, n_inputs) float64 as
     :func:`~streamid.model.regressors.as_data` gives it; ``y_init`` at least ``max_lag`` measured outputs;
@@ -156,27 +215,10 @@ def chunked_paths(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64
     path is its own free run from its own ``max_lag`` measured outputs (``network.simulate``'s), the samples before
     the model's ``max_lag`` not replaced by the measured ones.
     """
-    members = tuple(getattr(model, "members", (model,)))
-    L, n, norm = int(model.max_lag), int(u.shape[0]), model.normalisation
-    yi = np.asarray(y_init, dtype=np.float64).reshape(-1)[:L]
-    tails = [norm.y(yi[: m.max_lag]) for m in members]  # each network's last outputs, normalised
-
-    def piece(k: int, a: int, b: int) -> NDArray[np.float64]:
-        m, lm = members[k], int(members[k].max_lag)
-        s = a - lm if a else 0  # a later piece starts from its network's own last outputs
-        yn = free_run(m.regressors, m.centres[None], m.widths[None], m.weights[None], norm.u(u[s:b]),
-                      tails[k][None, :], None if m.linear is None else m.linear[None],
-                      linear_regressors=m.linear_regressors)[0]
-        tails[k] = yn[yn.shape[0] - lm:].copy() if lm else yn[:0]
-        out: NDArray[np.float64] = norm.y_inverse(yn[a - s:])
-        return out
-
-    for a in range(0, n, max(int(rows), L + 1)):
-        b = min(n, a + max(int(rows), L + 1))
-        paths = np.array(thread_map(lambda k: piece(k, a, b), range(len(members)), threads))
-        if a == 0 and measured:
-            paths[:, :L] = yi[:L]  # the measured initial outputs (as simulate and member_paths give them)
-        yield a, paths
+    carry = RunCarry(model, y_init, threads, measured)
+    L, n, step = carry.L, int(u.shape[0]), max(int(rows), carry.L + 1)
+    for a in range(0, n, step):
+        yield carry.paths(u[max(0, a - L) : min(n, a + step)])
 
 
 def chunked_runs(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64], rows: int, threads: int = 1,
@@ -187,20 +229,9 @@ def chunked_runs(model: Any, u: NDArray[np.float64], y_init: NDArray[np.float64]
     measured: :meth:`Model.simulate`'s values), ``beyond`` :func:`~streamid.model.domain.far_from_domain` of the
     piece (its regressors read back across the piece's start: the whole run's values), None without ``far`` or
     for a piece that ends before sample ``far_from``.
-    What a record's report and the interval's calibration read, a piece at a time."""
-    from streamid.model.domain import far_from_domain
-
-    L = int(model.max_lag)  # also how far back a piece's domain excess reads
-    tail_u, tail_c = u[:0], np.empty(0)
-    for a, paths in chunked_paths(model, u, y_init, rows, threads):
-        b = a + paths.shape[1]
-        with np.errstate(over="ignore", invalid="ignore"):
-            centre = paths[0].copy() if paths.shape[0] == 1 else model.combine_rows(paths)
-            if a == 0:
-                centre[:L] = paths[0, :L]  # the measured initial outputs
-            ex = None
-            if far and b > far_from:
-                ex = far_from_domain(model, np.concatenate([tail_u, u[a:b]]),
-                                     np.concatenate([tail_c, centre]))[tail_c.shape[0]:]
-        tail_u, tail_c = u[max(0, b - L) : b], centre[max(0, centre.shape[0] - L) :]
-        yield a, paths, centre, ex
+    What a record's report and the interval's calibration read, a piece at a time (:class:`RunCarry`)."""
+    carry = RunCarry(model, y_init, threads)
+    L, n, step = carry.L, int(u.shape[0]), max(int(rows), carry.L + 1)
+    for a in range(0, n, step):
+        b = min(n, a + step)
+        yield carry.next(u[max(0, a - L) : b], far and b > far_from)

@@ -31,10 +31,11 @@ from numpy.typing import NDArray
 
 from streamid.engine.choice.longlinear import dense_regressors
 from streamid.model.regressors import regressor_columns
-from streamid.model.domain import BEYOND_RANGE, beyond_range
+from streamid.model.domain import BEYOND_RANGE, beyond_bounds, beyond_range
 
 __all__ = ["BEYOND_RANGE", "ERROR_RATIO", "MARGINAL_RADIUS", "OSA_GOOD", "SIZE_RATIO", "arx_pole_radius",
-           "beyond_range", "divergence_caveat", "model_caveats", "range_caveats", "record_caveats", "size_caveat"]
+           "beyond_range", "divergence_caveat", "model_caveats", "range_caveats", "record_caveats", "size_caveat",
+           "summed_record_caveats"]
 
 #: One-step-ahead validation R^2 from which a model is called a good one-step predictor.
 OSA_GOOD = 0.9
@@ -65,8 +66,10 @@ def arx_pole_radius(u: NDArray[np.float64], y: NDArray[np.float64], order: int =
 def _beyond(name: str, lo: float, hi: float, val: NDArray[np.float64]) -> str | None:
     if not beyond_range(lo, hi, val):
         return None
-    vlo, vhi = float(np.min(val)), float(np.max(val))
-    share = float(np.mean((val < lo) | (val > hi)))
+    return _beyond_text(name, lo, hi, float(np.min(val)), float(np.max(val)), float(np.mean((val < lo) | (val > hi))))
+
+
+def _beyond_text(name: str, lo: float, hi: float, vlo: float, vhi: float, share: float) -> str:
     return (f"the validation {name} spans [{vlo:.4g}, {vhi:.4g}], beyond the estimation range [{lo:.4g}, {hi:.4g}] "
             f"({share:.0%} of its samples outside): a Gaussian RBF network does not extrapolate, so the validation "
             f"figures there judge data the model never saw the like of; estimate on data that span the range of use")
@@ -97,14 +100,17 @@ def divergence_caveat(data: str, at: int | None) -> list[str]:
             f"it, and estimate on data that span it"]
 
 
-def _simulator_caveat(osa: float, fr: float | None, u: NDArray[np.float64], y: NDArray[np.float64],
-                      data: str) -> list[str]:
-    """'A one-step predictor, not a simulator', with the likely reason read from ``u``/``y`` (``data`` names them);
-    nothing for a diverged free run (``fr`` None: :func:`divergence_caveat` says it)."""
+def _simulator_caveat(osa: float, fr: float | None, u: NDArray[np.float64] | None, y: NDArray[np.float64] | None,
+                      data: str, radius: float | None = None) -> list[str]:
+    """'A one-step predictor, not a simulator', with the likely reason read from ``u``/``y`` (``data`` names them;
+    or their ARX pole ``radius`` given, then ``u``/``y`` None); nothing for a diverged free run (``fr`` None:
+    :func:`divergence_caveat` says it)."""
     if fr is None or not (osa >= OSA_GOOD and fr < 0.0):
         return []
     why = ""
-    radius = arx_pole_radius(u, y)
+    if radius is None:
+        assert u is not None and y is not None
+        radius = arx_pole_radius(u, y)
     if radius >= MARGINAL_RADIUS:
         why = (f"; a second-order linear ARX fit of the {data} has a pole at |z| = {radius:.3f}: the plant "
                f"integrates or is unstable in open loop, and every open-loop simulation of it drifts (judge such a "
@@ -173,6 +179,22 @@ def record_caveats(model: Any, osa: float, fr: float | None, u: NDArray[np.float
     return (range_caveats((n.u_low, n.u_high), (n.y_low, n.y_high), u2, y1, tuple(model.input_names),
                           model.output_name)
             + _simulator_caveat(osa, fr, u2, y1, "data") + divergence_caveat("record", diverged_at))
+
+
+def summed_record_caveats(model: Any, osa: float, fr: float | None, ranges: list[tuple[float, float, int]], n: int,
+                          radius: float, diverged_at: int | None = None) -> list[str]:
+    """:func:`record_caveats` from a record's summable figures (a record read a piece at a time:
+    :mod:`streamid.engine.streamed`): ``ranges`` each input's then the output's ``(min, max, samples outside the
+    model's range)`` over its ``n`` samples, ``radius`` :func:`arx_pole_radius` of it."""
+    nm = model.normalisation
+    bounds = [*zip(nm.u_low, nm.u_high), (nm.y_low, nm.y_high)]
+    names = [f"input {c}" for c in model.input_names] + [f"output {model.output_name}"]
+    out = []
+    for name, (lo, hi), (vlo, vhi, k) in zip(names, bounds, ranges):
+        lo, hi = float(lo), float(hi)
+        if n and beyond_bounds(lo, hi, vlo, vhi):
+            out.append(_beyond_text(name, lo, hi, vlo, vhi, k / n))
+    return out + _simulator_caveat(osa, fr, None, None, "data", radius) + divergence_caveat("record", diverged_at)
 
 
 def _fmt(v: Any) -> str:

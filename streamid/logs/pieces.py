@@ -1,0 +1,197 @@
+"""A CSV, Parquet or Arrow IPC (Feather) file's chosen columns read a piece at a time (a record of any length in
+memory bounded by the piece: ``streamid validate`` on a long file, :mod:`streamid.engine.streamed`).
+
+The same reading as :func:`streamid.logs.datafile.load_record` on a clean file, from the same code: the CSV's
+layout (:func:`~streamid.logs.csv_table.csv_layout`: delimiter, decimal comma, header) and Arrow's readers
+(:mod:`streamid.logs.arrow_tables`), the clock (the first time-like column, in the file's order, whose values all
+increase strictly; for Parquet / Arrow then a timestamp or duration column) judged over the whole file as the
+pieces pass, its period the median step (counted exactly: at most :data:`MAX_STEPS` distinct steps), and the
+columns' checks (:class:`~streamid.logs.columns.ColumnStats`). Whatever this reader does not do as
+``load_record`` does raises :class:`NotStreamable`, and the caller reads the file whole (which names the fault
+as today): a file that is not plain text for Arrow, a column not in the file, a missing or infinite value,
+a cell Arrow refuses, a clock of more distinct steps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from streamid.errors import DataError
+from streamid.logs.columns import ColumnStats
+from streamid.logs.csv_table import DELIMITER_NAMES, CsvLayout, csv_layout, time_unit_ns
+
+__all__ = ["MAX_STEPS", "NotStreamable", "PieceReader"]
+
+#: A clock's distinct steps counted for its median period; a clock of more is read whole.
+MAX_STEPS = 4096
+
+
+class NotStreamable(Exception):
+    """The file cannot be read a piece at a time as :func:`~streamid.logs.datafile.load_record` reads it whole."""
+
+
+class _Clock:
+    """Whether a column is a clock (:func:`~streamid.logs.csv_table.clock_of`'s rules, or a timestamp column's),
+    judged a piece at a time, and the count of each of its steps (ns)."""
+
+    def __init__(self, unit: int | None) -> None:
+        self.unit, self.ok, self.n = unit, True, 0
+        self.first: float | None = None
+        self.last_v, self.last_t = np.nan, 0
+        self.steps: dict[int, int] = {}
+
+    def times(self, v: NDArray[Any]) -> NDArray[np.int64]:
+        if self.unit is None:
+            return np.asarray(v, dtype=np.int64)
+        with np.errstate(invalid="ignore", over="ignore"):
+            return np.round(v * float(self.unit)).astype(np.int64)
+
+    def add(self, v: NDArray[Any]) -> NDArray[np.int64]:
+        t = self.times(v)
+        if not v.size or not self.ok:
+            return t
+        if self.first is None:
+            self.first = float(v[0])
+            if self.unit is not None and not np.isfinite(v[0]):
+                self.ok = False
+        if self.n and not (v[0] > self.last_v and t[0] > self.last_t):
+            self.ok = False
+        if not (np.all(v[1:] > v[:-1]) and np.all(t[1:] > t[:-1])):
+            self.ok = False
+        if self.ok:
+            d = np.diff(t) if not self.n else np.diff(np.concatenate([[self.last_t], t]))
+            for k, c in zip(*np.unique(d, return_counts=True)):
+                self.steps[int(k)] = self.steps.get(int(k), 0) + int(c)
+            if len(self.steps) > MAX_STEPS:
+                raise NotStreamable(f"a clock of more than {MAX_STEPS} distinct steps")
+        self.n += int(v.size)
+        self.last_v, self.last_t = v[-1], int(t[-1])
+        return t
+
+    def period(self) -> int | None:
+        """The median step (``int(np.median(np.diff(t_ns)))``'s value), None when the column is not a clock."""
+        if not self.ok or self.n < 2 or self.first is None:
+            return None
+        if self.unit is not None and not (np.isfinite(self.last_v)
+                                          and max(abs(self.first), abs(float(self.last_v))) * self.unit < 9e18):
+            return None
+        keys = sorted(self.steps)
+        counts = np.cumsum([self.steps[k] for k in keys])
+        m = int(counts[-1])
+
+        def kth(i: int) -> int:
+            return keys[int(np.searchsorted(counts, i, side="right"))]
+
+        mid = np.array([kth((m - 1) // 2), kth(m // 2)], dtype=np.int64)
+        return int(np.median(mid))
+
+
+class PieceReader:
+    """The input and output columns of ``path`` a piece at a time (module docstring): :meth:`pieces`, then
+    :meth:`finish` for how it was read. ``delimiter`` a CSV's (default detected).
+
+    Raises
+    ------
+    NotStreamable
+        Not a CSV, Parquet or Arrow file, or one this reader does not read as ``load_record`` does.
+    """
+
+    def __init__(self, path: str, inputs: Sequence[str], output: str, delimiter: str | None = None) -> None:
+        self.path, self.inputs, self.output = path, list(inputs), output
+        from streamid.logs.datafile import COLUMNAR_KINDS
+
+        kind = Path(path).suffix.lstrip(".").lower()
+        self.used = list(dict.fromkeys([*inputs, output]))
+        self.info: dict[str, Any] = {}
+        self.stats = ColumnStats(inputs, output)
+        self.rows = 0
+        self.csv: CsvLayout | None = None
+        if kind in ("csv", "tsv"):
+            try:
+                lay = csv_layout(Path(path), delimiter, self.used)
+            except DataError as exc:
+                raise NotStreamable(str(exc)) from None
+            if not lay.plain or any(c not in lay.header for c in self.used):
+                raise NotStreamable("not plain text for Arrow's reader, or a column not in the file")
+            self.csv, self.names = lay, lay.wanted
+            self.numeric_clocks = [c for c in lay.wanted if time_unit_ns(c) is not None]
+            self.temporal: list[str] = []
+            self.info = {"delimiter": DELIMITER_NAMES[lay.delimiter], "decimal": "," if lay.comma else "."}
+        elif kind in COLUMNAR_KINDS:
+            from streamid.logs.arrow_tables import open_columnar
+
+            self.kind = COLUMNAR_KINDS[kind]
+            try:
+                names, temporal, unreadable, _, self.batches = open_columnar(path, self.kind)
+            except Exception as exc:  # noqa: BLE001 - read whole, which names the fault
+                raise NotStreamable(str(exc)) from None
+            if any(c not in names or c in unreadable for c in self.used):
+                raise NotStreamable("a column not in the file, or not numeric")
+            self.names = [c for c in names if c not in unreadable and (c in self.used or time_unit_ns(c) is not None)]
+            self.numeric_clocks = [c for c in self.names if time_unit_ns(c) is not None]
+            self.temporal = [c for c in temporal if time_unit_ns(c) is not None]  # read_columnar's candidates
+        else:
+            raise NotStreamable(f"{kind!r} is not read a piece at a time")
+        self.clocks = {c: _Clock(time_unit_ns(c)) for c in self.numeric_clocks}
+        self.clocks.update({c: _Clock(None) for c in self.temporal})
+        #: the clock whose times :meth:`pieces` gives (the first candidate; :meth:`finish` says whether it is one)
+        self.assumed = next(iter(self.clocks), None)
+
+    def _batches(self) -> Iterator[tuple[dict[str, NDArray[np.float64]], dict[str, NDArray[np.int64]]]]:
+        from streamid.logs.arrow_tables import Refused, csv_batches, float_pieces
+
+        try:
+            if self.csv is not None:
+                lay = self.csv
+                source = lay.source(Path(self.path))
+                try:
+                    yield from float_pieces(csv_batches(source, lay.header, lay.header_no, lay.wanted,
+                                                        **lay.arrow_options()), lay.wanted)
+                finally:
+                    if not isinstance(source, str):
+                        source.close()
+            else:
+                yield from float_pieces(self.batches([*self.names, *self.temporal]), self.names, self.temporal)
+        except Refused as exc:
+            raise NotStreamable(str(exc)) from None
+
+    def pieces(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64] | None]]:
+        """``(u, y, t_ns)`` of each piece: the inputs (rows, n_inputs), the output, and the times of
+        :attr:`assumed` (None without a candidate). Raises :class:`NotStreamable` at a missing or infinite value."""
+        for cols, times in self._batches():
+            used = {c: cols[c] for c in self.used}
+            if not all(np.all(np.isfinite(v)) for v in used.values()):
+                raise NotStreamable("a missing or infinite value (read whole, as --drop/--fill/the error say)")
+            self.stats.add(used)
+            t = None
+            for c, clock in self.clocks.items():
+                tc = clock.add(times[c] if c in times else cols[c])
+                t = tc if c == self.assumed else t
+            self.rows += len(used[self.output])
+            yield np.column_stack([used[c] for c in self.inputs]), used[self.output], t
+
+    def finish(self, missing: str, allow_time_input: bool) -> tuple[list[str], dict[str, Any], int | None, str | None]:
+        """After :meth:`pieces`: the notes, ``info`` (as ``load_record``'s), the period and the clock's name."""
+        notes = self.stats.judge(allow_time_input)
+        clock, period = None, None
+        for c, ck in self.clocks.items():
+            if c in self.numeric_clocks and (p := ck.period()) is not None:
+                clock, period = c, p
+                break
+        if clock is None:
+            for c in self.temporal:
+                if (p := self.clocks[c].period()) is not None:
+                    clock, period = c, p
+                    break
+        info = dict(self.info)
+        if clock is not None:
+            info["clock"] = clock
+        info["rows"] = self.rows
+        info["missing"] = {"policy": missing, "rows_with_missing": 0, "rows_dropped": 0, "values_filled": 0,
+                           "places_spacing_broken": 0}
+        return notes, info, period, clock
