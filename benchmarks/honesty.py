@@ -36,7 +36,8 @@ from streamid.model.narx import Model
 KINDS = ("paper", "kept", "median")
 #: What ``--read`` summarises: the kinds scored, and ``hybrid``: the kept model where it carries a long linear part
 #: (the networks alone free-ran the estimation record below MORE_BELOW, an estimation-record fact), else the median
-#: of the finished restarts (a rule measured on the saved models, not the engine's: issue 51).
+#: of the finished restarts: the engine's rule since it was measured so (issue 51, :mod:`streamid.engine.choice.robust`);
+#: on rows saved before it, what the rule would have kept; on rows saved after, the kept model itself.
 SUMMARISED = (*KINDS, "hybrid")
 
 

@@ -296,14 +296,17 @@ def test_identify_cli_saves_an_ensemble_that_loads(tmp_path: Path) -> None:
                         "--est", str(len(t.y_est)), "--ensembles", "--more-restarts", "0", "--workers", "1", "--progress", "never",
                         "--model", str(mod), "--report", str(rep)], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
-    m = Model.load(mod)
-    assert isinstance(m, EnsembleModel) and json.loads(mod.read_text())["format"] == "streamid.model/3"
+    m = Model.load(mod)  # issue 51: the median of the finished runs is kept; the mean's choice stays evidence
+    assert isinstance(m, EnsembleModel) and json.loads(mod.read_text())["format"] == "streamid.model/6"
+    assert m.combine == "median" and m.metrics["robust"]["taken"] and len(m.members) == len(m.metrics["robust"]["runs"])
     ev = m.metrics["complexity"]["ensembles"]
     taken = [e for e in ev if e["taken"]]
-    assert len(taken) == 1 and taken[0]["members"] == [r for r in m.metrics["ensemble"]["members"]]
+    assert len(taken) == 1 and len(taken[0]["members"]) >= 2  # the mean of two runs still wins the AIC among means
     assert taken[0]["criterion"] < m.metrics["complexity"]["candidates"][m.metrics["complexity"]["chosen_run"]]["criterion"]
-    assert f"temp(t) = mean of {len(m.members)} networks on F[{m.lags_text()}] (the union of their lags)" in p.stdout
-    assert f"kept the mean of {len(m.members)} networks" in p.stdout and "ensembles of the restarts' networks by aic" in p.stdout
+    assert f"temp(t) = median of {len(m.members)} networks on F[{m.lags_text()}] (the union of their lags)" in p.stdout
+    assert f"the best: the mean of {len(taken[0]['members'])} networks" in p.stdout
+    assert "ensembles of the restarts' networks by aic" in p.stdout
+    assert f"restarts combined: kept the median of the {len(m.members)} finished restarts' networks" in p.stdout
     run = json.loads(rep.read_text())["runs"][0]
     fr = m.simulate(t.u_val, t.y_val[: m.max_lag])
     assert run["r2"]["fr_val"] == pytest.approx(r2(t.y_val[m.max_lag:], fr[m.max_lag:]), abs=1e-9)
@@ -385,28 +388,31 @@ def test_an_ensemble_model_record_round_trips_through_an_mcap_log(tmp_path: Path
     assert isinstance(back, EnsembleModel) and np.array_equal(back.predict_osa(u, y), ens.predict_osa(u, y))
 
 
-def test_identify_takes_the_mean_and_keeps_the_best_members_run_for_warm_starts() -> None:
+def test_identify_takes_the_median_of_the_finished_runs_and_keeps_the_chosen_run_for_warm_starts() -> None:
     from benchmarks.suite import targets
 
-    t = targets(("heat_exchanger",))[0]  # seed 0: the mean of the two best runs wins by AIC (round 7)
-    # the choice itself among round 7's four runs (refinement and more runs: their own tests)
+    t = targets(("heat_exchanger",))[0]  # seed 0: the mean of the two best runs wins by AIC among means (round 7)
+    # without refinement each finished run is its network as the search left it (refinement: its own tests)
     res = identify(t.u_est, t.y_est, DEFAULT.replace(refine_iterations=0, more_restarts=0, linear_terms=False), 0)
     m = res.model
-    assert isinstance(m, EnsembleModel)
-    members = m.metrics["ensemble"]["members"]
-    assert res.chosen == members[0] and len(m.members) == len(members) == 2
+    assert isinstance(m, EnsembleModel) and m.combine == "median"
+    robust = m.metrics["robust"]
+    assert robust["taken"] and robust["runs"] == list(range(len(res.runs))) and len(m.members) == len(res.runs)
+    assert not any(step["refined"] or step["long_linear"] for step in robust["finished"])
     runs = res.extra["run_models"]  # each run's candidate after pruning: the members are those networks
-    for i, mm in zip(members, m.members):
+    for i, mm in zip(robust["runs"], m.members):
         assert np.array_equal(mm.centres, runs[i].centres) and np.array_equal(mm.weights, runs[i].weights)
-    # the warm-start state and the history are one run's: the best member's
-    assert res.state.best_fitness == res.runs[members[0]].fitness == res.fitness_history[-1]
-    assert res.runs[res.chosen].lags == runs[members[0]].lags
-    fr = m.simulate(t.u_est, t.y_est)  # the score it was chosen by: the mean's estimation free run
+    # the choice among the runs is still made (the mean of two by AIC) and said; the median replaces its model
+    taken = [e for e in m.metrics["complexity"]["ensembles"] if e["taken"]]
+    assert len(taken) == 1 and res.chosen == taken[0]["members"][0]
+    # the warm-start state and the history are one run's: the chosen one's
+    assert res.state.best_fitness == res.runs[res.chosen].fitness == res.fitness_history[-1]
+    fr = m.simulate(t.u_est, t.y_est)  # the score it carries: the median's estimation free run
     L = m.max_lag
-    assert m.metrics["selection_score"] == pytest.approx(r2(t.y_est[L:], fr[L:]), abs=1e-9)
+    assert m.metrics["selection_score"] == pytest.approx(r2(t.y_est[L:], fr[L:]), abs=1e-9) == robust["r2_fr_est"]
     assert m.metrics["fitness"] == pytest.approx(float(np.mean((m.predict_osa(t.u_est, t.y_est)[L:] - t.y_est[L:]) ** 2)))
-    # the document says how it was made and on what, as a single network's does (it used to carry neither)
-    assert m.config == runs[members[0]].config and m.config["run_ensembles"] is True
-    assert m.window == runs[members[0]].window == {"n_samples": len(t.y_est)}
+    # the document says how it was made and on what, as a single network's does
+    assert m.config == runs[0].config and m.config["run_ensembles"] is True
+    assert m.window == runs[0].window == {"n_samples": len(t.y_est)}
     back = Model.from_json(m.to_json())
     assert back.config == m.config and back.window == m.window

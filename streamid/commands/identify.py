@@ -89,8 +89,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help=f"N more runs when the best run's estimation free-run R2 is between 0 and {MORE_BELOW} "
                         f"(a record explained in part; default {DEFAULT.more_restarts}; 0: never; --paper 0)")
     p.add_argument("--ensembles", action=argparse.BooleanOptionalAction, default=None,
-                   help="the means of the best 2, 3 and all admissible restarts' networks compete in the final choice "
-                        f"by the same criterion (default {'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
+                   help="the restarts combined: the means of the best 2, 3 and all admissible restarts' networks compete "
+                        "in the final choice by the same criterion, then the median of the finished restarts' networks "
+                        "is kept unless the chosen model has a long linear part (at least three restarts; default "
+                        f"{'on' if DEFAULT.run_ensembles else 'off'}; never with --paper)")
     p.add_argument("--linear", action=argparse.BooleanOptionalAction, default=None,
                    help="every candidate network is also offered with a direct linear part a'r + b over its regressors, "
                         "the kind chosen by the same criterion (default "

@@ -170,9 +170,23 @@ def _ensemble_lines(cx: dict[str, Any]) -> list[str]:
         + ("not admissible" if e["criterion"] is None else f"FR R2 est {e['r2_fr_est']:.5f}, {e['criterion']:.1f}")
         + (", taken" if e["taken"] else "") + ")" for e in ens)
     taken = [e for e in ens if e["taken"]]
-    verdict = (f"kept the mean of {len(taken[0]['members'])} networks ({' + '.join(str(n) for n in taken[0]['neurons'])}"
-               " neurons)" if taken else "kept the single network (no mean had a lower criterion)")
+    verdict = (f"the best: the mean of {len(taken[0]['members'])} networks ({' + '.join(str(n) for n in taken[0]['neurons'])}"
+               " neurons)" if taken else "the best: the single network (no mean had a lower criterion)")
     return [f"ensembles of the restarts' networks by {cx['rule']} (mean of the members' free runs): {rows}; {verdict}\n"]
+
+
+def _robust_line(rb: dict[str, Any]) -> str:
+    """The report's line on the median of the finished restarts (``metrics.complexity.robust``)."""
+    if not rb.get("taken"):
+        return f"restarts combined: no ({rb.get('reason', 'not made')})\n"
+    steps = rb.get("finished", [])
+    runs = ", ".join(str(s["run"]) for s in steps)
+    refined = sum(1 for s in steps if s["refined"])
+    ll = sum(1 for s in steps if s["long_linear"])
+    return (f"restarts combined: kept the median of the {len(steps)} finished restarts' networks ({runs}), FR R2 est "
+            f"{rb['r2_fr_est']:.5f}; each finished as a kept model is: " + (f"given a long linear part in {ll}, " if ll else "")
+            + f"weights refined to the free run in {refined} (held out: refined on the first half, kept if the second "
+            "half's FR R2 rose)\n")
 
 
 def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str, Any]], best: int, wall: float,
@@ -220,7 +234,7 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     kept = Model.from_json(b["model"])  # parsed once; its metrics hold the evidence below
     k = len(members_of(kept))
     w(f"\nkept: run {best} (marked *; chosen by {cfg.selection} on the estimation data): {ds.output_name}(t) = "
-      + (f"mean of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
+      + (f"{getattr(kept, 'combine', 'mean')} of {k} networks on " if k > 1 else "") + f"F[{_lags_text(b)}]" + (" (the union of their lags)" if k > 1 else "")
       + (f" + {'each its own' if k > 1 else 'a'} linear ARX part of order {kept.linear_order}"
          if kept.linear_regressors else "") + "\n")
     for c in caveats:  # what to know before trusting it (streamid.engine.choice.caveats)
@@ -261,6 +275,9 @@ def _print_report(out: TextIO, ds: Dataset, cfg: CoEAConfig, runs: list[dict[str
     ll = (cx or {}).get("long_linear")
     if cfg.long_linear and cx:  # a dense linear ARX part (streamid.engine.choice.longlinear)
         w(_long_linear_line(ll, MORE_BELOW))
+    rb = (cx or {}).get("robust")
+    if rb:  # the finished restarts' median (streamid.engine.choice.robust)
+        w(_robust_line(rb))
     rf = made.get("refinement")
     if rf:  # the weights fitted to the free run (streamid.engine.choice.refine)
         held = rf.get("held_out") or {}

@@ -52,6 +52,7 @@ def update_report(stream: str, up: Update, latency_s: float | None) -> UpdateRep
         input_names=tuple(out.input_names),
         champion_r2_fr=(out.champion_metrics or {}).get("r2_fr_val") if not up.accepted else None,
         networks=len(nets) or 1,
+        combine=getattr(out.model, "combine", "mean"),
         linear_parts=sum(m.linear is not None for m in nets),
         long_linear_order=max((m.linear_order for m in nets), default=0),
         refinement=out.model.metrics.get("refinement") if out.model is not None else None,

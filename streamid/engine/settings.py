@@ -230,7 +230,10 @@ class CoEAConfig:
     run_ensembles : bool
         With ``selection="fr_est"`` and several runs: True, after that choice the means of the top 2, the top 3
         and all admissible runs' networks (ranked by AIC) compete by AIC on the estimation free run of the mean
-        (:mod:`streamid.engine.choice.ensemble_choice`; a ``streamid.model/3`` model; ``metrics.complexity.ensembles``).
+        (:mod:`streamid.engine.choice.ensemble_choice`; a ``streamid.model/3`` model; ``metrics.complexity.ensembles``);
+        then, unless the model so chosen carries a long linear part, the per-sample median of the admissible runs'
+        networks, each finished as a kept model is (at least three: :mod:`streamid.engine.choice.robust`; a
+        ``streamid.model/6`` model; ``metrics.robust``) replaces it (issue 51: robust by default).
     refine_iterations : int
         0 (the paper): the final model's weights are the search's one-step least squares. N > 0:
         at most N Levenberg-Marquardt iterations fit them to the model's free run on the estimation

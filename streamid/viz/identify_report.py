@@ -114,6 +114,7 @@ def _update_report(stream: str, model: Model, *, osa: NDArray[np.float64], fr: N
         note=note,
         input_names=tuple(model.input_names),
         networks=len(members_of(model)),
+        combine=getattr(model, "combine", "mean"),
         linear_parts=sum(m.linear is not None for m in members_of(model)),
         long_linear_order=model.linear_order,
         judged_only=judged_only,

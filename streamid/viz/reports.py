@@ -191,7 +191,8 @@ class UpdateReport:
     note: str = ""
     input_names: tuple[str, ...] = field(default=())
     champion_r2_fr: float | None = None  # a rejected challenger's champion, re-validated on the same held-out data
-    networks: int = 1  # > 1: the model is the mean of this many networks (streamid.model/3); ``lags`` is their union
+    networks: int = 1  # > 1: the model combines this many networks (streamid.model/3, /6); ``lags`` is their union
+    combine: str = "mean"  # how: their per-sample "mean" or "median" (issue 51: the median of the finished restarts)
     linear_parts: int = 0  # how many of its networks have a direct linear part a'r + b (CoEAConfig.linear_terms)
     long_linear_order: int = 0  # > 0: its linear part is a dense ARX part of this order (CoEAConfig.long_linear)
     judged_only: bool = False  # a model judged on a record (streamid validate): no identification ran
@@ -238,7 +239,7 @@ def model_markdown(r: UpdateReport) -> str:
     lines = [
         *head,
         "",
-        f"model: {r.output_name}(t) = " + (f"mean of {r.networks} networks on " if r.networks > 1 else "")
+        f"model: {r.output_name}(t) = " + (f"{r.combine} of {r.networks} networks on " if r.networks > 1 else "")
         + f"F[{format_lags(r.output_name, lags.get('y', []), names, u_lags)}]"
         + (" (the union of their lags)" if r.networks > 1 else "") + _linear_text(r),
     ]
