@@ -51,7 +51,7 @@ from streamid.engine.choice.complexity import choose as choose_complexity
 from streamid.engine.choice.calibration import with_interval
 from streamid.engine.choice.ensemble_choice import choose_ensemble
 from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
-from streamid.engine.choice.robust import robust_choice
+from streamid.engine.choice.robust import ROBUST_BEYOND, robust_choice
 from streamid.engine.restarts import report_after, wants_more
 from streamid.engine.search.fanout import fan_out
 from streamid.engine.search.feedthrough import direct_terms
@@ -414,7 +414,9 @@ def identify(
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     robust: Model | None = None
-    if cfg.run_ensembles and complexity is not None:  # the finished runs' median (streamid.engine.choice.robust)
+    if cfg.run_ensembles and complexity is not None and n > CHUNK_ROWS:  # its cost grows with the record: not made
+        complexity["robust"] = {"combine": "median", "taken": False, "reason": ROBUST_BEYOND}
+    elif cfg.run_ensembles and complexity is not None:  # the finished runs' median (streamid.engine.choice.robust)
         robust, complexity["robust"] = robust_choice(final, models, [float(o["score"]) for o in outs], cfg, ua, ya,
                                                      post)
         if robust is not None:  # its members each refined already; the state and history stay the chosen run's
