@@ -186,6 +186,29 @@ def test_live_grid_is_the_file_rule_sample_for_sample() -> None:
     assert status["topics"]["/joint_states"]["clock"] == "header.stamp"
 
 
+def test_a_first_batch_of_one_kept_output_waits_for_the_next_and_loses_none() -> None:
+    # what CI met with arrival times: y(0) before u(0) (cut), then u(0), y(1), u(1): the first grid holds y(0) (cut)
+    # and y(1) (kept, alone: a stream's first batch needs two) -- y(1) was popped and counted nowhere
+    src = Ros2Source(inputs=("/cmd_vel:linear.x",), output="/joint_states:velocity[2]")
+    intake, batches, bad = _intake(src)
+    step = 10_000_000
+    order = [("y", 0), ("u", 0), ("y", 1), ("u", 1)] + [(k, i) for i in range(2, 12) for k in ("u", "y")]
+    for j, (kind, i) in enumerate(order):
+        t = T0 + i * step + (1_000_000 if kind == "y" else 0)  # y(i) a millisecond after u(i) on the clock...
+        if kind == "y" and i == 0:
+            t = T0 - 1_000_000  # ...but y(0) before every input
+        if kind == "u":
+            intake.on_message(U_KEY, twist(float(i)), None, attachment(j, t), now_ns=0)
+        else:
+            intake.on_message(Y_KEY, joint_states(t, [0.0, 0.0, float(i)]), None, None, now_ns=0)
+    assert not bad
+    status = intake.status()
+    taken = np.concatenate([b.outputs["/joint_states:velocity[2]"] for b in batches])
+    # y(1)..y(10); y(11) waits for an input after it (the old code took y(2)..y(10): 9)
+    assert status["cut_before_inputs"] == 1 and status["samples_taken"] == taken.size == 10
+    assert taken.tolist() == [float(i) for i in range(1, 11)]
+
+
 def test_bad_messages_are_counted_per_topic_and_every_queue_is_bounded() -> None:
     src = Ros2Source(inputs=("/cmd_vel:linear.x",), output="/joint_states:velocity[2]", max_pending=50,
                      max_keys_per_topic=2)

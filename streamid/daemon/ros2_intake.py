@@ -26,6 +26,7 @@ from __future__ import annotations
 import threading
 from collections import Counter, deque
 from collections.abc import Callable
+from itertools import islice
 from typing import Any
 
 import numpy as np
@@ -194,18 +195,25 @@ class Ros2Intake:
             n += 1
         if n == 0 or (self._taken == 0 and n < 2):  # a stream's first batch needs two samples (its period)
             return None
-        taken = [out.popleft() for _ in range(n)]
-        grid = np.fromiter((t for t, _ in taken), dtype=np.int64, count=n)
+        grid = np.fromiter((t for t, _ in islice(out, n)), dtype=np.int64, count=n)
         cols = []
         for q in ins:
             arr = np.asarray(q, dtype=np.float64).reshape(-1, 2)
             cols.append(held_at(arr[:, 0].astype(np.int64), arr[:, 1], grid))
+        keep = np.all(np.isfinite(np.vstack(cols)), axis=0)  # before an input's first sample: cut
+        if not keep.any() or (self._taken == 0 and keep.sum() < 2):
+            # the outputs before the first kept one are cut for good (before an input's first sample); the rest wait
+            # for the stream's first batch of two (popping them all lost one kept output, counted nowhere)
+            lead = int(np.argmax(keep)) if keep.any() else n
+            for _ in range(lead):
+                out.popleft()
+            self._cut += lead
+            return None
+        taken = [out.popleft() for _ in range(n)]
+        for q in ins:
             while len(q) > 1 and q[1][0] <= grid[-1]:  # keep the sample held at the last grid time, and later ones
                 q.popleft()
-        keep = np.all(np.isfinite(np.vstack(cols)), axis=0)  # before an input's first sample: cut
         self._cut += int(n - keep.sum())
-        if not keep.any() or (self._taken == 0 and keep.sum() < 2):
-            return None
         names = [s.text for s in self._signals]
         try:
             batch = SampleBatch(self.stream, self._seq, int(grid[keep][0]), 0, grid[keep],
