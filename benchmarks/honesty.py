@@ -29,7 +29,7 @@ from benchmarks.ablation import SYSTEMS, _targets, print_rows, read_rows
 from benchmarks.suite import SUITE_PAPER, Target, free_run_val, silent_failures, validation_band
 from streamid.engine import identify
 from streamid.engine.choice.calibration import with_interval
-from streamid.engine.choice.robust import median_of_finished
+from streamid.engine.choice.robust import carries_long_linear, median_of_finished
 from streamid.engine.settings import DEFAULT, RIDGE
 from streamid.model.narx import Model
 
@@ -41,15 +41,10 @@ KINDS = ("paper", "kept", "median")
 SUMMARISED = (*KINDS, "hybrid")
 
 
-def long_linear(doc: dict[str, Any]) -> bool:
-    """Whether a model document (a network or an ensemble) carries a long linear part."""
-    return any(m.get("linear_regressors") for m in [doc, *doc.get("members", [])])
-
-
 def hybrid(row: dict[str, Any]) -> dict[str, Any]:
     """A row's ``hybrid`` score (see :data:`SUMMARISED`): the kept model's with a long linear part or no median."""
     kept = (row.get("models") or {}).get("kept")
-    keep = row.get("median") is None or kept is None or long_linear(kept)
+    keep = row.get("median") is None or kept is None or carries_long_linear(Model.from_dict(kept))
     return dict(row["kept"] if keep else row["median"])
 
 
@@ -150,7 +145,7 @@ def bundled(record: str, seeds: list[int]) -> list[str]:
         med, _ = median_of_finished(list(res.extra.get("run_models") or ()), scores, DEFAULT, ue, ye)
         kept = fr(res.model)
         median = kept if med is None else fr(with_interval(med, ue, ye, RIDGE))
-        hyb = kept if (med is None or long_linear(res.model.to_dict())) else median
+        hyb = kept if (med is None or carries_long_linear(res.model)) else median
         for k, v in (("kept", kept), ("median", median), ("hybrid", hyb)):
             got[k].append(v)
         lines.append(f"{record} seed {seed}: kept {kept:.6f} median {median:.6f} hybrid {hyb:.6f}")
