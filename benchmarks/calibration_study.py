@@ -42,9 +42,11 @@ from streamid.engine.choice.selection import refit_weights
 from streamid.engine.search.rows import spaced_rows
 from streamid.engine.settings import RIDGE
 from streamid.errors import DataError
+from streamid.model.domain import domain_regressors, excess
 from streamid.model.freerun import chunked_runs
 from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model
+from streamid.model.regressors import Normalisation
 from streamid.model.uncertainty import BEYOND, member_spread
 
 Arrays = dict[str, NDArray[np.float64]]
@@ -62,8 +64,12 @@ def hybrid_doc(row: dict[str, Any]) -> dict[str, Any]:
     return dict(med)
 
 
-def _run(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], start: int, stop: int) -> Arrays:
-    """The model's free run over ``u`` from ``y``'s first outputs; on samples ``start .. stop``: y, centre, spread, far."""
+def _run(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], start: int, stop: int,
+         fit: tuple[int, int] | None = None) -> Arrays:
+    """The model's free run over ``u`` from ``y``'s first outputs; on samples ``start .. stop``: y, centre, spread, far;
+    with ``fit`` (the samples ``a .. b`` the model was refitted on) also ``farh``: how far the run lies beyond the
+    range those samples spanned (:func:`~streamid.model.domain.far_from_domain` had the model been identified on
+    them)."""
     n = int(u.shape[0])
     ua = u.reshape(n, -1)
     cen, spr, far = np.empty(n), np.empty(n), np.empty(n)
@@ -71,8 +77,13 @@ def _run(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], start: in
         b = a + paths.shape[1]
         cen[a:b], spr[a:b] = centre, member_spread(paths)
         far[a:b] = 0.0 if f is None else f
-    return {"y": np.asarray(y[start:stop], dtype=np.float64), "centre": cen[start:stop], "spread": spr[start:stop],
-            "far": far[start:stop]}
+    out = {"y": np.asarray(y[start:stop], dtype=np.float64), "centre": cen[start:stop], "spread": spr[start:stop],
+           "far": far[start:stop]}
+    if fit is not None:
+        a, b = fit
+        own = Normalisation.fit(ua[a:b], np.asarray(y[a:b], dtype=np.float64))
+        out["farh"] = (excess(own, domain_regressors(model), ua, cen) * own.y_half_range)[start:stop]
+    return out
 
 
 def _refit(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> Model | None:
@@ -92,10 +103,10 @@ def features(model: Model, t: Target) -> Arrays:
     with np.errstate(all="ignore"):
         first = _refit(model, u[:h], y[:h])
         if first is not None:
-            out.update({f"cal_{k}": v for k, v in _run(first, u, y, h, n).items()})
+            out.update({f"cal_{k}": v for k, v in _run(first, u, y, h, n, (0, h)).items()})
         second = _refit(model, u[h:], y[h:])
         if second is not None:
-            out.update({f"rev_{k}": v for k, v in _run(second, u[:h], y[:h], L, h).items()})
+            out.update({f"rev_{k}": v for k, v in _run(second, u, y, L, h, (h, n)).items()})
         out.update({f"own_{k}": v for k, v in _run(model, u, y, L, n).items()})
         if t.periodic_val:
             nv = int(t.y_val.shape[0])
@@ -169,47 +180,131 @@ def _engine_part(f: Arrays) -> Part | None:
     return cal
 
 
-Den = Callable[[float, NDArray[np.float64], NDArray[np.float64], float], NDArray[np.float64]]
+Band = Callable[[Part], NDArray[np.float64]]
+#: the spread's weights an efficiency choice picks among (``k`` in ``scale + k * spread + beyond * far``)
+K_GRID = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0)
+#: the growths past the domain a learnt rate picks among (the smallest that covers the record's own excursions)
+B_GRID = (0.0, 0.01, 0.03, 0.1, 0.3, 1.0)
+#: fewest samples beyond a half's own range for its excursions to say how fast the band must grow there
+MIN_FAR = 20
 
 
-def _den_engine(scale: float, spread: NDArray[np.float64], far: NDArray[np.float64], k: float) -> NDArray[np.float64]:
-    return scale + spread + BEYOND * far
+def _den(scale: float, p: Part, k: float = 1.0, b: float = BEYOND, far: NDArray[np.float64] | None = None,
+         floor: float = 0.0) -> NDArray[np.float64]:
+    d: NDArray[np.float64] = max(scale, floor) + k * p[2] + b * (p[3] if far is None else far)
+    return d
 
 
-def _den_k(k: float) -> Den:
-    def den(scale: float, spread: NDArray[np.float64], far: NDArray[np.float64], _: float) -> NDArray[np.float64]:
-        return scale + k * spread + BEYOND * far
-    return den
-
-
-def _scores(p: Part, den: Den, scale: float) -> NDArray[np.float64]:
-    d = den(scale, p[2], p[3], 0.0)
-    return np.divide(np.abs(p[0] - p[1]), d, out=np.zeros_like(d), where=d > 0)
+def _scores(p: Part, d: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.divide(np.abs(p[0] - p[1]), d, out=np.full_like(d, np.inf), where=d > 0)
 
 
 def _rms(p: Part) -> float:
     return float(np.sqrt(np.mean((p[0] - p[1]) ** 2)))
 
 
-def engine(f: Arrays) -> Callable[[Part], NDArray[np.float64]] | None:
-    """Today's rule: scale and quantile from the engine's calibration run, denominator scale + spread + far."""
-    return _fixed(f, _den_engine, parts=("engine",))
+def _dead(p: Part, dead: float, yhalf: float) -> Part:
+    """``p`` with its far term counted only past ``dead`` half-spans beyond the domain (0: as it is)."""
+    if dead <= 0:
+        return p
+    return p[0], p[1], p[2], np.maximum(p[3] - dead * yhalf, 0.0)
 
 
-def _fixed(f: Arrays, den: Den, parts: tuple[str, ...]) -> Callable[[Part], NDArray[np.float64]] | None:
-    """One denominator; scores pooled from ``parts`` (each with its own scale); the band's scale the first's."""
-    got = [(_engine_part(f) if p == "engine" else _part(f, p)) for p in parts]
-    got = [g for g in got if g is not None]
-    if not got:
+def _fixed(k: float = 1.0, b: float = BEYOND, parts: tuple[str, ...] = ("engine",),
+           floor: float = 0.0, dead: float = 0.0) -> Callable[[Arrays], Band | None]:
+    """One denominator ``scale + k * spread + b * far`` (``floor``: the scale at least that share of the RMS;
+    ``dead``: the far term from that many half-spans past the domain); scores pooled from ``parts`` (each with its
+    own scale); the band's scale the first's."""
+    def make(f: Arrays) -> Band | None:
+        yh = float(f["yhalf"])
+        got = [_dead(g, dead, yh) for g in ((_engine_part(f) if p == "engine" else _part(f, p)) for p in parts)
+               if g is not None]
+        if not got:
+            return None
+        scale = _rms(got[0])
+        scores = np.concatenate([_scores(g, _den(_rms(g), g, k, b, floor=floor * _rms(g))) for g in got])
+        q = conformal(scores)
+        return lambda v: q * _den(scale, _dead(v, dead, yh), k, b, floor=floor * scale)
+    return make
+
+
+def _spread_dominant(f: Arrays) -> Band | None:
+    """``spread + far`` with the scale only as a floor (a tenth of the RMS): the members' disagreement leads."""
+    p = _engine_part(f)
+    if p is None:
         return None
-    scale = _rms(got[0])
-    scores = np.concatenate([_scores(g, den, _rms(g)) for g in got])
-    q = conformal(scores)
-    return lambda v: q * den(scale, v[2], v[3], 0.0)
+    scale = 0.1 * _rms(p)
+    q = conformal(_scores(p, _den(scale, p)))
+    return lambda v: q * _den(scale, v)
 
 
-VARIANTS: dict[str, Callable[[Arrays], Callable[[Part], NDArray[np.float64]] | None]] = {
-    "engine": engine,
+def _width(p: Part, k: float, b: float = BEYOND) -> float:
+    """Mean half-width over the RMS error of the band ``scale + k * spread + b * far`` at the level on ``p``."""
+    d = _den(_rms(p), p, k, b)
+    return conformal(_scores(p, d)) * float(np.mean(d)) / max(_rms(p), 1e-300)
+
+
+def _eff_k(choose: str, quantile: tuple[str, ...]) -> Callable[[Arrays], Band | None]:
+    """``k`` chosen by the narrowest band at the level on the ``choose`` run, the quantile from ``quantile``'s."""
+    def make(f: Arrays) -> Band | None:
+        c = _engine_part(f) if choose == "engine" else _part(f, choose)
+        k = 1.0 if c is None else min(K_GRID, key=lambda kk: (_width(c, kk), kk))
+        return _fixed(k=k, parts=quantile)(f)
+    return make
+
+
+def _learnt_b(f: Arrays) -> float:
+    """The smallest growth past the domain (:data:`B_GRID`) that covers, at the level, the samples where a half's
+    refit free-ran beyond that half's own range (with the quantile of the samples within it); :data:`BEYOND` when
+    the halves leave each other's range on fewer than :data:`MIN_FAR` samples (the record cannot tell)."""
+    sets = []
+    for name in ("cal", "rev"):
+        p = _part(f, name)
+        if p is None or f"{name}_farh" not in f:
+            continue
+        farh = f[f"{name}_farh"]
+        sets.append((p, farh))
+    n_far = sum(int(np.sum(fh > 0)) for _, fh in sets)
+    if n_far < MIN_FAR:
+        return BEYOND
+    for b in B_GRID:
+        ins, out = [], []
+        for p, fh in sets:
+            sc = _scores(p, _den(_rms(p), p, 1.0, b, far=fh))
+            ins.append(sc[fh == 0])
+            out.append(sc[fh > 0])
+        q = conformal(np.concatenate(ins))
+        if np.mean(np.concatenate(out) <= q) >= LEVEL:
+            return b
+    return BEYOND
+
+
+def _with_b(k: float | None = 1.0) -> Callable[[Arrays], Band | None]:
+    def make(f: Arrays) -> Band | None:
+        b = _learnt_b(f)
+        kk = k
+        if kk is None:
+            c = _part(f, "rev")
+            kk = 1.0 if c is None else min(K_GRID, key=lambda x: (_width(c, x, b), x))
+        return _fixed(k=kk, b=b)(f)
+    return make
+
+
+VARIANTS: dict[str, Callable[[Arrays], Band | None]] = {
+    "engine": _fixed(),
+    "no_far": _fixed(b=0.0),
+    "k0": _fixed(k=0.0),
+    "k2": _fixed(k=2.0),
+    "k4": _fixed(k=4.0),
+    "spread": _spread_dominant,
+    "cross": _fixed(parts=("engine", "rev")),
+    "eff_k": _eff_k("rev", ("engine",)),
+    "eff_k_x": _eff_k("rev", ("engine", "rev")),
+    "dead.1": _fixed(dead=0.1),
+    "dead.25": _fixed(dead=0.25),
+    "dead.5": _fixed(dead=0.5),
+    "learnt_b": _with_b(),
+    "learnt_b_eff_k": _with_b(None),
 }
 
 
@@ -228,6 +323,9 @@ def table(rows: list[dict[str, Any]], cache: str, names: list[str]) -> list[str]
     for i, r in enumerate(rows):
         by.setdefault(r["target"], []).append(i)
     feats = {i: dict(np.load(os.path.join(cache, f"{i:03d}.npz"))) for i in range(len(rows))}
+    for i, r in enumerate(rows):  # the output's half-range: the far term's unit
+        norm = hybrid_doc(r)["normalisation"]
+        feats[i]["yhalf"] = np.float64((float(norm["y_high"]) - float(norm["y_low"])) / 2)
     lines = ["| target (FR R2 median) | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     met, silent = dict.fromkeys(names, 0), dict.fromkeys(names, 0)
     for name, idx in by.items():
