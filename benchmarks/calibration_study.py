@@ -16,14 +16,14 @@ band's half-width on the validation run; each is scored as ``benchmarks.suite.va
 (90 %): coverage, mean width over the free run's RMS error, and the silent failures
 (``benchmarks.suite.silent_failures``)::
 
-    flock /tmp/streamid-bench.lock python -m benchmarks.calibration_study /work/honesty_all.jsonl --build 0:165  # ~40 s CPU
-    python -m benchmarks.calibration_study /work/honesty_all.jsonl [--by-variant] [--variants engine,dead.5]   # ~6 s
+    flock /tmp/streamid-bench.lock python -m benchmarks.calibration_study rows.jsonl --build 0:165  # ~40 s CPU
+    python -m benchmarks.calibration_study rows.jsonl [--by-variant] [--variants engine,dead.5]   # ~6 s
 
 ``engine`` is today's rule (its 90 % quantile equals ``calibrate``'s to the bit, checked on every 7th row); a
 cell reads ``coverage / width over RMS / silent`` (medians over the row's seeds; ``+``/``-``: a row of issue 51's
 "calibrated and sharp" target, median FR R^2 >= 0.95, met / missed: coverage 0.85-0.97 and width <= 4 x RMS).
 
-What it found (the 165 rows of issue 51's honesty run, 2026-12): no rule made from the estimation record alone
+What it found (the 165 rows of issue 51's honesty run of 2026-11-29, `benchmarks.honesty ... > rows.jsonl`): no rule made from the estimation record alone
 meets more of those 10 rows without a cost elsewhere. The misses are a change of the error's size between
 excitations (the validation free run's RMS over the calibration's: piezo noise->sweep 4.7, reactor uniform->steps
 1.3, Bouc-Wen sweep 0.67, reactor steps->sines 0.25) that no constant scale follows, and on the reactor the far

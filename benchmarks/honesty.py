@@ -122,6 +122,38 @@ def summarise(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+#: Other ways of combining the same finished restarts, scored by :func:`combinations` on saved rows.
+COMBINATIONS = ("median", "mean", "median+kept")
+
+
+def combinations(rows: list[dict[str, Any]]) -> list[str]:
+    """Per target, the validation free-run R^2 (median / worst of the seeds) of the saved median's members combined
+    otherwise: their ``mean``, and the median of them and the kept model's members (``median+kept``); only the
+    seeds where the engine's rule keeps the median (no long linear part, a median made). The same members, no new
+    identification: what the rule "median" was chosen against (issue 51)."""
+    from streamid.model.ensemble import EnsembleModel, members_of
+
+    found: dict[str, Target] = {}
+    by: dict[str, dict[str, list[float]]] = {}
+    for r in rows:
+        med_doc, kept_doc = (r.get("models") or {}).get("median"), (r.get("models") or {}).get("kept")
+        if med_doc is None or kept_doc is None or carries_long_linear(kept := Model.from_dict(kept_doc)):
+            continue
+        if r["target"] not in found:
+            system = next(s for s in SYSTEMS if any(t.name == r["target"] for t in _targets(s)))
+            found.update({t.name: t for t in _targets(system)})
+        t, med = found[r["target"]], Model.from_dict(med_doc)
+        if not isinstance(med, EnsembleModel):
+            continue
+        members = (*members_of(med), *members_of(kept))
+        got = by.setdefault(r["target"], {k: [] for k in COMBINATIONS})
+        got["median"].append(float(r["median"]["fr_val"]))
+        got["mean"].append(free_run_val(replace(med, combine="mean"), t))
+        got["median+kept"].append(free_run_val(replace(med, members=members), t))
+    return [f"| {name} ({len(got['median'])} seeds) | " + " | ".join(
+        f"{statistics.median(v):.4f} / {min(v):.4g}" for v in got.values()) + " |" for name, got in by.items()]
+
+
 def bundled(record: str, seeds: list[int]) -> list[str]:
     """The bundled records' half/half splits (:mod:`benchmarks.engine_cases`: the MR damper's 2,000 + 1,499 samples,
     the piezo P-885's halves) with the defaults: per seed the kept model's, the median's and the hybrid's validation
@@ -164,7 +196,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--bundled", choices=("mr_damper", "piezo_p885"),
                     help="the bundled record's half/half split instead: kept, median and hybrid per seed")
+    ap.add_argument("--combinations", action="store_true",
+                    help="with --read: the saved medians' members combined otherwise (COMBINATIONS), FR val R^2")
     a = ap.parse_args(argv)
+    if a.read and a.combinations:
+        print("| target | " + " | ".join(COMBINATIONS) + " |")
+        print("\n".join(combinations(read_rows(a.read))))
+        return 0
     if a.bundled:
         print("\n".join(bundled(a.bundled, [int(s) for s in a.seeds.split(",")])))
         return 0
