@@ -71,8 +71,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--quick", action="store_true", help="small sizes and few runs: a smoke run, not for quoting")
     p.add_argument("--peers", action="store_true", help="also fit the data sets with SysIdentPy (extra 'peers')")
     p.add_argument("--suite", action="store_true",
-                   help="only the system suite: per system, free-run validation R2 over 5 seeds of the paper's "
-                        "settings and the defaults (with --peers also SysIdentPy FROLS), seconds per identification")
+                   help="only the system suite: per system, free-run validation R2 over 10 seeds of the paper's "
+                        "settings and the defaults, the 90 %% band's coverage and width and the silent failures "
+                        "(with --peers also SysIdentPy FROLS), seconds per identification")
     p.add_argument("--systems", metavar="A,B",
                    help="with --suite: only these systems (comma-separated; benchmarks/suite.py lists them)")
     p.add_argument("--only", action="append", metavar="SECTION",
