@@ -6,10 +6,13 @@ layout (:func:`~streamid.logs.csv_table.csv_layout`: delimiter, decimal comma, h
 (:mod:`streamid.logs.arrow_tables`), the clock (the first time-like column, in the file's order, whose values all
 increase strictly; for Parquet / Arrow then a timestamp or duration column) judged over the whole file as the
 pieces pass, its period the median step (counted exactly: at most :data:`MAX_STEPS` distinct steps), and the
-columns' checks (:class:`~streamid.logs.columns.ColumnStats`). Whatever this reader does not do as
-``load_record`` does raises :class:`NotStreamable`, and the caller reads the file whole (which names the fault
-as today): a file that is not plain text for Arrow, a column not in the file, a missing or infinite value,
-a cell Arrow refuses, a clock of more distinct steps.
+columns' checks (:class:`~streamid.logs.columns.ColumnStats`), the missing and infinite values
+(:class:`~streamid.logs.gaps.GapStream`: ``--drop``, ``--fill`` or the error naming the rows, as
+:func:`~streamid.logs.columns.handle_missing`). Whatever this reader does not do as ``load_record`` does raises
+:class:`NotStreamable`, and the caller reads the file whole (which names the fault as today): a file that is not
+plain text for Arrow, a column not in the file, a cell Arrow refuses, a clock of more distinct steps, a run of
+more than :data:`~streamid.logs.gaps.MAX_GAP_ROWS` rows with a missing value inside the record under ``--fill``
+(:class:`LongRun`, which the caller names).
 """
 
 from __future__ import annotations
@@ -23,9 +26,10 @@ from numpy.typing import NDArray
 
 from streamid.errors import DataError
 from streamid.logs.columns import ColumnStats
-from streamid.logs.csv_table import DELIMITER_NAMES, CsvLayout, csv_layout, time_unit_ns
+from streamid.logs.csv_table import DELIMITER_NAMES, CsvLayout, RowLines, csv_layout, time_unit_ns
+from streamid.logs.gaps import GapStream, LongGap
 
-__all__ = ["MAX_STEPS", "NotStreamable", "PieceReader"]
+__all__ = ["MAX_STEPS", "LongRun", "NotStreamable", "PieceReader"]
 
 #: A clock's distinct steps counted for its median period; a clock of more is read whole.
 MAX_STEPS = 4096
@@ -33,6 +37,11 @@ MAX_STEPS = 4096
 
 class NotStreamable(Exception):
     """The file cannot be read a piece at a time as :func:`~streamid.logs.datafile.load_record` reads it whole."""
+
+
+class LongRun(NotStreamable):
+    """A run of rows with a missing value too long to hold under ``--fill`` (:class:`~streamid.logs.gaps.LongGap`):
+    the message says so, for the caller to tell the user why the file is read whole."""
 
 
 class _Clock:
@@ -101,7 +110,8 @@ class PieceReader:
         Not a CSV, Parquet or Arrow file, or one this reader does not read as ``load_record`` does.
     """
 
-    def __init__(self, path: str, inputs: Sequence[str], output: str, delimiter: str | None = None) -> None:
+    def __init__(self, path: str, inputs: Sequence[str], output: str, delimiter: str | None = None,
+                 missing: str = "error") -> None:
         self.path, self.inputs, self.output = path, list(inputs), output
         from streamid.logs.datafile import COLUMNAR_KINDS
 
@@ -109,6 +119,7 @@ class PieceReader:
         self.used = list(dict.fromkeys([*inputs, output]))
         self.info: dict[str, Any] = {}
         self.stats = ColumnStats(inputs, output)
+        self.gaps = GapStream(self.used, missing)
         self.rows = 0
         self.csv: CsvLayout | None = None
         if kind in ("csv", "tsv"):
@@ -162,22 +173,30 @@ class PieceReader:
 
     def pieces(self) -> Iterator[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64] | None]]:
         """``(u, y, t_ns)`` of each piece: the inputs (rows, n_inputs), the output, and the times of
-        :attr:`assumed` (None without a candidate). Raises :class:`NotStreamable` at a missing or infinite value."""
+        :attr:`assumed` (None without a candidate); the rows ``handle_missing`` keeps, missing values filled
+        (``--fill``), once known (a run of rows with a missing value is held until a complete row follows)."""
         for cols, times in self._batches():
             used = {c: cols[c] for c in self.used}
-            if not all(np.all(np.isfinite(v)) for v in used.values()):
-                raise NotStreamable("a missing or infinite value (read whole, as --drop/--fill/the error say)")
             self.stats.add(used)
             t = None
             for c, clock in self.clocks.items():
                 tc = clock.add(times[c] if c in times else cols[c])
                 t = tc if c == self.assumed else t
             self.rows += len(used[self.output])
-            yield np.column_stack([used[c] for c in self.inputs]), used[self.output], t
+            try:
+                kept = self.gaps.feed(used, t)
+            except LongGap as exc:
+                raise LongRun(str(exc)) from None
+            for part, tp in kept:
+                if len(part[self.output]):
+                    yield np.column_stack([part[c] for c in self.inputs]), part[self.output], tp
 
-    def finish(self, missing: str, allow_time_input: bool) -> tuple[list[str], dict[str, Any], int | None, str | None]:
+    def finish(self, allow_time_input: bool) -> tuple[list[str], dict[str, Any], int | None, str | None]:
         """After :meth:`pieces`: the notes, ``info`` (as ``load_record``'s), the period and the clock's name."""
         notes = self.stats.judge(allow_time_input)
+        lines = None if self.csv is None else RowLines(Path(self.path), self.csv.enc, self.csv.header_no, self.rows)
+        gap_notes, counts = self.gaps.finish(self.path, lines)
+        notes += gap_notes
         clock, period = None, None
         for c, ck in self.clocks.items():
             if c in self.numeric_clocks and (p := ck.period()) is not None:
@@ -192,6 +211,5 @@ class PieceReader:
         if clock is not None:
             info["clock"] = clock
         info["rows"] = self.rows
-        info["missing"] = {"policy": missing, "rows_with_missing": 0, "rows_dropped": 0, "values_filled": 0,
-                           "places_spacing_broken": 0}
+        info["missing"] = counts
         return notes, info, period, clock
