@@ -38,6 +38,10 @@ def _holes(rng: np.random.Generator, n: int, places: int, longest: int) -> dict[
         for c in rng.choice(["a", "b"], size=int(rng.integers(1, 3)), replace=False):
             s = at + int(rng.integers(0, 3))
             cols[str(c)][s : s + k] = np.nan
+    if rng.random() < 0.4:
+        cols["b"][: int(rng.integers(1, 50))] = np.nan
+    if rng.random() < 0.4:
+        cols["a"][-int(rng.integers(1, 50)) :] = np.nan
     return cols
 
 
@@ -85,8 +89,8 @@ def test_gaps_a_piece_at_a_time_equal_the_whole_columns(policy: str) -> None:
         assert np.array_equal(times, t[want.keep]) and notes == list(want.notes), trial
         assert counts == {"policy": policy, "rows_with_missing": want.rows_missing, "rows_dropped": want.dropped,
                           "values_filled": want.filled, "places_spacing_broken": want.gaps}
-        seen.add(f"kept {bool(want.notes)}")
-    assert len(seen) >= 3, seen  # errors and reports both met
+        seen.add(" ".join(note.split(" ")[0] + str(note.startswith("cut 0 ")) for note in want.notes))
+    assert len(seen) >= 4, seen  # errors and reports (rows cut at the start or not) met
 
 
 def test_a_long_run_is_held_only_up_to_the_bound(monkeypatch: pytest.MonkeyPatch) -> None:
