@@ -112,11 +112,11 @@ def _streamed(args: argparse.Namespace, model: Model, inputs: list[str], output:
     one that reader does not read as the whole-file reader does), which is then read whole."""
     from streamid.engine.choice.caveats import summed_record_caveats
     from streamid.engine.streamed import StreamedRecord
-    from streamid.logs.pieces import NotStreamable, PieceReader
+    from streamid.logs.pieces import LongRun, NotStreamable, PieceReader
 
     how = reading(args)
     try:
-        reader = PieceReader(str(path), inputs, output, how["delimiter"])
+        reader = PieceReader(str(path), inputs, output, how["delimiter"], how["missing"])
     except NotStreamable:
         return None
     span = args.start is not None or args.end is not None
@@ -147,7 +147,11 @@ def _streamed(args: argparse.Namespace, model: Model, inputs: list[str], output:
             else:
                 acc.feed(u, y)
             row += k
-        notes_r, info, period_ns, clock = reader.finish(how["missing"], how["allow_time_input"])
+        notes_r, info, period_ns, clock = reader.finish(how["allow_time_input"])
+    except LongRun as exc:
+        print(f"streamid validate: reading {path} whole (its memory grows with the record): {exc}", file=sys.stderr,
+              flush=True)
+        return None
     except NotStreamable:
         return None
     if not acc.started or (span and clock != reader.assumed):

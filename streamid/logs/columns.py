@@ -180,13 +180,73 @@ def _span(a: int, b: int, lines: Lines | None) -> str:
     return row_label(a, lines) if a == b else f"{row_label(a, lines)}-{int(lines[b]) if lines is not None else b + 1}"
 
 
+def inf_error(where: str, name: str, label: str, value: float) -> DataError:
+    """The error for an infinite ``value`` in column ``name`` at ``label`` (:func:`row_label`)."""
+    return DataError(f"{where}: column {name!r}, {label}: {value!r} is not a finite number; only numbers (or missing "
+                     "values: empty, NaN) are accepted")
+
+
+def missing_error(where: str, shown: Sequence[tuple[int, Sequence[str]]], n_bad: int, n: int,
+                  lines: Lines | None) -> DataError:
+    """The error for ``n_bad`` of ``n`` rows with a missing value (policy ``"error"``); ``shown``: the first
+    :data:`_SHOW` of them (row, the columns missing there)."""
+    rows = "; ".join(f"{row_label(i, lines)} ({', '.join(cols)})" for i, cols in shown[:_SHOW])
+    more = f"; and {n_bad - _SHOW} more" if n_bad > _SHOW else ""
+    return DataError(
+        f"{where}: {n_bad} row{'s' if n_bad > 1 else ''} of {n} {'have' if n_bad > 1 else 'has'} a missing value (empty, NaN, NA) in the "
+        f"columns used: {rows}{more}. Pass --fill to fill them by linear interpolation between the neighbouring "
+        "samples of each column, or --drop to leave those rows out (rows at the start and end are simply cut)"
+    )
+
+
+def no_row_error(where: str, names: Sequence[str]) -> DataError:
+    return DataError(f"{where}: no row has a number in every column used ({', '.join(names)})")
+
+
+def cut_note(first: int, end: int) -> str:
+    """The note for ``first`` rows cut at the start and ``end`` at the end."""
+    return (f"cut {first} row{'s' if first != 1 else ''} at the start and {end} at the end of the record "
+            "(a missing value in a column used); the sample spacing is kept")
+
+
+def drop_limit(n: int) -> int:
+    """The places inside a record of ``n`` rows where ``--drop`` may join samples: one per 100 rows, at least 1."""
+    return max(1, n // 100)
+
+
+def drop_refusal(where: str, runs: Sequence[tuple[int, int]], n_runs: int, limit: int, lines: Lines | None) -> DataError:
+    """``--drop`` refused: ``n_runs`` places (``runs``: the first :data:`_SHOW`) over ``limit``."""
+    return DataError(
+        f"{where}: --drop would join samples that were not adjacent at {n_runs} places inside the record "
+        f"(first: {'; '.join(_span(a, b, lines) for a, b in runs[:_SHOW])}); at most one place per 100 rows "
+        f"({limit} here) is accepted, as the lagged values after each place mix both sides of it. Use --fill "
+        "(linear interpolation between the neighbouring samples), or clean the file"
+    )
+
+
+def drop_note(inner: int, runs: Sequence[tuple[int, int]], n_runs: int, lines: Lines | None) -> str:
+    """``--drop``'s note: ``inner`` rows left out inside the record at ``n_runs`` places (``runs``: the first)."""
+    return (f"--drop: left out {inner} row{'s' if inner > 1 else ''} inside the record "
+            f"({'; '.join(_span(a, b, lines) for a, b in runs[:_SHOW])}{' ...' if n_runs > _SHOW else ''}): "
+            f"the sample spacing is broken at {n_runs} place{'s' if n_runs > 1 else ''} (up to max-lag "
+            "samples after each see lagged values from before it); --fill keeps the spacing")
+
+
+def fill_note(filled: int, inner: int, longest: tuple[int, str]) -> str:
+    """``--fill``'s note: ``filled`` values in ``inner`` rows, the longest run (its length, where)."""
+    return (f"--fill: filled {filled} missing value{'s' if filled > 1 else ''} in {inner} row"
+            f"{'s' if inner > 1 else ''} by linear interpolation between the neighbouring samples of each column "
+            f"(longest run {longest[0]} sample{'s' if longest[0] > 1 else ''}: {longest[1]})")
+
+
 def handle_missing(
     where: str,
     columns: dict[str, NDArray[np.float64]],
     policy: str,
     lines: Lines | None = None,
 ) -> Cleaned:
-    """Apply the missing-value ``policy`` (``"error"``, ``"drop"``, ``"fill"``) to the used ``columns``.
+    """Apply the missing-value ``policy`` (``"error"``, ``"drop"``, ``"fill"``) to the used ``columns``
+    (:class:`streamid.logs.gaps.GapStream`: the same a piece at a time).
 
     ``lines``: the file line of every row (text files), used to name rows.
     """
@@ -197,54 +257,31 @@ def handle_missing(
     for name, v in columns.items():
         inf = np.flatnonzero(np.isinf(v))
         if inf.size:
-            raise DataError(
-                f"{where}: column {name!r}, {row_label(int(inf[0]), lines)}: {float(v[inf[0]])!r} is not a finite "
-                "number; only numbers (or missing values: empty, NaN) are accepted"
-            )
+            raise inf_error(where, name, row_label(int(inf[0]), lines), float(v[inf[0]]))
     miss = np.column_stack([np.isnan(columns[c]) for c in names])
     bad = np.flatnonzero(miss.any(axis=1))
     every = np.arange(n, dtype=np.int64)
     if bad.size == 0:
         return Cleaned(dict(columns), every, (), 0, 0, 0, 0)
     if policy == "error":
-        shown = "; ".join(
-            f"{row_label(int(i), lines)} ({', '.join(c for j, c in enumerate(names) if miss[i, j])})" for i in bad[:_SHOW]
-        )
-        more = f"; and {bad.size - _SHOW} more" if bad.size > _SHOW else ""
-        raise DataError(
-            f"{where}: {bad.size} row{'s' if bad.size > 1 else ''} of {n} {'have' if bad.size > 1 else 'has'} a missing value (empty, NaN, NA) in the "
-            f"columns used: {shown}{more}. Pass --fill to fill them by linear interpolation between the neighbouring "
-            "samples of each column, or --drop to leave those rows out (rows at the start and end are simply cut)"
-        )
+        shown = [(int(i), [c for j, c in enumerate(names) if miss[i, j]]) for i in bad[:_SHOW]]
+        raise missing_error(where, shown, int(bad.size), n, lines)
     ok: NDArray[np.bool_] = np.asarray(~miss.any(axis=1))
     if not ok.any():
-        raise DataError(f"{where}: no row has a number in every column used ({', '.join(names)})")
+        raise no_row_error(where, names)
     first, last = int(np.argmax(ok)), int(n - 1 - np.argmax(ok[::-1]))
     notes: list[str] = []
     if first or last < n - 1:
-        notes.append(
-            f"cut {first} row{'s' if first != 1 else ''} at the start and {n - 1 - last} at the end of the record "
-            "(a missing value in a column used); the sample spacing is kept"
-        )
+        notes.append(cut_note(first, n - 1 - last))
     inner = bad[(bad > first) & (bad < last)]
     runs = _runs(inner)
     if policy == "drop":
-        limit = max(1, n // 100)
+        limit = drop_limit(n)
         if len(runs) > limit:
-            raise DataError(
-                f"{where}: --drop would join samples that were not adjacent at {len(runs)} places inside the record "
-                f"(first: {'; '.join(_span(a, b, lines) for a, b in runs[:_SHOW])}); at most one place per 100 rows "
-                f"({limit} here) is accepted, as the lagged values after each place mix both sides of it. Use --fill "
-                "(linear interpolation between the neighbouring samples), or clean the file"
-            )
+            raise drop_refusal(where, runs, len(runs), limit, lines)
         keep = every[first : last + 1][ok[first : last + 1]]
         if runs:
-            notes.append(
-                f"--drop: left out {inner.size} row{'s' if inner.size > 1 else ''} inside the record "
-                f"({'; '.join(_span(a, b, lines) for a, b in runs[:_SHOW])}{' ...' if len(runs) > _SHOW else ''}): "
-                f"the sample spacing is broken at {len(runs)} place{'s' if len(runs) > 1 else ''} (up to max-lag "
-                "samples after each see lagged values from before it); --fill keeps the spacing"
-            )
+            notes.append(drop_note(int(inner.size), runs, len(runs), lines))
         cols = {c: v[keep] for c, v in columns.items()}
         return Cleaned(cols, keep, tuple(notes), int(bad.size), n - keep.size, 0, len(runs))
     keep = every[first : last + 1]
@@ -262,9 +299,5 @@ def handle_missing(
                     longest = (b - a + 1, f"{c!r}, {_span(a, b, lines)}")
         cols[c] = part
     if filled:
-        notes.append(
-            f"--fill: filled {filled} missing value{'s' if filled > 1 else ''} in {inner.size} row"
-            f"{'s' if inner.size > 1 else ''} by linear interpolation between the neighbouring samples of each column "
-            f"(longest run {longest[0]} sample{'s' if longest[0] > 1 else ''}: {longest[1]})"
-        )
+        notes.append(fill_note(filled, int(inner.size), longest))
     return Cleaned(cols, keep, tuple(notes), int(bad.size), n - keep.size, filled, 0)
