@@ -49,16 +49,18 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
     )
     if job.get("callback") is not None:  # the last stage of a long record's progress line
         job["callback"](Progress(1, 1, res.fitness, res.evaluations, "validation"))
+    # the helper's core is idle once the identification is done: the validation's predictions in two threads
     return validated_run(res.model, ds, seed=job["seed"], seconds=res.seconds, evaluations=res.evaluations,
-                         fitness=res.fitness, history=[float(f) for f in res.fitness_history])
+                         fitness=res.fitness, history=[float(f) for f in res.fitness_history],
+                         threads=2 if helper is not None else 1)
 
 
 def validated_run(model: Model, ds: Dataset, *, seed: int, seconds: float, evaluations: int, fitness: float,
-                  history: list[float]) -> dict[str, Any]:
+                  history: list[float], threads: int = 1) -> dict[str, Any]:
     """A run's row of the report: ``model`` validated on the data set (JSON-able; its figures only: a drawing
     validates again). A free run that diverges is a row with its R² None and the sample it diverged at
-    (``diverged``), never an error (issue 37)."""
-    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, keep=False)
+    (``diverged``), never an error (issue 37). ``threads``: the predictions in that many threads (the same row)."""
+    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, keep=False, threads=threads)
     model = model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
     return {
         "seed": seed,
