@@ -377,3 +377,34 @@ def test_ensembles_beyond_one_chunk_are_scored_a_chunk_at_a_time_as_their_whole_
         assert g[0] == pytest.approx(w[0], rel=1e-12, abs=1e-14)
     tight = ensemble_choice._chunked_scores(nets, offered, u[:, None], y, lo, hi, -0.45)  # a narrow range: guarded
     assert [t[1] > 0 and t[0] == -np.inf for t in tight if t is not None] == [True] * 3
+
+
+def test_runs_paths_written_out_as_their_scores_stream_give_the_ensembles_the_same_scores_to_the_bit(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run's estimation free run written out while its score is streamed (``free_run_scores(...,
+    keep_paths=False, streamed_paths=True)``, what the identification keeps up to ``KEEP_PATHS_ROWS``) is the
+    network's own free run from row ``max_lag`` on, and ``_chunked_scores`` reading it scores every ensemble exactly
+    as when it simulates that member again (some members given, some made: the same bits)."""
+    import streamid.engine.choice.ensemble_choice as ensemble_choice
+    import streamid.engine.choice.scores as scores
+
+    u, y = _plant(5_000, seed=13)
+    nets = [_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4),
+            _osa_net(u, y, (("y", 1), ("u", 1), ("u", 3)), 5, 5), _osa_net(u, y, (("y", 1), ("u", 1)), 4, 6)]
+    lo, hi = float(y.min()), float(y.max())
+    offered = [[0, 1], [0, 1, 2], [2, 0]]
+    monkeypatch.setattr(scores, "SCORE_CHUNK_ROWS", 900)  # the score's pieces other than the ensembles' (700)
+    monkeypatch.setattr(ensemble_choice, "CHUNK_ROWS", 700)
+    ua = u[:, None]
+    paths = []
+    for m in nets:
+        fr = scores.free_run_scores([m], ua, y, keep_paths=False, streamed_paths=True)
+        plain = scores.free_run_scores([m], ua, y, keep_paths=False)
+        assert fr.scores == plain.scores and fr.excursions == plain.excursions and plain.paths == (None,)
+        p = fr.paths[0]
+        assert p is not None and p.shape == y.shape
+        np.testing.assert_array_equal(p[m.max_lag :], m.simulate(u, y[: m.max_lag])[m.max_lag :])
+        paths.append(p)
+    made = ensemble_choice._chunked_scores(nets, offered, ua, y, lo, hi, 0.25)
+    for given in ([paths[0], None, paths[2]], paths, [None, paths[1], None]):
+        assert ensemble_choice._chunked_scores(nets, offered, ua, y, lo, hi, 0.25, given) == made

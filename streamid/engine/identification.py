@@ -49,7 +49,7 @@ from streamid.engine.search.coevolution import CoEAState, Coevolution, Progress,
 from streamid.engine.choice.scores import RANGE_MARGIN
 from streamid.engine.choice.complexity import choose as choose_complexity
 from streamid.engine.choice.calibration import with_interval
-from streamid.engine.choice.ensemble_choice import choose_ensemble
+from streamid.engine.choice.ensemble_choice import KEEP_PATHS_ROWS, choose_ensemble, one_step_mse
 from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
 from streamid.engine.choice.robust import ROBUST_BEYOND, robust_choice
 from streamid.engine.restarts import report_after, wants_more
@@ -145,6 +145,14 @@ def _threads(helper: EvalHelper | None) -> int:
     return 2 if helper is not None else 1
 
 
+def _settled(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], threads: int) -> Model:
+    """``model`` with its ``metrics.fitness`` made where :func:`choose_ensemble` left it None (the same value it
+    would have made there)."""
+    if "fitness" in model.metrics and model.metrics["fitness"] is None:
+        return model.with_metrics(fitness=one_step_mse(model, u, y, threads))
+    return model
+
+
 def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any]:
     """One coevolution run and its candidate chosen by the selection rule (also a worker's body)."""
     cfg = CoEAConfig.from_dict(job["config"])
@@ -189,7 +197,7 @@ def _one_run(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str,
     evaluations += run.evaluations
     # beyond one chunk the candidates are screened on the search's rows and only the chosen one fitted on every row
     model, score, path = select_model_path(run, u, y, cfg.selection, threads=_threads(helper),
-                                           screen_rows=sample is not None)
+                                           screen_rows=sample is not None, keep_path_rows=KEEP_PATHS_ROWS)
     if sample is not None:
         model = model.with_metrics(search_rows=sample.evidence())
     return {
@@ -397,17 +405,25 @@ def identify(
                             key=lambda c: (c["criterion"], c["run"]))[: cfg.prune_runs]
             for c in ranked:
                 i = int(c["run"])
-                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, RANGE_MARGIN, paths[i])
+                models[i], scores[i], paths[i] = pruned_choice(cfg, models[i], scores[i], ua, ya, RANGE_MARGIN, paths[i],
+                                                               KEEP_PATHS_ROWS)
             chosen, complexity = choose_complexity(models, scores, n, spaces)
     else:
         chosen = int(np.argmax(scores))
     final, score = models[chosen], float(outs[chosen]["score"])
     if cfg.run_ensembles and complexity is not None:  # means of the best runs compete (streamid.engine.choice.ensemble_choice)
-        ens, members, complexity["ensembles"] = choose_ensemble(models, paths, complexity, ua, ya, RANGE_MARGIN, post)
+        # a mean's one-step MSE (metrics.fitness) is made only if it stays (_settled): the refinement or the median
+        # replaces it otherwise (a pass of every member's one-step prediction over the record saved)
+        ens, members, complexity["ensembles"] = choose_ensemble(models, paths, complexity, ua, ya, RANGE_MARGIN, post,
+                                                                fitness=False)
         if ens is not None:  # the state and history are the best member's run's (a warm start is one run's)
             final, chosen, score = ens, members[0], float(ens.metrics["ensemble"]["r2_fr_est"])
+    del paths  # the runs' estimation free runs: read by the choices above only
+    for o in outs:
+        o.pop("path", None)
     own = scores[chosen] if final is models[chosen] else score
     if cfg.long_linear and complexity is not None and own < MORE_BELOW:  # a dense linear ARX part competes
+        final = _settled(final, ua, ya, post)
         offered = [(int(c["run"]), models[int(c["run"])]) for c in complexity["candidates"] if c["criterion"] is not None]
         ll, complexity["long_linear"] = long_linear_choice(final, own, cfg.long_linear, ua, ya,
                                                            RANGE_MARGIN, RIDGE, offered, chosen)
@@ -425,6 +441,7 @@ def identify(
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
                                        threads=post)
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+    final = _settled(final, ua, ya, post)  # a mean's one-step MSE where the refinement did not replace it
     final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),

@@ -26,7 +26,7 @@ The evidence (each ensemble's members, R^2, p, criterion, whether taken) goes to
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from types import SimpleNamespace
 from typing import Any
 
@@ -40,11 +40,16 @@ from streamid.model.freerun import chunked_paths
 from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model
 
-__all__ = ["ENSEMBLE_SIZES", "choose_ensemble"]
+__all__ = ["ENSEMBLE_SIZES", "KEEP_PATHS_ROWS", "choose_ensemble", "one_step_mse"]
 
 #: The ensembles offered: the mean of the top 2, the top 3 and all admissible runs (0 = all; at most
 #: :data:`~streamid.model.ensemble.MAX_MEMBERS`, the top ones).
 ENSEMBLE_SIZES = (2, 3, 0)
+#: Beyond one chunk a run's estimation free run is written out as its score is streamed, and read here instead of
+#: being simulated again, for a record of at most this many rows (8 MiB a run; the restarts, the extra runs and the
+#: fallback runs together at most 10: 80 MiB). Beyond it every member is simulated again a chunk at a time.
+#: Measured: ``streamid bench --only long`` (1,000,000 samples) in docs/benchmarks.md, "Long records offline".
+KEEP_PATHS_ROWS = 1 << 20
 
 
 def choose_ensemble(
@@ -55,13 +60,16 @@ def choose_ensemble(
     y: NDArray[np.float64],
     range_margin: float,
     threads: int = 1,
+    fitness: bool = True,
 ) -> tuple[Model | None, list[int], list[dict[str, Any]]]:
     """The ensemble taken (None: the single choice stands), its members' runs (best first) and the evidence.
 
     ``models``: each run's candidate after pruning; ``paths``: each one's estimation free run in output
     units (None: simulated here once); ``complexity``: the single choice's evidence
     (:func:`~streamid.engine.choice.complexity.choose`); ``u``, ``y``: the estimation record; ``threads``: the
-    taken ensemble's members predicted in that many threads (the same result to the bit).
+    taken ensemble's members predicted in that many threads (the same result to the bit); ``fitness`` False: the
+    taken ensemble's ``metrics.fitness`` (its one-step MSE over the record) is left None, in its place, for a
+    caller that may replace it (:func:`one_step_mse` makes it).
     """
     rows = complexity["candidates"]
     ranked = [int(c["run"]) for c in sorted((c for c in rows if c["criterion"] is not None),
@@ -78,8 +86,7 @@ def choose_ensemble(
     # the record a chunk at a time (_chunked_scores), its members' paths made once
     offered = [ranked[: (min(len(ranked), MAX_MEMBERS) if size == 0 else size)] for size in ENSEMBLE_SIZES]
     offered = [m for k, m in enumerate(offered) if len(m) >= 2 and m not in offered[:k]]
-    chunked = (_chunked_scores(models, offered, u, y, lo, hi, range_margin)
-               if len(y) > CHUNK_ROWS and any(paths[i] is None for m in offered for i in m) else None)
+    chunked = _chunked_scores(models, offered, u, y, lo, hi, range_margin, paths) if len(y) > CHUNK_ROWS else None
     for size in ENSEMBLE_SIZES:
         k = min(len(ranked), MAX_MEMBERS) if size == 0 else size
         if k > len(ranked) or k in seen:
@@ -129,42 +136,50 @@ def choose_ensemble(
         taken = row if row["taken"] else taken
     first = models[members[0]]  # the document's config and window: the identification's (as a single network's)
     ens = ensemble_of([models[i] for i in members], config=first.config, window=first.window)
-    L = ens.max_lag
-    fitness = float(np.mean((ens.predict_osa(u, y, threads=threads)[L:] - y[L:]) ** 2))  # one-step MSE, output units squared
+    mse = one_step_mse(ens, u, y, threads) if fitness else None
     choice = {"candidates": len(evidence), "admissible": sum(1 for e in evidence if e["criterion"] is not None),
               "score": taken["r2_fr_est"], "excursion_spans": 0.0, "range_margin": float(range_margin),
               "run_ensemble": len(members)}  # the mean's free run on the estimation record, as a single model's
-    return ens.with_metrics(fitness=fitness, free_run_choice=choice, ensemble={
+    return ens.with_metrics(fitness=mse, free_run_choice=choice, ensemble={
         k: taken[k] for k in ("name", "members", "neurons", "r2_fr_est", "params", "criterion")}), members, evidence
 
 
+def one_step_mse(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], threads: int = 1) -> float:
+    """``model``'s one-step-ahead mean squared error over the record from its ``max_lag``-th sample (output units
+    squared): an ensemble's ``metrics.fitness``."""
+    L = model.max_lag
+    return float(np.mean((model.predict_osa(u, y, threads=threads)[L:] - y[L:]) ** 2))
+
+
 def _chunked_scores(models: Sequence[Model], offered: list[list[int]], u: NDArray[np.float64], y: NDArray[np.float64],
-                    lo: float, hi: float, range_margin: float) -> list[tuple[float, float] | None]:
+                    lo: float, hi: float, range_margin: float,
+                    paths: Sequence[NDArray[np.float64] | None] = ()) -> list[tuple[float, float] | None]:
     """:func:`~streamid.engine.choice.scores.path_score` of the mean free run of each ensemble ``offered`` (lists of
     run indices), its members' free runs made together a chunk at a time (:func:`~streamid.model.freerun.
-    chunked_paths`, each from its own measured outputs: the same values as whole runs), the means summed in the
+    chunked_paths`, each from its own measured outputs: the same values as whole runs) or read from ``paths``
+    where a member's is given (the run's own streamed free run: the same values), the means summed in the
     members' order as the whole-record way does; the sums of the score added chunk by chunk (equal to rounding).
-    None where a mean is not finite. Memory: a chunk of every member's path, whatever the record's length."""
+    None where a mean is not finite. Memory: a chunk of every member's path, whatever the record's length (and
+    the paths given)."""
     union = sorted({i for m in offered for i in m})
     row = {i: k for k, i in enumerate(union)}
-    nets = [models[i] for i in union]
-    holder = SimpleNamespace(members=tuple(nets), max_lag=max(n.max_lag for n in nets),
-                             normalisation=nets[0].normalisation)
+    given = {i: p for i in union if i < len(paths) and (p := paths[i]) is not None}
+    made = [i for i in union if i not in given]
     Ls = [max(models[i].max_lag for i in m) for m in offered]
     mu = {L: float(np.mean(y[L:])) for L in set(Ls)}
     sse, ss = [0.0] * len(offered), [0.0] * len(offered)
     top, bottom, finite = [-np.inf] * len(offered), [np.inf] * len(offered), [True] * len(offered)
     ua = u.reshape(len(y), -1)
-    for a, paths in chunked_paths(holder, ua, y[: holder.max_lag], CHUNK_ROWS, measured=False):
-        b = a + paths.shape[1]
+    for a, piece in _pieces(models, made, given, union, ua, y):
+        b = a + piece.shape[1]
         for k, m in enumerate(offered):
             s = max(a, Ls[k])
             if s >= b or not finite[k]:
                 continue
             with np.errstate(over="ignore", invalid="ignore"):
-                mean = np.array(paths[row[m[0]], s - a :])
+                mean = np.array(piece[row[m[0]], s - a :])
                 for i in m[1:]:
-                    mean += paths[row[i], s - a :]
+                    mean += piece[row[i], s - a :]
                 mean /= len(m)
                 if not np.all(np.isfinite(mean)):
                     finite[k] = False
@@ -180,6 +195,30 @@ def _chunked_scores(models: Sequence[Model], offered: list[list[int]], u: NDArra
         e = _excursion(top[k], bottom[k], lo, hi, range_margin)
         out.append(((1.0 - sse[k] / ss[k]) if e == 0.0 else -np.inf, e))
     return out
+
+
+def _pieces(models: Sequence[Model], made: list[int], given: dict[int, NDArray[np.float64]], union: list[int],
+            ua: NDArray[np.float64], y: NDArray[np.float64]) -> Iterator[tuple[int, NDArray[np.float64]]]:
+    """``(a, piece)`` over the record a chunk at a time, ``piece`` (len(union), rows) the members' free runs in
+    ``union``'s order: those of ``made`` simulated together (:func:`~streamid.model.freerun.chunked_paths`), the
+    ``given`` ones sliced."""
+    n = len(y)
+    nets = [models[i] for i in made]
+    sims = (chunked_paths(SimpleNamespace(members=tuple(nets), max_lag=max(m.max_lag for m in nets),
+                                          normalisation=nets[0].normalisation), ua, y[: max(m.max_lag for m in nets)],
+                          CHUNK_ROWS, measured=False) if nets else None)
+    step = max(CHUNK_ROWS, max(models[i].max_lag for i in union) + 1)
+    for a in range(0, n, step):
+        b = min(n, a + step)
+        piece = np.empty((len(union), b - a))
+        if sims is not None:
+            a_made, made_paths = next(sims)
+            assert a_made == a and made_paths.shape[1] == b - a, (a_made, a, made_paths.shape, b)
+            for k, i in enumerate(made):
+                piece[union.index(i)] = made_paths[k]
+        for i, p in given.items():
+            piece[union.index(i)] = p[a:b]
+        yield a, piece
 
 
 def _simulate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64] | None:

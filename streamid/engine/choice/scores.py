@@ -132,6 +132,7 @@ def free_run_scores(
     range_margin: float = 0.25,  # (RANGE_MARGIN)
     threads: int = 1,
     keep_paths: bool = True,
+    streamed_paths: bool = False,
 ) -> FreeRunScores:
     """Free-run scores and range guard of ``models`` on ``(u, y)`` (``u`` of shape (N, n_inputs)).
 
@@ -139,7 +140,8 @@ def free_run_scores(
     groups at once, the same result). ``keep_paths=False``: single networks are simulated
     :data:`SCORE_CHUNK_ROWS` rows at a time, each step from the last outputs of the one before (the same free run
     to the bit), their scores accumulated and no path kept (``paths`` all None): memory bounded by the chunk,
-    not the record.
+    not the record; with ``streamed_paths`` each finite one's path is still written out as its pieces pass (the
+    same values; one record-length array a network, for a caller that keeps it).
     """
     if not models:
         raise DataError("no candidate models to choose from")
@@ -164,7 +166,10 @@ def free_run_scores(
         drives = all(any(r.signal == "u" for r in mm.regressors) for mm in members_of(m0))
         if not keep_paths and not isinstance(m0, EnsembleModel):
             group = [models[i] for i in idx]
-            for k, out in enumerate(_streamed(group, u, y, first, lo, hi, range_margin, threads)):
+            into = np.empty((len(group), len(y))) if streamed_paths else None
+            for k, out in enumerate(_streamed(group, u, y, first, lo, hi, range_margin, threads, into)):
+                if out is not None and into is not None:
+                    paths[idx[k]] = into[k]
                 if out is not None and drives and is_bounded(group[k]):
                     scores[idx[k]], exc[idx[k]] = out
             continue
@@ -182,9 +187,11 @@ def free_run_scores(
     return FreeRunScores(tuple(float(s) for s in scores), tuple(float(e) for e in exc), float(range_margin), tuple(paths))
 
 def _streamed(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64], first: int, lo: float, hi: float,
-              range_margin: float, threads: int) -> list[tuple[float, float] | None]:
+              range_margin: float, threads: int, into: NDArray[np.float64] | None = None,
+              ) -> list[tuple[float, float] | None]:
     """:func:`path_score` of each network's free run (networks sharing their regressors, as
-    :func:`group_free_run`), simulated :data:`SCORE_CHUNK_ROWS` rows at a time; None where it is not finite."""
+    :func:`group_free_run`), simulated :data:`SCORE_CHUNK_ROWS` rows at a time; None where it is not finite.
+    ``into`` (networks, N): each network's path written there as the pieces pass (the first ``max_lag`` measured)."""
     m0 = models[0]
     L, n, C = m0.max_lag, len(y), len(models)
     norm = m0.normalisation
@@ -199,12 +206,16 @@ def _streamed(models: list[Model], u: NDArray[np.float64], y: NDArray[np.float64
             path = free_run(m0.regressors, centres, widths, weights, norm.u(u[a - L : b]), init, linear, threads=threads,
                             linear_regressors=m0.linear_regressors)  # rows a - L .. b - 1, the first L given
             out = norm.y_inverse(path[:, L:])
+            if into is not None:
+                into[:, a:b] = out
             finite &= np.all(np.isfinite(out), axis=1)
             top, bottom = np.maximum(top, out.max(axis=1)), np.minimum(bottom, out.min(axis=1))
             if b > first:
                 s = max(first, a)
                 sse += np.sum((y[None, s:b] - out[:, s - a :]) ** 2, axis=1)
         init = np.ascontiguousarray(path[:, path.shape[1] - L :])
+    if into is not None:
+        into[:, :L] = y[:L]
     ss = float(np.sum((y[first:] - y[first:].mean()) ** 2))
     if not ss > 0:
         raise DataError(f"the output is constant over the scored part (from sample {first}); nothing to score")

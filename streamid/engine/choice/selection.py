@@ -176,6 +176,7 @@ def select_model_path(
     range_margin: float | None = None,
     threads: int = 1,
     screen_rows: bool = False,
+    keep_path_rows: int = 0,
 ) -> tuple[Model, float, NDArray[np.float64] | None]:
     """The model of a finished run by the selection rule, its score (higher is better) and, with
     ``"fr_est"``, its free run over the estimation record in output units when the choice made
@@ -201,7 +202,9 @@ def select_model_path(
     :func:`~streamid.engine.choice.scores.free_run_scores`'s ``keep_paths=False``, so that a window's memory does not
     grow with every candidate's activations and free run; no path is returned); otherwise every candidate is
     fitted on all rows. Beyond one chunk of rows the screen's free runs are made on segments of the record and
-    there is no full way (:func:`_screened`).
+    there is no full way (:func:`_screened`); its chosen model's free run is then returned only for a record of
+    at most ``keep_path_rows`` rows (the identification's ensembles read it instead of simulating it again:
+    :data:`~streamid.engine.choice.ensemble_choice.KEEP_PATHS_ROWS`; 0, the online updates: never).
     ``range_margin`` defaults to :data:`~streamid.engine.choice.scores.RANGE_MARGIN`. ``threads`` > 1: the candidates are fitted
     and simulated in that many threads (for a caller with a core to spare; the same result). A run with no
     candidate in range scores below -1e9 (any run with one wins over it); its model says ``admissible: 0``.
@@ -215,7 +218,7 @@ def select_model_path(
     margin = RANGE_MARGIN if range_margin is None else float(range_margin)
     bounded = False  # a large record's fallback: every candidate on every row, in blocks, no paths kept
     if screen_rows and run.search_rows < len(run.target):
-        screened = _screened(run, u, y, margin)
+        screened = _screened(run, u, y, margin, keep_path_rows)
         if screened is not None:
             return screened
         bounded = True
@@ -240,20 +243,22 @@ def _by_criterion(cands: list[Model], fr: FreeRunScores, n: int) -> int:
 
 
 def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.float64], y: NDArray[np.float64],
-                   margin: float, path: NDArray[np.float64] | None = None,
+                   margin: float, path: NDArray[np.float64] | None = None, keep_path_rows: int = 0,
                    ) -> tuple[Model, float, NDArray[np.float64] | None]:
     """A chosen model or one of its pruned networks (``M // 3``, ``2 M // 3`` neurons kept in
     forward-selection order, :func:`~streamid.engine.choice.complexity.pruned`), by the complexity rule on the
     estimation free run (range guard included), with the chosen one's estimation free run (``path``: the
-    model's). Evidence in ``metrics.neuron_choice``."""
+    model's; beyond one chunk a pruned one's only for a record of at most ``keep_path_rows`` rows).
+    Evidence in ``metrics.neuron_choice``."""
     M = model.neurons
     with one_blas_thread():
         smaller = pruned(model, u, y, (M // 3, 2 * M // 3), RIDGE,
                          spaced_rows(len(y) - model.max_lag))  # beyond one chunk: fitted on evenly spaced rows
         if not smaller:
             return model, score, path
-        long = len(y) - model.max_lag > CHUNK_ROWS  # beyond one chunk: scored a chunk at a time, no path kept
-        fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin, keep_paths=not long)
+        long = len(y) - model.max_lag > CHUNK_ROWS  # beyond one chunk: scored a chunk at a time, no path kept...
+        fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin, keep_paths=not long,
+                             streamed_paths=long and len(y) <= keep_path_rows)  # ...but written out up to this
     rows = [(model, score, 0.0), *zip(smaller, fr.scores, fr.excursions)]
     crit = [criterion(s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
             for m, s, e in rows]
@@ -261,7 +266,7 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
     ev = {"rule": RULE, "neurons": rows[k][0].neurons,
           "candidates": [{"neurons": m.neurons, "r2_fr_est": s if e == 0.0 else None,
                           "criterion": c if np.isfinite(c) else None} for (m, s, e), c in zip(rows, crit)]}
-    # a pruned network's path: None beyond one chunk (the ensembles' choice simulates it again if it needs it)
+    # a pruned network's path: None beyond keep_path_rows (the ensembles' choice simulates it again if it needs it)
     return rows[k][0].with_metrics(neuron_choice=ev), float(rows[k][1]), path if k == 0 else fr.paths[k - 1]
 
 
@@ -270,7 +275,7 @@ REFITS_TRIED = 3
 
 
 def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], margin: float,
-              ) -> tuple[Model, float, NDArray[np.float64] | None] | None:
+              keep_path_rows: int = 0) -> tuple[Model, float, NDArray[np.float64] | None] | None:
     """``"fr_est"`` on a large record with candidates fitted on the search's rows only, the chosen one refitted on
     all rows and scored again; None (choose the full way) when that refit is not admissible and the record is one
     chunk or less.
@@ -298,8 +303,10 @@ def _screened(run: Coevolution, u: NDArray[np.float64], y: NDArray[np.float64], 
         tried: list[tuple[float, Model, FreeRunScores]] = []
         for k in order[: 1 if parts is None else REFITS_TRIED]:
             final = refit(k)
-            # beyond one chunk scored a chunk at a time, no path kept (the ensembles' choice makes its own)
-            again = free_run_scores([final], u, y, range_margin=margin, keep_paths=parts is None)
+            # beyond one chunk scored a chunk at a time; its path written out as the pieces pass only for a record
+            # of at most keep_path_rows rows (the ensembles' choice reads it; beyond, it makes its own)
+            again = free_run_scores([final], u, y, range_margin=margin, keep_paths=parts is None,
+                                    streamed_paths=parts is not None and len(y) <= keep_path_rows)
             if again.admissible:
                 ev = {**again.evidence(0), "candidates": len(cands), "admissible": fr.admissible,
                       "screened_on_rows": run.search_rows}
