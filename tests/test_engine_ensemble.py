@@ -16,7 +16,7 @@ from conftest import endpoint
 from streamid.engine import DEFAULT, identify
 from streamid.model import Model
 from streamid.engine.choice.scores import free_run_scores, group_free_run
-from streamid.engine.choice.complexity import choose, criterion, padded, parameter_count, pruned
+from streamid.engine.choice.complexity import choose, criterion, parameter_count, pruned
 from streamid.model.ensemble import MAX_MEMBERS, EnsembleModel, ensemble_of, members_of
 from streamid.engine.choice.ensemble_choice import choose_ensemble
 from streamid.model.regressors import Normalisation, Regressor
@@ -193,7 +193,7 @@ def test_consumers_of_one_network_refuse_or_handle_an_ensemble() -> None:
     assert isinstance(ens, EnsembleModel)
     assert parameter_count(ens) == (4 + 5 + (3 + 4)) / 3 and members_of(ens) == ens.members and members_of(ms[0]) == (ms[0],)
     ua = u[:, None]
-    for call in (lambda: pruned(ens, ua, y, (2,), 1e-10), lambda: padded(ens, 40), lambda: ens.regressor_rows(ua, y),
+    for call in (lambda: pruned(ens, ua, y, (2,), 1e-10), lambda: ens.regressor_rows(ua, y),
                  lambda: group_free_run([ens], ua, y[:3])):
         with pytest.raises(ModelFormatError, match="ensemble"):
             call()

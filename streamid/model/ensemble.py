@@ -29,8 +29,8 @@ An :class:`EnsembleModel` is a :class:`~streamid.model.narx.Model` (every consum
 model predicts, simulates, saves and loads it the same way). Its single-network fields
 (``regressors``, ``centres``, ``widths``, ``weights``, ``linear``, ``linear_regressors``) are its FIRST member's
 (the best ranked); the operations that work on one network's internals --
-:meth:`regressor_rows`, :func:`~streamid.engine.choice.complexity.pruned` /
-:func:`~streamid.engine.choice.complexity.padded`, :func:`~streamid.engine.choice.scores.group_free_run`
+:meth:`regressor_rows`, :func:`~streamid.engine.choice.complexity.pruned`,
+:func:`~streamid.engine.choice.scores.group_free_run`
 -- refuse an ensemble with a :class:`~streamid.errors.ModelFormatError` saying so;
 :func:`~streamid.engine.choice.selection.refit_weights` refits every member.
 """

@@ -45,7 +45,7 @@ from streamid.model.regressors import as_data, regressors_at
 from streamid.engine.fit.rbf import activations, fit_linear_rbf, fit_weights
 from streamid.errors import ModelFormatError
 
-__all__ = ["RULE", "choose", "criterion", "ols_order", "parameter_count", "pruned", "padded"]
+__all__ = ["RULE", "choose", "criterion", "ols_order", "parameter_count", "pruned"]
 
 #: The criterion's name in the evidence (``metrics.complexity.rule``) and the report.
 RULE = "aic"
@@ -157,19 +157,6 @@ def pruned(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], sizes: 
             out.append(replace(model, centres=model.centres[keep], widths=model.widths[keep], weights=w, linear=lin,
                                metrics={**model.metrics, "fitness": mse}))
     return out
-
-
-def padded(model: Model, neurons: int) -> Model:
-    """The same network with zero-weight neurons added up to ``neurons`` (the same predictions, to rounding):
-    networks of different sizes on the same lags then share one batched free run."""
-    _single("padded", model)
-    extra = neurons - model.neurons
-    if extra <= 0:
-        return model
-    k = len(model.regressors)
-    return replace(model, centres=np.vstack([model.centres, np.zeros((extra, k))]),
-                   widths=np.concatenate([model.widths, np.ones(extra)]),
-                   weights=np.concatenate([model.weights, np.zeros(extra)]))
 
 
 def _single(what: str, model: Model) -> None:

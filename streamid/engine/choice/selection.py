@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.engine.fit.blas import one_blas_thread
 from streamid.engine.choice.scores import (RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run, segment_scores,
                                           segments)
-from streamid.engine.choice.complexity import RULE, criterion, padded, parameter_count, pruned
+from streamid.engine.choice.complexity import RULE, criterion, parameter_count, pruned
 from streamid.model.ensemble import EnsembleModel
 from streamid.model.narx import Model
 from streamid.engine.choice.longlinear import long_linear_fit
@@ -257,7 +257,9 @@ def pruned_choice(cfg: CoEAConfig, model: Model, score: float, u: NDArray[np.flo
         if not smaller:
             return model, score, path
         long = len(y) - model.max_lag > CHUNK_ROWS  # beyond one chunk: scored a chunk at a time, no path kept...
-        fr = free_run_scores([padded(m, M) for m in smaller], u, y, range_margin=margin, keep_paths=not long,
+        # each at its own size (not padded with zero-weight neurons to share one recursion: the same values, as
+        # a zero weight adds +0.0, at about half the work)
+        fr = free_run_scores(list(smaller), u, y, range_margin=margin, keep_paths=not long,
                              streamed_paths=long and len(y) <= keep_path_rows)  # ...but written out up to this
     rows = [(model, score, 0.0), *zip(smaller, fr.scores, fr.excursions)]
     crit = [criterion(s, len(y) - m.max_lag, parameter_count(m)) if e == 0.0 else np.inf
