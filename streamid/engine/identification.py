@@ -442,7 +442,7 @@ def identify(
                                        threads=post)
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = _settled(final, ua, ya, post)  # a mean's one-step MSE where the refinement did not replace it
-    final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half
+    final = with_interval(final, ua, ya, RIDGE, _threads(helper))  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,

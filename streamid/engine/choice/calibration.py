@@ -50,7 +50,7 @@ def calibrate(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], ridg
     spaced = spaced_rows(h - model.max_lag)  # None: up to one chunk, every row (as always)
     samples = None if spaced is None else model.max_lag + spaced
     try:
-        half = refit_weights(model, u[:h], y[:h], ridge, samples)
+        half = refit_weights(model, u[:h], y[:h], ridge, samples, threads, fitness=False)  # its weights only
     except DataError as exc:
         return None, {"reason": f"the model could not be refitted on the first half ({exc})"}
     err, spread = _held_out(half, u, y, h, threads)  # the free run's error and the band's own terms there

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from streamid.engine.fit.blas import one_blas_thread
+from streamid.threads import thread_map
 from streamid.engine.choice.scores import (RANGE_MARGIN, FreeRunScores, free_run_scores, group_free_run, segment_scores,
                                           segments)
 from streamid.engine.choice.complexity import RULE, criterion, parameter_count, pruned
@@ -35,17 +36,23 @@ __all__ = ["free_run_r2", "pruned_choice", "refit_weights", "select_model", "sel
 
 
 def refit_weights(model: Model, u: ArrayLike, y: ArrayLike, ridge: float,
-                  samples: NDArray[np.intp] | None = None) -> Model:
+                  samples: NDArray[np.intp] | None = None, threads: int = 1, fitness: bool = True) -> Model:
     """The same structure with output weights refitted on ``(u, y)`` (model's normalisation).
 
     A model with a linear part has it refitted in the same least squares. The fit uses rows ``t >= max(model.max_lag, start)``; see :func:`~streamid.engine.fit.rbf.fit_weights`.
     An ensemble has every member refitted (each on its own regressors); its ``fitness`` is then the mean's.
     ``samples`` (sorted sample indices, each at least the model's ``max_lag``): the fit and the fitness on those
     samples' rows only (a record beyond one chunk: :func:`~streamid.engine.search.rows.spaced_rows`; the time and
-    memory those rows', not the record's).
+    memory those rows', not the record's). ``threads``: an ensemble's members refitted in that many threads (the
+    same weights: each member's least squares is its own); ``fitness`` False: an ensemble's ``metrics.fitness`` is
+    left as it was (for a caller that reads only the weights: the calibration's half-model).
     """
     if isinstance(model, EnsembleModel):
-        ens = model.map_members(lambda m: refit_weights(m, u, y, ridge, samples))
+        with one_blas_thread():  # around the threads too: each member's own limit then restores this one
+            members = thread_map(lambda m: refit_weights(m, u, y, ridge, samples), model.members, threads)
+        ens = replace(model, members=tuple(members))
+        if not fitness:
+            return ens
         ua, ya = as_data(u, y, min_samples=ens.max_lag + 2)
         L = ens.max_lag
         if samples is not None:
