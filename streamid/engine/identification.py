@@ -388,10 +388,9 @@ def identify(
         outs = made + fan_out(_one_run, [job], 1, executor=None, helper=helper,
                               on_result=partial(report_after, report, made))
 
-    # threads of the work after the restarts over every row (the ensembles' one-step predictions): a helper's core
-    # is idle then, but beyond one chunk a second thread doubles that work's temporaries for little (1,000,000
-    # samples: 0.3 s saved, 80-100 MB more at the peak). The refinement (on segments beyond one chunk) and the
-    # calibration (a chunk at a time) take the helper's threads at any length: their temporaries are a chunk's.
+    # threads of the work after the restarts: a helper's core is idle then, but beyond one chunk a second thread
+    # holds a second allocator arena of temporaries for little: 1,000,000 samples, the refinement and the
+    # calibration in two threads (a chunk's temporaries each): 0.1 s saved, peak RSS 374 -> 482 MiB (stagemem)
     post = 1 if n > CHUNK_ROWS else _threads(helper)
     if callback is not None:  # the search is done: what follows is the kept model's choice (a stage of its own)
         callback(Progress(total_gen, total_gen, min(o["fitness"] for o in outs), sum(o["evaluations"] for o in outs),
@@ -441,10 +440,10 @@ def identify(
             final, score = robust, complexity["robust"]["r2_fr_est"]
     if cfg.refine_iterations and robust is None:  # the weights fitted to the free run (streamid.engine.choice.refine)
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
-                                       threads=_threads(helper))  # beyond one chunk on segments: small temporaries
+                                       threads=post)
         final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = _settled(final, ua, ya, post)  # a mean's one-step MSE where the refinement did not replace it
-    final = with_interval(final, ua, ya, RIDGE, _threads(helper))  # its free-run interval, calibrated on a held-out half
+    final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,

@@ -182,7 +182,7 @@ def _model_order(M: int, yj: list[int], uj: list[int]) -> NDArray[np.intp]:
 
 def refine_weights(
     model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float, range_margin: float,
-    threads: int = 1, segments: list[tuple[int, int]] | None = None,
+    threads: int = 1, segments: list[tuple[int, int]] | None = None, osa: bool = True,
 ) -> tuple[Model, dict[str, Any]]:
     """``model`` with its output weights refined to its free run on ``(u, y)`` (the rule above).
 
@@ -203,6 +203,9 @@ def refine_weights(
     segments : list of (start, stop), optional
         The free run made and scored on these contiguous parts of the record only, each from its own first
         ``max_lag`` measured outputs (:func:`~streamid.engine.choice.scores.segments`; a record beyond one chunk); None: one free run over it all.
+    osa : bool
+        False: the refined model's one-step MSE over the record (``osa_mse_est``, its ``metrics.fitness``) is not
+        made (a caller that reads only the refined weights).
 
     Returns
     -------
@@ -334,8 +337,11 @@ def refine_weights(
     if not is_bounded(refined):
         ev["reason"] = "the refined linear part's autoregression is unstable (streamid.engine.choice.stability)"
         return model, ev
-    osa = refined.predict_osa(u, y, threads=threads)
-    ev.update(taken=True, osa_mse_est=float(np.mean((osa[L:] - y[L:]) ** 2)))
+    if not osa:  # a caller that reads only the refined weights (the held-out judgement's first half)
+        ev.update(taken=True)
+        return refined, ev
+    pred = refined.predict_osa(u, y, threads=threads)
+    ev.update(taken=True, osa_mse_est=float(np.mean((pred[L:] - y[L:]) ** 2)))
     return refined, ev
 
 
@@ -366,7 +372,7 @@ def _judged(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterat
     """:func:`refine_judged`'s work (``whole``: the record's segments beyond one chunk, else None)."""
     h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
     half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads,
-                                   None if whole is None else segments(0, h, L))
+                                   None if whole is None else segments(0, h, L), osa=False)  # judged by its free run
     held: dict[str, Any] = {"samples": int(len(y) - h)}
     if ev_half.get("taken"):
         if whole is None:
