@@ -38,9 +38,11 @@ ALONE_MODULES = frozenset({
     "test_daemon_faults",  # a timed fault plan
     "test_reliability_bad_input",  # a timed plan of every bad input at once
     "test_reliability_faults",  # kills and restarts at planned moments
-    "test_record_replay",  # real-time 20 kHz replay timing
+    # test_record_replay: only its real-time 20 kHz replay timing test (marked there); its CLI and byte-exact
+    # tests measure no time
     "test_rrd_files",  # a SIGKILLed writer loses at most 1 s
-    "test_multihost",  # network namespaces
+    # test_multihost: only its network-namespace tests (marked there: namespaces of fixed names); its loopback
+    # recipe binds fresh ports and checks the sockets of its own processes, as test_readme's loopback recipe does
     "test_engine_parallel",  # the faster of two evaluation paths is chosen by timing them
     "test_daemon_helper",  # the helper runs under SCHED_IDLE: beside another test it gets no CPU, never offered work
 })
