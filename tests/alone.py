@@ -47,6 +47,23 @@ ALONE_MODULES = frozenset({
     "test_daemon_helper",  # the helper runs under SCHED_IDLE: beside another test it gets no CPU, never offered work
 })
 
+#: the ``alone`` module run first: its 30 s warm-up (not measured) absorbs what a fresh install does first
+#: (numba compiling the engine's loops into its cache), which would otherwise fall into another one's timed plan
+FIRST_MODULE = "test_load"
+
+
+def run_order(item: pytest.Item) -> int:
+    """The group of ``item`` in the suite's order: 0 the first module, 1 the other ``alone`` modules, 2 the rest.
+
+    With ``--dist loadfile`` (and ``--no-loadscope-reorder``) the workers get the modules in this order: the
+    ``alone`` modules run one after the other while the other worker waits for them, then the shared modules on
+    both workers.  Scattered among the shared modules, each ``alone`` module first waited, its worker idle, for
+    the test running beside it to end.
+    """
+    stem = item.path.stem
+    return 0 if stem == FIRST_MODULE else 1 if stem in ALONE_MODULES else 2
+
+
 #: the environment variable naming the run's lock directory (set by the controller, inherited by the workers)
 LOCK_DIR_ENV = "STREAMID_TEST_LOCK_DIR"
 

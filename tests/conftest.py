@@ -29,7 +29,7 @@ from pathlib import Path
 
 import pytest
 
-from alone import Holder, is_alone, lock_dir_for_run, worker_lock_dir
+from alone import Holder, is_alone, lock_dir_for_run, run_order, worker_lock_dir
 from streamid.transport import Bus, ZenohSettings
 
 _LOCK_DIR = pytest.StashKey["Path | None"]()
@@ -249,6 +249,12 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     path = config.stash.get(_LOCK_DIR, None)
     if path is not None:
         shutil.rmtree(path, ignore_errors=True)
+
+
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The modules that run alone first (tests/alone.py, ``run_order``), then the others; each module's tests in
+    their order. A simulation of the suite on its measured durations: 767 s -> 744 s on 2 cores."""
+    items.sort(key=run_order)  # stable: the order within each group kept
 
 
 @pytest.hookimpl(hookwrapper=True)
