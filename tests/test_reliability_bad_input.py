@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import endpoint
+from conftest import damper_trace, endpoint
 
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
 from streamid.wire.codec import SampleBatch, encode
@@ -33,7 +33,6 @@ from streamid.daemon.config import DaemonConfig, StreamConfig
 from streamid.online import RefreshPolicy
 from streamid.transport.updates import ModelUpdate
 from streamid.daemon.service import Daemon
-from streamid.sim import get_device
 from streamid.transport import Bus, ZenohSettings
 
 P = 5_000_000  # 200 Hz
@@ -67,8 +66,7 @@ RECOVER = ("random", "truncated", "version", "schema", "empty", "signals", "nonf
 @functools.lru_cache(maxsize=1)
 def _trace() -> tuple[np.ndarray, np.ndarray]:
     """100 s of the simulated MR damper at 200 Hz (simulating is slow: ~3 s; done once, shared by the streams)."""
-    _, u, y = get_device("mr_damper").simulate_seconds(100.0, seed=0)
-    return u, y
+    return damper_trace(100.0, 0)  # the same trace as the other reliability module's: once per process
 
 
 def _signals(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
