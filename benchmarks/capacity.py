@@ -266,15 +266,17 @@ def engine_main(n: int, seed: int, mode: str = "offline", record: int = 0, strea
     from streamid.engine.validation import r2
     from streamid.online import OnlineIdentifier, StreamConfig
 
+    if mode == "online":  # the changes checked first: a bad one fails before the record is simulated
+        base = StreamConfig(window_samples=n, update_every_samples=n, max_pending_windows=2, seed=seed,
+                            max_pending_bytes=2**31)
+        cfg = stream_table_config("--stream", json.loads(stream), base)  # checked as a daemon's [streams.X] table
+
     warm_up_kernels()  # as the daemon does when it starts: the time below is the update's, not the kernels' loading
 
     if mode == "online":
         _, _, period, recs = _device_records(2000.0, 1, max(record, offset + n) / 2000.0 + 1.0, seed)
         u, y = recs[0][0][offset:offset + n].copy(), recs[0][1][offset:offset + n].copy()
         del recs
-        base = StreamConfig(window_samples=n, update_every_samples=n, max_pending_windows=2, seed=seed,
-                            max_pending_bytes=2**31)
-        cfg = stream_table_config("--stream", json.loads(stream), base)  # checked as a daemon's [streams.X] table
         ident = OnlineIdentifier(cfg, stream="engine")
         ident.learn_many(np.arange(n, dtype=np.int64) * period, u, y, inputs=["v"], outputs=["f"])
         _reset_peak_rss()

@@ -155,6 +155,33 @@ def _stop(proc: subprocess.Popen[str], sig: int = signal.SIGINT, timeout_s: floa
     return out or ""
 
 
+def _sent(pub_out: str, rep_out: str) -> dict[str, Any]:
+    """Samples sent per stream, from the publisher's and the replay's last JSON lines ({} if one is missing)."""
+    try:
+        publisher = json.loads(pub_out.strip().splitlines()[-1])
+        replay = json.loads(rep_out.strip().splitlines()[-1])
+        return {**publisher["sent"], "piezo": replay["samples"]}
+    except (IndexError, ValueError, KeyError, TypeError):
+        return {}
+
+
+def _settled_status(bus: Any, names: list[str], sent: dict[str, Any], bound_s: float) -> dict[str, dict[str, Any]]:
+    """Each stream's status once the last windows are identified and their status published: asked of the daemon
+    (its status now) until every stream has all its samples sent in, nothing pending and nothing being identified,
+    at most ``bound_s`` (then the statuses as they are)."""
+    from streamid.transport.client import latest_status
+
+    deadline = time.monotonic() + bound_s
+    while True:
+        status = {n: latest_status(bus, n, timeout_s=2.0) or {} for n in names}
+        if all(st and n in sent and st.get("samples_in", 0) >= sent[n] and not st.get("busy")
+               and not st.get("windows", {}).get("pending") for n, st in status.items()):
+            return status
+        if time.monotonic() >= deadline:
+            return status
+        time.sleep(0.1)
+
+
 def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, seed: int = 0,
              sample_every_s: float = 0.5, retain_memory: bool = True) -> dict[str, Any]:
     """Run the load; returns per-stream counters, model times, memory series and publisher lateness.
@@ -165,7 +192,7 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
     ``replay`` (the replayer's report), ``seconds``, ``smaps`` (the daemon's resident memory by mapping
     at the end, MB).  ``retain_memory=False`` runs the daemon with glibc's default allocator behaviour.
     """
-    from streamid.transport.client import ModelSubscriber, latest_status
+    from streamid.transport.client import ModelSubscriber
     from streamid.transport import Bus
 
     ep = _free_endpoint()
@@ -208,8 +235,7 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
                 smaps = resident_by_mapping(daemon.pid)
                 pub_out = _stop(multi, signal.SIGTERM, 30)
                 rep_out = _stop(piezo, signal.SIGTERM, 30)
-                time.sleep(1.5)  # the last windows are identified and their status published
-                status = {n: latest_status(bus, n, timeout_s=2.0) or {} for n in names}
+                status = _settled_status(bus, names, _sent(pub_out, rep_out), 1.5)
                 sub.close()
         finally:
             for p in reversed(procs):
@@ -217,7 +243,7 @@ def load_run(seconds: float = 120.0, streams: int = 8, rate_hz: float = 2000.0, 
             log.close()
     publisher = json.loads(pub_out.strip().splitlines()[-1])
     replay = json.loads(rep_out.strip().splitlines()[-1])
-    sent = {**publisher["sent"], "piezo": replay["samples"]}
+    sent = _sent(pub_out, rep_out)
     return {
         "seconds": seconds,
         "per_stream": {

@@ -38,12 +38,31 @@ ALONE_MODULES = frozenset({
     "test_daemon_faults",  # a timed fault plan
     "test_reliability_bad_input",  # a timed plan of every bad input at once
     "test_reliability_faults",  # kills and restarts at planned moments
-    "test_record_replay",  # real-time 20 kHz replay timing
+    # test_record_replay: only its real-time 20 kHz replay timing test (marked there); its CLI and byte-exact
+    # tests measure no time
     "test_rrd_files",  # a SIGKILLed writer loses at most 1 s
-    "test_multihost",  # network namespaces
+    # test_multihost: only its network-namespace tests (marked there: namespaces of fixed names); its loopback
+    # recipe binds fresh ports and checks the sockets of its own processes, as test_readme's loopback recipe does
     "test_engine_parallel",  # the faster of two evaluation paths is chosen by timing them
     "test_daemon_helper",  # the helper runs under SCHED_IDLE: beside another test it gets no CPU, never offered work
 })
+
+#: the ``alone`` module run first: its 30 s warm-up (not measured) absorbs what a fresh install does first
+#: (numba compiling the engine's loops into its cache), which would otherwise fall into another one's timed plan
+FIRST_MODULE = "test_load"
+
+
+def run_order(item: pytest.Item) -> int:
+    """The group of ``item`` in the suite's order: 0 the first module, 1 the other ``alone`` modules, 2 the rest.
+
+    With ``--dist loadfile`` (and ``--no-loadscope-reorder``) the workers get the modules in this order: the
+    ``alone`` modules run one after the other while the other worker waits for them, then the shared modules on
+    both workers.  Scattered among the shared modules, each ``alone`` module first waited, its worker idle, for
+    the test running beside it to end.
+    """
+    stem = item.path.stem
+    return 0 if stem == FIRST_MODULE else 1 if stem in ALONE_MODULES else 2
+
 
 #: the environment variable naming the run's lock directory (set by the controller, inherited by the workers)
 LOCK_DIR_ENV = "STREAMID_TEST_LOCK_DIR"

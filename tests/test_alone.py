@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from alone import ALONE_MODULES, Holder, is_alone, machine
+from alone import ALONE_MODULES, FIRST_MODULE, Holder, is_alone, machine, run_order
 
 WAIT_S = 1.0  # for a thread to reach its flock call (ordering, not a measurement)
 
@@ -64,6 +64,7 @@ def test_ordinary_tests_run_side_by_side(tmp_path: Path) -> None:
 def test_the_modules_named_alone_exist_and_a_marker_makes_a_test_alone(request: pytest.FixtureRequest) -> None:
     here = Path(__file__).parent
     assert all((here / f"{m}.py").is_file() for m in ALONE_MODULES), sorted(ALONE_MODULES)
+    assert FIRST_MODULE in ALONE_MODULES and run_order(request.node) == 2  # this module: after the alone ones
     assert not is_alone(request.node)
     request.node.add_marker(pytest.mark.alone)
     assert is_alone(request.node)

@@ -186,11 +186,11 @@ def test_hints_name_only_flags_that_exist(tmp_path: Path) -> None:
     cut.write_bytes(raw[: len(raw) // 2])
     model = tmp_path / "m.json"
     model.write_text(json.dumps(_doc(3)))
+    helps = {c: subprocess.run([*STREAMID, c, "--help"], capture_output=True, text=True, timeout=60).stdout
+             for c in ("identify", "validate", "replay")}  # once: the same help texts serve both commands' errors
     for args in (["identify", str(cut)], ["validate", str(model), str(cut)]):
         r = subprocess.run([*STREAMID, *args], capture_output=True, text=True, timeout=120)
         line = _one_line_exit_2(r)
-        helps = {c: subprocess.run([*STREAMID, c, "--help"], capture_output=True, text=True, timeout=60).stdout
-                 for c in ("identify", "validate", "replay")}
         import re
 
         for m in re.finditer(r"(?:`streamid (\w+) )?(--[a-z][a-z-]+)", line):

@@ -42,3 +42,29 @@ def test_the_demo_publishes_trusted_models_of_both_streams_and_writes_the_rrd(tm
     check = subprocess.run([RERUN, "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60)
     assert check.returncode == 0, check.stderr
     assert (out_dir / "daemon.log").is_file()
+
+
+def test_the_demo_waits_for_its_streams_to_settle_not_a_fixed_time() -> None:
+    """After the replays, the demo waits until each stream's status (asked of the daemon) has every replayed
+    sample in, nothing pending or being identified, and the newest model received (it slept 8 s before)."""
+    import sys
+
+    from streamid.commands.demo import _replayed_samples, _settled, _Tally
+
+    idle = {"samples_in": 3000, "busy": False, "windows": {"pending": False}, "version": 2}
+    got = _Tally(versions=[1, 2])
+    assert _settled(idle, 3000, got)
+    assert not _settled(None, 3000, got)  # no status yet
+    assert not _settled(idle, None, got)  # the replay's count unknown: the bound decides
+    assert not _settled({**idle, "samples_in": 2999}, 3000, got)  # a sample still on its way
+    assert not _settled({**idle, "busy": True}, 3000, got)  # a window being identified
+    assert not _settled({**idle, "windows": {"pending": True}}, 3000, got)  # a window waiting
+    assert not _settled(idle, 3000, _Tally(versions=[1]))  # v2 published, not received yet
+    assert _settled({**idle, "version": 0}, 3000, _Tally())  # no model at all: nothing more will come
+    printed = subprocess.Popen([sys.executable, "-c", "print('replayed');print('{\"samples\": 400000}')"],
+                               stdout=subprocess.PIPE)
+    printed.wait(30)
+    assert _replayed_samples(printed) == 400_000
+    silent = subprocess.Popen([sys.executable, "-c", "pass"], stdout=subprocess.PIPE)
+    silent.wait(30)
+    assert _replayed_samples(silent) is None

@@ -83,8 +83,14 @@ def test_fifty_small_publishers_do_not_starve_a_healthy_stream(tmp_path: Path) -
             out, err = peer.communicate(timeout=60)
             assert peer.returncode == 0, err[-2000:]
             sent = json.loads(out.strip().splitlines()[-1])
-            time.sleep(1.0)
-            st = latest_status(bus, "damper", timeout_s=5.0)
+            settle = time.monotonic() + 1.0  # the last windows decided: asked until they are, at most 1 s (was a sleep)
+            while True:
+                st = latest_status(bus, "damper", timeout_s=5.0)
+                w_now = (st or {}).get("windows", {})
+                if (st is not None and not st["busy"] and not w_now.get("pending")
+                        and w_now.get("emitted") == w_now.get("closed")) or time.monotonic() >= settle:
+                    break
+                time.sleep(0.1)
             small = latest_status(bus, "small0", timeout_s=5.0)
     finally:
         if peer.poll() is None:

@@ -112,7 +112,7 @@ def run_recipe(net: Network, port: int, tmp_path: Path) -> dict[str, float]:
     return {s: (first[s] - t0_ns) / 1e9 for s in PUBLISHERS}
 
 
-@pytest.fixture(params=["loopback", "netns"])
+@pytest.fixture(params=["loopback", pytest.param("netns", marks=pytest.mark.alone)])  # fixed namespaces
 def network(request: pytest.FixtureRequest) -> Iterator[Network]:
     if request.param == "netns":
         require("netns")
@@ -128,6 +128,7 @@ def test_router_recipe_two_daemons_two_publishers_a_watcher(network: Network, tm
     assert all(0 < v < MODELS_S for v in seconds.values()), seconds
 
 
+@pytest.mark.alone  # namespaces of fixed names
 def test_netns_hosts_reach_the_router_only_and_leave_nothing_behind(tmp_path: Path) -> None:
     """The harness itself: hosts reach the router's address, not the machine's; teardown removes every namespace
     and kills what still ran in it; a namespace left by a run that was killed (its pid gone) is removed."""

@@ -58,6 +58,7 @@ def test_max_speed_replay_into_recorder_is_byte_exact(piezo_log: Path, tmp_path:
     assert res.returncode == 0, res.stdout + res.stderr
 
 
+@pytest.mark.alone  # real-time 20 kHz timing: another test beside it would be measured too (tests/alone.py)
 def test_real_time_20khz_replay_loses_nothing_and_keeps_time(piezo_log: Path, tmp_path: Path) -> None:
     report, stats, out = _record_replay(piezo_log, ReplayConfig(rate=1.0), tmp_path)
     assert _log_messages(out) == _log_messages(piezo_log)

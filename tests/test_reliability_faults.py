@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import STREAMID, endpoint, free_tcp_port, rerun_grpc_server
+from conftest import STREAMID, damper_trace, endpoint, free_tcp_port, rerun_grpc_server
 
 from streamid.online import RefreshPolicy
 from streamid.transport.client import ModelSubscriber, latest_model, latest_status
@@ -45,7 +45,6 @@ from streamid.wire.codec import SampleBatch, encode
 from streamid.daemon.config import DaemonConfig, StreamConfig
 from streamid.transport.updates import ModelUpdate, parse_model_update
 from streamid.daemon.service import Daemon
-from streamid.sim import get_device
 from streamid.transport import Bus, ZenohSettings
 from streamid.viz.rerun_view import Viz, VizSettings
 
@@ -63,8 +62,7 @@ BASE = StreamConfig(window_s=1.0, update_every_s=0.5, cold_generations=30, warm_
 @functools.lru_cache(maxsize=1)
 def _trace() -> tuple[np.ndarray, np.ndarray]:
     """100 s of the simulated MR damper at 200 Hz (simulating is slow: ~3 s; done once, shared by the streams)."""
-    _, u, y = get_device("mr_damper").simulate_seconds(100.0, seed=0)
-    return u, y
+    return damper_trace(100.0, 0)  # the same trace as the other reliability module's: once per process
 
 
 def _signals(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:

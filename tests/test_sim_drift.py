@@ -111,7 +111,7 @@ def test_drift_arguments_are_checked_with_the_value_and_the_accepted_form() -> N
         simulate_device_log("reactor", "unused.mcap", drift_at_s=3.0)
 
 
-def test_simulate_cli_writes_the_drifting_log_and_its_true_change_time(tmp_path: Path) -> None:
+def test_simulate_cli_writes_the_drifting_log_and_its_true_change_time(tmp_path: Path, mr_pair: tuple) -> None:
     out, again, other = tmp_path / "d.mcap", tmp_path / "d2.mcap", tmp_path / "d3.mcap"
     cmd = ["simulate", "mr_damper", "--drift-at", str(MR_AT), "--drift-change", "0.2", "--seconds", str(MR_S)]
     res = subprocess.run(STREAMID + cmd + ["--seed", "4", "-o", str(out)], capture_output=True, text=True,
@@ -127,11 +127,11 @@ def test_simulate_cli_writes_the_drifting_log_and_its_true_change_time(tmp_path:
     assert float(meta["drift_at_s"]) == MR_AT and float(meta["drift_change"]) == 0.2
     assert int(meta["drift_at_ns"]) == 5_000_000_000 and meta["drift_parameters"] == "alpha_a alpha_b c0a c0b"
     assert meta["simulator"] == "streamid.sim.drift.simulate_drift" and meta["seed"] == "4"
-    expected = simulate_drift("mr_damper", MR_S, MR_AT, 0.2, np.random.default_rng(4))
+    base_trace, expected = mr_pair  # seed 4 (an integer seed is np.random.default_rng(4)): the CLI's --seed 4
     assert a.outputs["force_N"].tobytes() == expected.y.tobytes()
     assert a.inputs["velocity_cm_s"].tobytes() == expected.u.tobytes()
     # the change time read back from the log is the first sample where the force differs
-    base = get_device("mr_damper").simulate_seconds(MR_S, np.random.default_rng(4)).y
+    base = base_trace.y
     first = int(np.flatnonzero(a.outputs["force_N"] != base)[0])
     assert int(a.t_ns[first]) == int(meta["drift_at_ns"]) + int(meta["drift_lag_samples"]) * a.period_ns
 

@@ -131,6 +131,30 @@ class _Tally:
     rejected: int = 0
 
 
+def _replayed_samples(replay: subprocess.Popen[bytes]) -> int | None:
+    """The samples a finished ``streamid replay --json`` put (None if it printed no report)."""
+    import json
+
+    if replay.poll() is None or replay.stdout is None:
+        return None
+    lines = replay.stdout.read().decode("utf-8", "replace").strip().splitlines()
+    try:
+        return int(json.loads(lines[-1])["samples"])
+    except (IndexError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _settled(status: dict[str, Any] | None, sent: int | None, tally: _Tally) -> bool:
+    """Whether a stream's daemon status shows every replayed sample in, nothing left to identify, and the
+    newest model it published already received by us."""
+    if status is None or sent is None or status.get("samples_in", 0) < sent:
+        return False
+    if status.get("busy") or status.get("windows", {}).get("pending"):
+        return False
+    version = int(status.get("version") or 0)
+    return version == 0 or (bool(tally.versions) and max(tally.versions) >= version)
+
+
 def _line(t0: float, up: Any) -> str:
     from streamid.commands.watch import format_update
 
@@ -203,18 +227,25 @@ def run(args: argparse.Namespace) -> int:
             for s in streams:
                 replays.append(subprocess.Popen(
                     [*py, "replay", s.log, "--connect", ep, "--rate", str(s.rate), "--loop", str(s.loops),
-                     "--end", str(s.end_s), "--stream", s.stream],
-                    stdout=subprocess.DEVNULL, stderr=open(out / f"replay-{s.stream}.log", "wb"),
+                     "--end", str(s.end_s), "--stream", s.stream, "--json"],
+                    stdout=subprocess.PIPE, stderr=open(out / f"replay-{s.stream}.log", "wb"),
                 ))
             deadline = time.monotonic() + 3 * expected_s + 60
             for r in replays:
                 r.wait(timeout=max(1.0, deadline - time.monotonic()))
-            # let the last windows be identified and published
+            sent = {s.stream: _replayed_samples(r) for s, r in zip(streams, replays)}
+            # let the last windows be identified and published: until the daemon says (asked now, not its last
+            # periodic status) that every sample replayed is in and no window waits or is being identified, and
+            # its newest model has reached us; at most 8 s (the fixed wait this replaces)
             settle = time.monotonic() + 8.0
-            while time.monotonic() < settle:
+            while True:
+                for s in streams:
+                    statuses[s.stream] = latest_status(bus, s.stream, timeout_s=2.0)
+                with lock:
+                    done = all(_settled(statuses[s.stream], sent[s.stream], tallies[s.stream]) for s in streams)
+                if done or time.monotonic() >= settle:
+                    break
                 time.sleep(0.25)
-            for s in streams:
-                statuses[s.stream] = latest_status(bus, s.stream, timeout_s=2.0)
     except KeyboardInterrupt:
         print("\ninterrupted", file=sys.stderr)
     finally:
