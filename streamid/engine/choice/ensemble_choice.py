@@ -200,24 +200,23 @@ def _chunked_scores(models: Sequence[Model], offered: list[list[int]], u: NDArra
 def _pieces(models: Sequence[Model], made: list[int], given: dict[int, NDArray[np.float64]], union: list[int],
             ua: NDArray[np.float64], y: NDArray[np.float64]) -> Iterator[tuple[int, NDArray[np.float64]]]:
     """``(a, piece)`` over the record a chunk at a time, ``piece`` (len(union), rows) the members' free runs in
-    ``union``'s order: those of ``made`` simulated together (:func:`~streamid.model.freerun.chunked_paths`), the
-    ``given`` ones sliced."""
-    n = len(y)
-    nets = [models[i] for i in made]
-    sims = (chunked_paths(SimpleNamespace(members=tuple(nets), max_lag=max(m.max_lag for m in nets),
-                                          normalisation=nets[0].normalisation), ua, y[: max(m.max_lag for m in nets)],
-                          CHUNK_ROWS, measured=False) if nets else None)
+    ``union``'s order: those of ``made`` simulated together (:func:`~streamid.model.freerun.chunked_paths`, cut at
+    the same ``step``: it is at least their ``max_lag + 1``), the ``given`` ones sliced."""
+    n, at = len(y), {i: k for k, i in enumerate(union)}
     step = max(CHUNK_ROWS, max(models[i].max_lag for i in union) + 1)
+    nets = [models[i] for i in made]
+    L = max((m.max_lag for m in nets), default=0)
+    sims = (chunked_paths(SimpleNamespace(members=tuple(nets), max_lag=L, normalisation=nets[0].normalisation), ua,
+                          y[:L], step, measured=False) if nets else None)
     for a in range(0, n, step):
         b = min(n, a + step)
         piece = np.empty((len(union), b - a))
         if sims is not None:
-            a_made, made_paths = next(sims)
-            assert a_made == a and made_paths.shape[1] == b - a, (a_made, a, made_paths.shape, b)
+            _, made_paths = next(sims)  # the span a..b: the same step from the same start
             for k, i in enumerate(made):
-                piece[union.index(i)] = made_paths[k]
+                piece[at[i]] = made_paths[k]
         for i, p in given.items():
-            piece[union.index(i)] = p[a:b]
+            piece[at[i]] = p[a:b]
         yield a, piece
 
 
