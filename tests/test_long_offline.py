@@ -151,10 +151,15 @@ def test_a_refinement_beyond_one_chunk_is_made_and_judged_on_segments(monkeypatc
     net = _osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 7, 2)
     monkeypatch.setattr(scores, "CHUNK_ROWS", 500)
     monkeypatch.setattr(scores, "SEGMENT_ROWS", 800)  # 8 segments of 100 scored rows: 800 of 4,000
-    out, ev = refine_judged(net, u[:, None], y, 10, 0.0, 0.25)
+    kept: dict[str, object] = {}
+    out, ev = refine_judged(net, u[:, None], y, 10, 0.0, 0.25, keep_osa=kept)
     assert ev["held_out"]["segments"] == 8 and ev["held_out"]["samples"] == 2_000
     assert ev["taken"] is True and ev["segments"] == {"count": 8, "rows": 8 * 102, "of": 4_000}
     assert out is not net and ev["r2_fr_est_after"] > ev["r2_fr_est_before"]
+    # the refined model's one-step predictions over the whole record, kept for the validation (made once)
+    pred = out.predict_osa(u[:, None], y)
+    assert kept["of"] is out and np.array_equal(kept["osa"], pred)  # type: ignore[arg-type]
+    assert ev["osa_mse_est"] == float(np.mean((pred[out.max_lag:] - y[out.max_lag:]) ** 2))
 
 
 def test_segment_scores_on_one_segment_are_the_free_run_scores() -> None:
@@ -408,3 +413,54 @@ def test_runs_paths_written_out_as_their_scores_stream_give_the_ensembles_the_sa
     made = ensemble_choice._chunked_scores(nets, offered, ua, y, lo, hi, 0.25)
     for given in ([paths[0], None, paths[2]], paths, [None, paths[1], None]):
         assert ensemble_choice._chunked_scores(nets, offered, ua, y, lo, hi, 0.25, given) == made
+
+
+def test_the_identification_hands_its_one_step_predictions_to_the_validation_which_gives_the_same_report() -> None:
+    """The kept model's one-step predictions, made once for its ``metrics.fitness`` (here a mean of two runs'), reach the
+    validation (``Result.extra["osa_predictions_est"]``): the same report to the bit as predicting again; the given
+    predictions are what it reads (one changed, another report); a wrong length is a one-line error naming both."""
+    from streamid.engine.validation import validate
+    from streamid.errors import DataError
+
+    u, y = _plant(1_500, seed=5)
+    ue, ye, uv, yv = u[:1_000], y[:1_000], u[1_000:], y[1_000:]
+    cfg = DEFAULT.replace(restarts=2, more_restarts=0, generations=5, lag_search_neurons=0, neurons=6, max_lag_cap=0,
+                          max_lag_y=2, max_lag_u=2, fallback_neurons=(), prune_runs=0, long_linear=0)
+    res = identify(ue, ye, cfg, 1)  # seed 1: the two runs' mean is kept (two runs: no median), its fitness made last
+    m, L = res.model, res.model.max_lag
+    assert m.metrics["ensemble"]["members"] == [0, 1] or m.metrics["ensemble"]["members"] == [1, 0]
+    osa = res.extra["osa_predictions_est"]
+    assert osa.shape == ye.shape and np.array_equal(osa[L:], m.predict_osa(ue[:, None], ye)[L:])
+    assert m.metrics["fitness"] == float(np.mean((osa[L:] - ye[L:]) ** 2))
+    plain = validate(m, ue, ye, uv, yv, keep=False)
+    given = validate(m, ue, ye, uv, yv, keep=False, osa_predictions_est=osa)
+    assert given.r2_dict() == plain.r2_dict() and given.correlation_est.to_dict() == plain.correlation_est.to_dict()
+    changed = osa.copy()
+    changed[L + 5] += 1.0
+    assert validate(m, ue, ye, uv, yv, keep=False, osa_predictions_est=changed).osa_est < plain.osa_est
+    with pytest.raises(DataError, match=r"osa_predictions_est must be .* shape \(1000,\); got shape \(999,\)"):
+        validate(m, ue, ye, uv, yv, osa_predictions_est=osa[1:])
+    single = identify(ue, ye, cfg, 0)  # seed 0: one run's network is kept, its fitness its run's: no prediction made
+    assert not hasattr(single.model, "members") and "osa_predictions_est" not in single.extra
+
+
+def test_beyond_one_chunk_the_calibration_s_held_out_free_run_starts_at_the_second_half(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Up to one chunk the half-model's free run starts at the record's first measured outputs (as always); beyond
+    it at the second half's own (the first half's free run is never scored: not made). A stable model forgets its
+    start: the two agree after its first samples."""
+    import streamid.engine.choice.calibration as calibration
+    from streamid.model.ensemble import ensemble_of
+
+    u, y = _plant(3_000, seed=13)
+    ens = ensemble_of([_osa_net(u, y, (("y", 1), ("y", 2), ("u", 1), ("u", 2)), 6, 4),
+                       _osa_net(u, y, (("y", 1), ("u", 1), ("u", 3)), 5, 5)])
+    L, h, ua = ens.max_lag, 1_500, u[:, None]
+    err0, terms0 = calibration._held_out(ens, ua, y, h, 1)
+    np.testing.assert_array_equal(err0, y[h:] - ens.simulate(ua, y[:L])[h:])
+    monkeypatch.setattr(calibration, "CHUNK_ROWS", 400)
+    err, terms = calibration._held_out(ens, ua, y, h, 1)
+    np.testing.assert_allclose(err, y[h:] - ens.simulate(ua[h - L:], y[h - L:h])[L:], rtol=0, atol=1e-12)
+    assert not np.array_equal(err[:5], err0[:5])  # another start: a test that can fail
+    np.testing.assert_allclose(err[200:], err0[200:], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(terms[200:], terms0[200:], rtol=0, atol=1e-9)

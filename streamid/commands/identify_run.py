@@ -52,15 +52,19 @@ def _one(job: dict[str, Any], helper: EvalHelper | None = None) -> dict[str, Any
     # in one thread: with the helper's (idle) core as a second one, 1,000,000 samples' validation took the same time
     # (1.25 against 1.14-1.22 s) and its peak RSS grew by its second allocator arena (384 -> 405 MiB, stagemem)
     return validated_run(res.model, ds, seed=job["seed"], seconds=res.seconds, evaluations=res.evaluations,
-                         fitness=res.fitness, history=[float(f) for f in res.fitness_history])
+                         fitness=res.fitness, history=[float(f) for f in res.fitness_history],
+                         osa_est=res.extra.get("osa_predictions_est"))
 
 
 def validated_run(model: Model, ds: Dataset, *, seed: int, seconds: float, evaluations: int, fitness: float,
-                  history: list[float], threads: int = 1) -> dict[str, Any]:
+                  history: list[float], threads: int = 1, osa_est: np.ndarray | None = None) -> dict[str, Any]:
     """A run's row of the report: ``model`` validated on the data set (JSON-able; its figures only: a drawing
     validates again). A free run that diverges is a row with its R² None and the sample it diverged at
-    (``diverged``), never an error (issue 37). ``threads``: the predictions in that many threads (the same row)."""
-    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, keep=False, threads=threads)
+    (``diverged``), never an error (issue 37). ``threads``: the predictions in that many threads (the same row);
+    ``osa_est``: the model's one-step predictions over the estimation record when the identification made them
+    (``Result.extra``), not made again."""
+    rep = validate(model, ds.u_est, ds.y_est, ds.u_val, ds.y_val, keep=False, threads=threads,
+                   osa_predictions_est=osa_est)
     model = model.with_metrics(**{f"r2_{k}": v for k, v in rep.r2_dict().items()})
     return {
         "seed": seed,

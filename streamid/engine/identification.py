@@ -112,7 +112,10 @@ class Result:
     chosen : int
         Index of the chosen run in ``runs``.
     extra : dict
-        ``run_models``: each run's chosen model, in run order (several runs only).
+        ``run_models``: each run's chosen model, in run order (several runs only); ``osa_predictions_est``: the
+        model's one-step predictions over the estimation record (length N, the first ``max_lag`` not predicted) when the
+        identification made them for its ``metrics.fitness`` (a record of up to ``KEEP_PATHS_ROWS`` rows):
+        :func:`~streamid.engine.validation.validate`'s ``osa_predictions_est``.
     """
 
     model: Model
@@ -145,11 +148,16 @@ def _threads(helper: EvalHelper | None) -> int:
     return 2 if helper is not None else 1
 
 
-def _settled(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], threads: int) -> Model:
+def _settled(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], threads: int,
+             keep_osa: dict[str, Any] | None = None) -> Model:
     """``model`` with its ``metrics.fitness`` made where :func:`choose_ensemble` left it None (the same value it
-    would have made there)."""
+    would have made there); ``keep_osa`` as :func:`~streamid.engine.choice.refine.refine_weights`' (the one-step
+    predictions that value is made of, kept for the validation)."""
     if "fitness" in model.metrics and model.metrics["fitness"] is None:
-        return model.with_metrics(fitness=one_step_mse(model, u, y, threads))
+        settled = model.with_metrics(fitness=one_step_mse(model, u, y, threads, keep_osa))
+        if keep_osa is not None:
+            keep_osa["of"] = settled
+        return settled
     return model
 
 
@@ -438,11 +446,19 @@ def identify(
                                                      post)
         if robust is not None:  # its members each refined already; the state and history stay the chosen run's
             final, score = robust, complexity["robust"]["r2_fr_est"]
+    # the kept model's one-step predictions over the record, where the refinement or _settled make them (its
+    # metrics.fitness): handed to the validation (Result.extra["osa_predictions_est"]), which need not make them again; kept up to
+    # KEEP_PATHS_ROWS rows (8 MiB)
+    osa: dict[str, Any] | None = {} if n <= KEEP_PATHS_ROWS else None
     if cfg.refine_iterations and robust is None:  # the weights fitted to the free run (streamid.engine.choice.refine)
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
-                                       threads=post)
-        final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
-    final = _settled(final, ua, ya, post)  # a mean's one-step MSE where the refinement did not replace it
+                                       threads=post, keep_osa=osa)
+        if osa and osa["of"] is final:
+            osa["of"] = final = final.with_metrics(refinement=refined, fitness=refined["osa_mse_est"])
+        else:
+            final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+    final = _settled(final, ua, ya, post, osa)  # a mean's one-step MSE where the refinement did not replace it
+    osa_est = osa["osa"] if osa and osa["of"] is final else None  # the predictions of this very model only
     final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half
     final = final.with_metrics(
         restarts=len(outs),
@@ -473,5 +489,5 @@ def identify(
         seconds=time.perf_counter() - t_start,
         runs=runs,
         chosen=chosen,
-        extra={"run_models": tuple(models)},
+        extra={"run_models": tuple(models), **({"osa_predictions_est": osa_est} if osa_est is not None else {})},
     )

@@ -182,14 +182,15 @@ class RecordReport:
 
 
 def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_lag: int, threads: int = 1,
-            band: bool = True, keep: bool = True) -> RecordReport:
+            band: bool = True, keep: bool = True, osa_given: NDArray[np.float64] | None = None) -> RecordReport:
     """The report on one record, made :data:`~streamid.model.limits.CHUNK_ROWS` samples at a time: the free run
     once (:func:`~streamid.model.freerun.chunked_paths`: its R^2 and its interval's band from the same paths),
     the one-step prediction, the sums of the figures. Memory: a piece's, plus the one-step residual the
     correlation tests read (one value a sample) and, with ``keep``, the two predictions. Up to one chunk the
     figures are the whole-record formulas' to the bit (one piece); beyond it their sums are added piece by piece
     (equal to rounding). ``band`` False: without the interval's coverage and the domain's share (``validate``'s
-    estimation record, whose are not reported); ``threads``: an ensemble's members in that many threads."""
+    estimation record, whose are not reported); ``threads``: an ensemble's members in that many threads;
+    ``osa_given``: the model's one-step predictions over the record, already made (not made again)."""
     L, n = model.max_lag, int(y.shape[0])
     ys = y[L:]
     mean = ys.mean()
@@ -205,7 +206,8 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_la
             diverged = a + d if diverged is None and d is not None else diverged
             s = max(a, L)  # the piece's first scored sample
             if s < b:
-                osa = model.predict_osa(u[s - L : b], y[s - L : b], threads=threads)[L:]
+                osa = (model.predict_osa(u[s - L : b], y[s - L : b], threads=threads)[L:] if osa_given is None
+                       else osa_given[s:b])
                 if not np.all(np.isfinite(osa)):
                     raise DataError("r2 needs finite values (no NaN or inf)")
                 e = res[s - L : b - L]
@@ -290,6 +292,7 @@ def validate(
     max_lag: int = 20,
     threads: int = 1,
     keep: bool = True,
+    osa_predictions_est: ArrayLike | None = None,
 ) -> ValidationReport:
     """OSA and free-run R^2 on estimation and validation data, and the correlation tests of both.
 
@@ -306,6 +309,10 @@ def validate(
     keep : bool
         Keep the four full-length predictions (``predictions``); False: the report's figures only, in memory
         bounded by the chunk (a long record's).
+    osa_predictions_est : array_like, optional
+        The model's one-step predictions over the estimation record, when already made (``identify``'s
+        ``Result.extra["osa_predictions_est"]``): shape ``(N_est,)``, finite from sample ``max_lag`` on; used
+        instead of predicting again (the same figures: up to one chunk to the bit, beyond it equal to rounding).
 
     Returns
     -------
@@ -315,7 +322,13 @@ def validate(
     L = model.max_lag
     ue, ye = as_data(u_est, y_est, min_samples=L + 2, copy=False)  # read only: no copy of a long record
     uv, yv = as_data(u_val, y_val, min_samples=L + 2, copy=False)
-    e = _record(model, ue, ye, max_lag, threads, band=False, keep=keep)  # its band and domain share: not reported
+    given = None
+    if osa_predictions_est is not None:
+        given = np.asarray(osa_predictions_est, dtype=np.float64)
+        if given.shape != ye.shape:
+            raise DataError(f"osa_predictions_est must be the one-step predictions over the estimation record, "
+                            f"shape {ye.shape}; got shape {given.shape}")
+    e = _record(model, ue, ye, max_lag, threads, band=False, keep=keep, osa_given=given)  # band, domain: not reported
     v = _record(model, uv, yv, max_lag, threads, keep=keep)
     return ValidationReport(
         osa_est=e.osa,

@@ -144,11 +144,15 @@ def choose_ensemble(
         k: taken[k] for k in ("name", "members", "neurons", "r2_fr_est", "params", "criterion")}), members, evidence
 
 
-def one_step_mse(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], threads: int = 1) -> float:
+def one_step_mse(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], threads: int = 1,
+                 keep: dict[str, Any] | None = None) -> float:
     """``model``'s one-step-ahead mean squared error over the record from its ``max_lag``-th sample (output units
-    squared): an ensemble's ``metrics.fitness``."""
+    squared): an ensemble's ``metrics.fitness``; ``keep`` given receives the predictions it is made of (``"osa"``)."""
     L = model.max_lag
-    return float(np.mean((model.predict_osa(u, y, threads=threads)[L:] - y[L:]) ** 2))
+    pred = model.predict_osa(u, y, threads=threads)
+    if keep is not None:
+        keep["osa"] = pred
+    return float(np.mean((pred[L:] - y[L:]) ** 2))
 
 
 def _chunked_scores(models: Sequence[Model], offered: list[list[int]], u: NDArray[np.float64], y: NDArray[np.float64],

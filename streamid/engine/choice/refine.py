@@ -183,6 +183,7 @@ def _model_order(M: int, yj: list[int], uj: list[int]) -> NDArray[np.intp]:
 def refine_weights(
     model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float, range_margin: float,
     threads: int = 1, segments: list[tuple[int, int]] | None = None, osa: bool = True,
+    keep_osa: dict[str, Any] | None = None,
 ) -> tuple[Model, dict[str, Any]]:
     """``model`` with its output weights refined to its free run on ``(u, y)`` (the rule above).
 
@@ -206,6 +207,10 @@ def refine_weights(
     osa : bool
         False: the refined model's one-step MSE over the record (``osa_mse_est``, its ``metrics.fitness``) is not
         made (a caller that reads only the refined weights).
+    keep_osa : dict, optional
+        Given, receives the refined model's one-step predictions over the record when they are made (``"osa"``,
+        length N, and ``"of"``, the refined model): a caller that needs them again (the identification hands them
+        to the validation) does not make them twice.
 
     Returns
     -------
@@ -342,12 +347,14 @@ def refine_weights(
         return refined, ev
     pred = refined.predict_osa(u, y, threads=threads)
     ev.update(taken=True, osa_mse_est=float(np.mean((pred[L:] - y[L:]) ** 2)))
+    if keep_osa is not None:
+        keep_osa.update(osa=pred, of=refined)
     return refined, ev
 
 
 def refine_judged(
     model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float, range_margin: float,
-    threads: int = 1,
+    threads: int = 1, keep_osa: dict[str, Any] | None = None,
 ) -> tuple[Model, dict[str, Any]]:
     """:func:`refine_weights` judged out of sample (the rule above): refined on the first half of ``(u, y)``, the
     refinement is made on the whole record only if that half's refined model free-runs better than ``model`` over
@@ -358,18 +365,20 @@ def refine_judged(
     segments of its part of the record (the first half, the second, the whole), each from its own measured outputs,
     and the evidence says how many (``segments``): the cost is bounded, not the record's."""
     if iterations < 1:
-        return refine_weights(model, u, y, iterations, above, range_margin, threads)
+        return refine_weights(model, u, y, iterations, above, range_margin, threads, keep_osa=keep_osa)
     h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
     whole = segments(0, len(y), L)  # beyond one chunk: each step on segments of the record (docs/method.md)
     if whole is not None:  # and in one BLAS thread: its J'J products waited on the second one (STACK.md)
         with one_blas_thread():
-            return _judged(model, u, y, iterations, above, range_margin, threads, whole)
-    return _judged(model, u, y, iterations, above, range_margin, threads, whole)
+            return _judged(model, u, y, iterations, above, range_margin, threads, whole, keep_osa)
+    return _judged(model, u, y, iterations, above, range_margin, threads, whole, keep_osa)
 
 
 def _judged(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterations: int, above: float,
-            range_margin: float, threads: int, whole: list[tuple[int, int]] | None) -> tuple[Model, dict[str, Any]]:
-    """:func:`refine_judged`'s work (``whole``: the record's segments beyond one chunk, else None)."""
+            range_margin: float, threads: int, whole: list[tuple[int, int]] | None,
+            keep_osa: dict[str, Any] | None = None) -> tuple[Model, dict[str, Any]]:
+    """:func:`refine_judged`'s work (``whole``: the record's segments beyond one chunk, else None; ``keep_osa``:
+    :func:`refine_weights`'s, for the refinement on the whole record)."""
     h, L = len(y) // 2, max(m.max_lag for m in members_of(model))
     half, ev_half = refine_weights(model, u[:h], y[:h], iterations, above, range_margin, threads,
                                    None if whole is None else segments(0, h, L), osa=False)  # judged by its free run
@@ -383,7 +392,8 @@ def _judged(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], iterat
                         segments=len(judged))
         before, after = (-math.inf if held[k] is None else held[k] for k in ("r2_fr_before", "r2_fr_after"))
         if after > before:
-            refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads, whole)
+            refined, ev = refine_weights(model, u, y, iterations, above, range_margin, threads, whole,
+                                         keep_osa=keep_osa)
             return refined, {**ev, "held_out": held}
         reason = f"no gain on the held-out second half (free-run R2 {before:.5f} -> {after:.5f} refined on the first)"
     else:
