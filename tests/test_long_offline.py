@@ -416,8 +416,8 @@ def test_runs_paths_written_out_as_their_scores_stream_give_the_ensembles_the_sa
 
 
 def test_the_identification_hands_its_one_step_predictions_to_the_validation_which_gives_the_same_report() -> None:
-    """The kept model's one-step predictions, made once for its ``metrics.fitness`` (here a mean of two runs'), reach the
-    validation (``Result.extra["osa_predictions_est"]``): the same report to the bit as predicting again; the given
+    """The kept model's one-step predictions, made once for its ``metrics.fitness`` (here a mean of two runs'), reach
+    the validation (``Result.extra["osa_predictions_est"]``): the same report to the bit as predicting again; the given
     predictions are what it reads (one changed, another report); a wrong length is a one-line error naming both."""
     from streamid.engine.validation import validate
     from streamid.errors import DataError

@@ -447,8 +447,8 @@ def identify(
         if robust is not None:  # its members each refined already; the state and history stay the chosen run's
             final, score = robust, complexity["robust"]["r2_fr_est"]
     # the kept model's one-step predictions over the record, where the refinement or _settled make them (its
-    # metrics.fitness): handed to the validation (Result.extra["osa_predictions_est"]), which need not make them again; kept up to
-    # KEEP_PATHS_ROWS rows (8 MiB)
+    # metrics.fitness): handed to the validation (Result.extra["osa_predictions_est"]), which need not make them
+    # again; kept up to KEEP_PATHS_ROWS rows (8 MiB)
     osa: dict[str, Any] | None = {} if n <= KEEP_PATHS_ROWS else None
     if cfg.refine_iterations and robust is None:  # the weights fitted to the free run (streamid.engine.choice.refine)
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
@@ -456,7 +456,8 @@ def identify(
         if osa and osa["of"] is final:
             osa["of"] = final = final.with_metrics(refinement=refined, fitness=refined["osa_mse_est"])
         else:
-            final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+            final = final.with_metrics(refinement=refined,
+                                       **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
     final = _settled(final, ua, ya, post, osa)  # a mean's one-step MSE where the refinement did not replace it
     osa_est = osa["osa"] if osa and osa["of"] is final else None  # the predictions of this very model only
     final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half

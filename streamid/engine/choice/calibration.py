@@ -2,7 +2,8 @@
 
 The estimation record is split in two halves. The kept model's structure (lags, centres, widths; each member's,
 for an ensemble) is refitted by least squares on the first half alone, then free-run over the whole record from
-its first measured outputs (beyond one chunk: over the second half from its own first measured outputs); the second half, which that fit never saw, gives the calibration scores
+its first measured outputs (beyond one chunk: over the second half, from that half's own first measured outputs);
+the second half, which that fit never saw, gives the calibration scores
 ``|y(t) - centre(t)| / (scale + spread(t) + beyond * far(t))`` (:mod:`streamid.model.uncertainty`), ``scale`` the RMS of its free-run
 error there. Their conformal quantiles at :data:`~streamid.model.uncertainty.LEVELS` and ``scale`` are what the
 model carries. What this covers and what it does not: docs/method.md ("The prediction interval").
