@@ -453,11 +453,10 @@ def identify(
     if cfg.refine_iterations and robust is None:  # the weights fitted to the free run (streamid.engine.choice.refine)
         final, refined = refine_judged(final, ua, ya, cfg.refine_iterations, REFINE_ABOVE, RANGE_MARGIN,
                                        threads=post, keep_osa=osa)
-        if osa and osa["of"] is final:
-            osa["of"] = final = final.with_metrics(refinement=refined, fitness=refined["osa_mse_est"])
-        else:
-            final = final.with_metrics(refinement=refined,
-                                       **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+        follows = osa is not None and osa.get("of") is final  # the refined model's predictions: they follow it to its metrics
+        final = final.with_metrics(refinement=refined, **({"fitness": refined["osa_mse_est"]} if refined["taken"] else {}))
+        if follows and osa is not None:
+            osa["of"] = final
     final = _settled(final, ua, ya, post, osa)  # a mean's one-step MSE where the refinement did not replace it
     osa_est = osa["osa"] if osa and osa["of"] is final else None  # the predictions of this very model only
     final = with_interval(final, ua, ya, RIDGE, post)  # its free-run interval, calibrated on a held-out half
