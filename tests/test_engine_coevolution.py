@@ -178,8 +178,8 @@ def test_mr_damper_with_streamids_defaults() -> None:
     res = identify(ue, ye, None, 0)
     from streamid.model.ensemble import members_of
 
-    nets = members_of(res.model)  # issue 51: the median of the four finished runs' networks of 30 neurons
-    assert len(res.runs) == 4 and len(nets) == 4 and all(m.neurons == 30 for m in nets)
+    nets = members_of(res.model)  # issue 51: the median of the eight finished runs' networks of 30 neurons
+    assert len(res.runs) == 8 and len(nets) == 8 and all(m.neurons == 30 for m in nets)
     assert getattr(res.model, "combine", None) == "median"
     osa, fr, _ = prediction_r2(res.model, uv, yv)
     assert osa >= 0.996 and fr >= 0.97

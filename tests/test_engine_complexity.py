@@ -71,7 +71,7 @@ def test_identify_reports_every_candidate_size_and_its_criterion(monkeypatch: py
     res = identify(u, y, cfg, 0)
     ev = res.model.metrics["complexity"]
     assert ev["rule"] == "aic" and ev["chosen_run"] == res.chosen and len(ev["candidates"]) == len(res.runs)
-    assert [c["neurons"] for c in ev["candidates"]] == [30, 30, 30, 30, 8]  # the fallback run: another size
+    assert [c["neurons"] for c in ev["candidates"]] == [30] * cfg.restarts + [8]  # the fallback run: another size
     assert ev["neurons"] == res.model.neurons
     ok = [c for c in ev["candidates"] if c["criterion"] is not None]
     assert ok and ev["candidates"][res.chosen]["criterion"] == min(c["criterion"] for c in ok)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from streamid.engine import PAPER, identify
-from streamid.engine.settings import MORE_BELOW
+from streamid.engine.settings import DEFAULT, MORE_BELOW
 from streamid.engine.search.coevolution import Coevolution
 from streamid.engine.restarts import wants_more
 from streamid.model.narx import Model
@@ -118,9 +118,10 @@ def test_identify_cli_reports_the_runs_added(tmp_path: Path) -> None:
     p = subprocess.run(args + ["--more-restarts", "2", "--model", str(mod)], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     m = Model.load(mod).metrics
-    assert m["more_restarts"] == 2 and len(m["run_scores"]) == 6 and 0 < max(m["run_scores"][:4]) < 0.95
-    assert (f"runs made: 4 + 2 more (the best of those fit the estimation record at FR R2 "
-            f"{max(m['run_scores'][:4]):.5f}, in (0, 0.95))") in p.stdout
+    k = DEFAULT.restarts  # the CLI's
+    assert m["more_restarts"] == 2 and len(m["run_scores"]) == k + 2 and 0 < max(m["run_scores"][:k]) < 0.95
+    assert (f"runs made: {k} + 2 more (the best of those fit the estimation record at FR R2 "
+            f"{max(m['run_scores'][:k]):.5f}, in (0, 0.95))") in p.stdout
     off = subprocess.run(args + ["--more-restarts", "0", "--model", str(mod)], capture_output=True, text=True, timeout=120)
     assert off.returncode == 0 and "runs made" not in off.stdout and Model.load(mod).metrics["more_restarts"] == 0
     bad = subprocess.run(args + ["--more-restarts", "-1"], capture_output=True, text=True, timeout=60)

@@ -464,3 +464,37 @@ def test_beyond_one_chunk_the_calibration_s_held_out_free_run_starts_at_the_seco
     assert not np.array_equal(err[:5], err0[:5])  # another start: a test that can fail
     np.testing.assert_allclose(err[200:], err0[200:], rtol=0, atol=1e-9)
     np.testing.assert_allclose(terms[200:], terms0[200:], rtol=0, atol=1e-9)
+
+
+def test_beyond_one_chunk_only_long_runs_restarts_are_made_where_the_median_would_be(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The restarts past ``LONG_RUNS`` feed the median of the finished restarts, which a record beyond one chunk
+    never makes: there only ``LONG_RUNS`` runs are made (the first seeds drawn, as the same config up to a chunk
+    makes them), and the model says so; with ``run_ensembles`` off, or up to one chunk, every restart is made."""
+    from benchmarks.long_records import reactor_record
+    import importlib
+    import streamid.engine.identification as identification
+
+    u, y = reactor_record(1_500, "uniform", 41)
+    for name in ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection",
+                 "streamid.engine.choice.calibration", "streamid.engine.identification", "streamid.engine.validation",
+                 "streamid.model.ensemble"):
+        monkeypatch.setattr(importlib.import_module(name), "CHUNK_ROWS", 600)
+    monkeypatch.setattr(importlib.import_module("streamid.engine.choice.scores"), "SEGMENT_ROWS", 400)
+    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
+    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
+    monkeypatch.setattr(identification, "LONG_RUNS", 2)
+    cfg = DEFAULT.replace(restarts=3, more_restarts=0, generations=3, lag_search_neurons=4, neurons=6, max_lag_cap=0,
+                          max_lag_y=3, max_lag_u=3, search_rows=300, fallback_neurons=())
+    long = identify(u, y, cfg, 0)
+    m = long.model.metrics
+    assert len(long.runs) == 2 and m["restarts"] == 2 and m["restarts_max"] == 3
+    assert m["restarts_made"]["runs"] == 2 and "feed the median" in m["restarts_made"]["reason"]
+    assert m["complexity"]["robust"]["reason"].endswith("; 2 of the 3 restarts made (the others feed only the median)")
+    every = identify(u, y, cfg.replace(run_ensembles=False), 0)  # no median anywhere: every restart is made
+    assert len(every.runs) == 3 and "restarts_made" not in every.model.metrics
+    assert [r.seed for r in every.runs[:2]] == [r.seed for r in long.runs]  # the same first seeds
+    monkeypatch.undo()  # up to one chunk (the record's 1,500 rows): every restart is made
+    monkeypatch.setattr(identification, "LONG_RUNS", 2)
+    short = identify(u, y, cfg, 0)
+    assert len(short.runs) == 3 and "restarts_made" not in short.model.metrics

@@ -5,7 +5,9 @@ Strategies (``CoEAConfig.restarts`` and ``selection``; ``identify``'s ``workers`
 * ``restarts=1, selection="fitness"`` -- the paper's procedure: one :class:`~streamid.engine.search.coevolution.Coevolution`
   on all the estimation data, the best pair ever evaluated, weights refitted. Runs in this process and reports
   every generation to the callback.
-* otherwise ``restarts`` independent runs (seeds drawn from ``rng``; two-stage when ``lag_search_neurons > 0``,
+* otherwise ``restarts`` independent runs (on a record beyond one chunk with ``run_ensembles``, at most
+  :data:`~streamid.engine.choice.robust.LONG_RUNS`: the others feed only the median, not made there; ``metrics.restarts_made``;
+  seeds drawn from ``rng``; two-stage when ``lag_search_neurons > 0``,
   see :class:`~streamid.engine.settings.CoEAConfig`) in ``workers`` processes (spawned, never forked: the caller
   may hold a Zenoh session) or in this process. Each run offers candidates -- its best pair and every parameter
   vector of its final population paired with the best harmony (weights refitted) -- and the selection rule picks
@@ -51,7 +53,7 @@ from streamid.engine.choice.complexity import choose as choose_complexity
 from streamid.engine.choice.calibration import with_interval
 from streamid.engine.choice.ensemble_choice import KEEP_PATHS_ROWS, choose_ensemble, one_step_mse
 from streamid.engine.choice.refine import ABOVE as REFINE_ABOVE, refine_judged
-from streamid.engine.choice.robust import ROBUST_BEYOND, robust_choice
+from streamid.engine.choice.robust import LONG_RUNS, LONG_RUNS_REASON, ROBUST_BEYOND, robust_choice
 from streamid.engine.restarts import report_after, wants_more
 from streamid.engine.search.fanout import fan_out
 from streamid.engine.search.feedthrough import direct_terms
@@ -331,7 +333,9 @@ def identify(
             chosen=0,
         )
 
-    seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.restarts)]
+    # beyond one chunk the median is not made (ROBUST_BEYOND), and the restarts past LONG_RUNS only feed it
+    made_restarts = min(cfg.restarts, LONG_RUNS) if (cfg.run_ensembles and n > CHUNK_ROWS) else cfg.restarts
+    seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=made_restarts)]
     # A long lag space chosen from the data (>= twice the floor) is hedged: the odd restarts use the floor's.
     hedge = lag_evidence is not None and cfg.max_lag >= 2 * floor
     base = {
@@ -344,7 +348,7 @@ def identify(
         "window": win,
     }
     per_run = cfg.generations * (2 if cfg.lag_search_neurons else 1)
-    total_gen = per_run * cfg.restarts  # (grows when more_restarts are made)
+    total_gen = per_run * made_restarts  # (grows when more_restarts are made)
     done: list[dict[str, Any]] = []  # finished runs (in-process progress)
 
     def restart(i: int, s: int, n_jobs: int) -> dict[str, Any]:  # restart i's job: the pattern repeats every 4
@@ -375,8 +379,8 @@ def identify(
     more_made = 0  # more runs where the record is half explained (restarts.wants_more)
     if wants_more(outs, cfg):
         more_seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=cfg.more_restarts)]
-        total_gen = per_run * (cfg.restarts + cfg.more_restarts)
-        more = [restart(cfg.restarts + j, s, len(more_seeds)) for j, s in enumerate(more_seeds)]
+        total_gen = per_run * (made_restarts + cfg.more_restarts)
+        more = [restart(made_restarts + j, s, len(more_seeds)) for j, s in enumerate(more_seeds)]
         made = list(outs)
         outs = made + fan_out(_one_run, more, workers, executor=executor, helper=helper,
                               on_result=partial(report_after, report, made))
@@ -440,7 +444,9 @@ def identify(
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     robust: Model | None = None
     if cfg.run_ensembles and complexity is not None and n > CHUNK_ROWS:  # its cost grows with the record: not made
-        complexity["robust"] = {"combine": "median", "taken": False, "reason": ROBUST_BEYOND}
+        fewer = f"; {made_restarts} of the {cfg.restarts} restarts made (the others feed only the median)"
+        complexity["robust"] = {"combine": "median", "taken": False,
+                                "reason": ROBUST_BEYOND + (fewer if made_restarts < cfg.restarts else "")}
     elif cfg.run_ensembles and complexity is not None:  # the finished runs' median (streamid.engine.choice.robust)
         robust, complexity["robust"] = robust_choice(final, models, [float(o["score"]) for o in outs], cfg, ua, ya,
                                                      post)
@@ -463,6 +469,7 @@ def identify(
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
+        **({"restarts_made": {"runs": made_restarts, "reason": LONG_RUNS_REASON}} if made_restarts < cfg.restarts else {}),
         more_restarts=more_made,
         run_neurons=[int(o.get("neurons", cfg.neurons)) for o in outs],
         fallback_runs=fallback_made,

@@ -369,7 +369,8 @@ class CoEAConfig:
     def recommended(cls, **changes: Any) -> CoEAConfig:
         """streamid's default identification (``streamid identify`` without options).
 
-        Four two-stage runs (lags by the paper's coevolution with 10 neurons, then DE for 30 neurons on them,
+        Eight two-stage runs (at most four beyond one chunk of 65,536 rows, where no median is made; lags by the
+        paper's coevolution with 10 neurons, then DE for 30 neurons on them,
         100 generations each) on candidate lags ``1..L``, ``L`` in [10, 30] from the data (odd restarts ``1..10``
         when ``L >= 20``), the search on at most 2000 random rows, a lag set without an input infeasible, the
         direct terms by a test of the data. Among every run's best pair and 10 fittest members, each offered with
@@ -377,7 +378,8 @@ class CoEAConfig:
         on the estimation free run; fallback runs of 15 then 8 neurons when none is admissible or the best fits at
         most 0.5; four more runs when it fits between 0 and 0.95. Then pruned sizes of the two best runs, means of
         the best runs' networks and a long linear part (order up to 512) compete by the same AIC, and the kept
-        model's weights are refined to its free run when that holds out of sample.
+        model's weights are refined to its free run when that holds out of sample; unless it carries a long linear
+        part, the model is the per-sample median of every admissible run's network so finished.
 
         Each step and what it measured: docs/method.md; docs/engine-results.md (issue 37 rounds 4-6: what each
         step earns on the two-experiment suite).
@@ -386,7 +388,7 @@ class CoEAConfig:
             "neurons": 30,
             "generations": 100,
             "lag_search_neurons": 10,
-            "restarts": 4,
+            "restarts": 8,
             "selection": "fr_est",
             "search_rows": 2000,
             "fr_candidates": 10,

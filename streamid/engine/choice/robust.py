@@ -29,13 +29,22 @@ from streamid.model.freerun import chunked_runs
 from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model
 
-__all__ = ["ADMISSIBLE_ABOVE", "MIN_RUNS", "ROBUST_BEYOND", "carries_long_linear", "finish", "median_of_finished",
-           "robust_choice"]
+__all__ = ["ADMISSIBLE_ABOVE", "LONG_RUNS", "LONG_RUNS_REASON", "MIN_RUNS", "ROBUST_BEYOND", "carries_long_linear", "finish",
+           "median_of_finished", "robust_choice"]
 
 #: Why a record beyond one chunk keeps the chosen model (streamid.engine.identification): every run finished, and
 #: the median's free run and one-step prediction over every row, took 9,000,000 samples 49.5 -> 94.7 s (issue 53's
 #: bound 60 s; 1,000,000: 19.1 s against 12-14 s without it), and no long record has measured what the median earns.
 ROBUST_BEYOND = "a record beyond one chunk (65,536 rows): the median's cost grows with the record; the chosen model kept"
+
+#: Most restarts made on a record beyond one chunk when ``run_ensembles`` would make the median up to one chunk: the
+#: restarts past these feed the median (eight finished networks reach FROLS on the Bouc-Wen benchmark's multisine
+#: where four did not: docs/benchmarks.md, issue 51), which is not made there (:data:`ROBUST_BEYOND`), and each costs
+#: a sampled search (1,000,000 samples: 16.9 s with eight runs against 9.4-9.7 s with four; issue 53's bound 10 s).
+LONG_RUNS = 4
+#: What ``metrics.restarts_made`` says when fewer than ``restarts`` runs were made for that reason.
+LONG_RUNS_REASON = (f"a record beyond one chunk (65,536 rows): the restarts past {LONG_RUNS} feed the median of the "
+                    "finished restarts, which is not made there")
 
 #: Fewest finished runs a median is made of (two: the median is their mean; fewer: the kept model stands).
 MIN_RUNS = 3
