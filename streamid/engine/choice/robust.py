@@ -40,7 +40,7 @@ ROBUST_BEYOND = "a record beyond one chunk (65,536 rows): the median's cost grow
 #: Most restarts made on a record beyond one chunk when ``run_ensembles`` would make the median up to one chunk: the
 #: restarts past these feed the median (eight finished networks reach FROLS on the Bouc-Wen benchmark's multisine
 #: where four did not: docs/benchmarks.md, issue 51), which is not made there (:data:`ROBUST_BEYOND`), and each costs
-#: a sampled search (1,000,000 samples: 16.9 s with eight runs against 9.4-9.7 s with four; issue 53's bound 10 s).
+#: a sampled search (1,000,000 samples: 16.9 s with eight runs against 9.4-9.9 s with four; issue 53's bound 10 s).
 LONG_RUNS = 4
 #: What ``metrics.restarts_made`` says when fewer than ``restarts`` runs were made for that reason.
 LONG_RUNS_REASON = (f"a record beyond one chunk (65,536 rows): the restarts past {LONG_RUNS} feed the median of the "
