@@ -6,8 +6,8 @@ Strategies (``CoEAConfig.restarts`` and ``selection``; ``identify``'s ``workers`
   on all the estimation data, the best pair ever evaluated, weights refitted. Runs in this process and reports
   every generation to the callback.
 * otherwise ``restarts`` independent runs (on a record beyond one chunk with ``run_ensembles``, at most
-  :data:`~streamid.engine.choice.robust.LONG_RUNS`: the others feed only the median, not made there; ``metrics.restarts_made``;
-  seeds drawn from ``rng``; two-stage when ``lag_search_neurons > 0``,
+  :data:`~streamid.engine.choice.robust.LONG_RUNS`: the others feed only the median, not made there;
+  ``metrics.restarts_made``; seeds drawn from ``rng``; two-stage when ``lag_search_neurons > 0``,
   see :class:`~streamid.engine.settings.CoEAConfig`) in ``workers`` processes (spawned, never forked: the caller
   may hold a Zenoh session) or in this process. Each run offers candidates -- its best pair and every parameter
   vector of its final population paired with the best harmony (weights refitted) -- and the selection rule picks
@@ -469,7 +469,8 @@ def identify(
     final = final.with_metrics(
         restarts=len(outs),
         restarts_max=cfg.restarts,
-        **({"restarts_made": {"runs": made_restarts, "reason": LONG_RUNS_REASON}} if made_restarts < cfg.restarts else {}),
+        **({"restarts_made": {"runs": made_restarts, "reason": LONG_RUNS_REASON}}
+           if made_restarts < cfg.restarts else {}),
         more_restarts=more_made,
         run_neurons=[int(o.get("neurons", cfg.neurons)) for o in outs],
         fallback_runs=fallback_made,

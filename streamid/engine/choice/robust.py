@@ -29,8 +29,8 @@ from streamid.model.freerun import chunked_runs
 from streamid.model.limits import CHUNK_ROWS
 from streamid.model.narx import Model
 
-__all__ = ["ADMISSIBLE_ABOVE", "LONG_RUNS", "LONG_RUNS_REASON", "MIN_RUNS", "ROBUST_BEYOND", "carries_long_linear", "finish",
-           "median_of_finished", "robust_choice"]
+__all__ = ["ADMISSIBLE_ABOVE", "LONG_RUNS", "LONG_RUNS_REASON", "MIN_RUNS", "ROBUST_BEYOND", "carries_long_linear",
+           "finish", "median_of_finished", "robust_choice"]
 
 #: Why a record beyond one chunk keeps the chosen model (streamid.engine.identification): every run finished, and
 #: the median's free run and one-step prediction over every row, took 9,000,000 samples 49.5 -> 94.7 s (issue 53's
