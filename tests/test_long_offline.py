@@ -332,6 +332,20 @@ def test_a_record_judged_a_chunk_at_a_time_gives_the_whole_record_s_report(monke
     assert bare.predictions == {} and bare.to_dict() == cut.to_dict()
 
 
+def _beyond_one_chunk(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every step's own chunk threshold and the search's sample made small, so that a 1,500-sample record is beyond
+    one chunk for all of them (600 rows; segments of 400; a 300-row search sample)."""
+    import importlib
+
+    for name in ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection",
+                 "streamid.engine.choice.calibration", "streamid.engine.identification", "streamid.engine.validation",
+                 "streamid.model.ensemble"):
+        monkeypatch.setattr(importlib.import_module(name), "CHUNK_ROWS", 600)
+    monkeypatch.setattr(importlib.import_module("streamid.engine.choice.scores"), "SEGMENT_ROWS", 400)  # 8 x 50
+    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
+    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
+
+
 def test_identify_and_assess_never_write_the_caller_s_arrays(monkeypatch: pytest.MonkeyPatch) -> None:
     """A long record is read, not copied (``as_data(copy=False)``): so every step must only read it. Read-only
     arrays through the whole of an identification beyond one chunk (search sample, screen, pruning, ensembles,
@@ -342,15 +356,7 @@ def test_identify_and_assess_never_write_the_caller_s_arrays(monkeypatch: pytest
     u, y = reactor_record(1_500, "uniform", 41)
     u.flags.writeable = False
     y.flags.writeable = False
-    import importlib
-
-    for name in ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection",
-                 "streamid.engine.choice.calibration", "streamid.engine.identification", "streamid.engine.validation",
-                 "streamid.model.ensemble"):  # every step's own threshold: the record is beyond one chunk for all
-        monkeypatch.setattr(importlib.import_module(name), "CHUNK_ROWS", 600)
-    monkeypatch.setattr(importlib.import_module("streamid.engine.choice.scores"), "SEGMENT_ROWS", 400)  # 8 x 50
-    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
-    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
+    _beyond_one_chunk(monkeypatch)
     cfg = DEFAULT.replace(restarts=2, more_restarts=0, generations=4, lag_search_neurons=4, neurons=6,
                           max_lag_cap=0, max_lag_y=3, max_lag_u=3, search_rows=300)
     res = identify(u, y, cfg, 0)
@@ -472,17 +478,10 @@ def test_beyond_one_chunk_only_long_runs_restarts_are_made_where_the_median_woul
     never makes: there only ``LONG_RUNS`` runs are made (the first seeds drawn, as the same config up to a chunk
     makes them), and the model says so; with ``run_ensembles`` off, or up to one chunk, every restart is made."""
     from benchmarks.long_records import reactor_record
-    import importlib
     import streamid.engine.identification as identification
 
     u, y = reactor_record(1_500, "uniform", 41)
-    for name in ("streamid.engine.search.rows", "streamid.engine.choice.scores", "streamid.engine.choice.selection",
-                 "streamid.engine.choice.calibration", "streamid.engine.identification", "streamid.engine.validation",
-                 "streamid.model.ensemble"):
-        monkeypatch.setattr(importlib.import_module(name), "CHUNK_ROWS", 600)
-    monkeypatch.setattr(importlib.import_module("streamid.engine.choice.scores"), "SEGMENT_ROWS", 400)
-    monkeypatch.setattr(rows, "SEARCH_ROWS", 300)
-    monkeypatch.setattr(rows, "ROWS_PER_WEIGHT", 2)
+    _beyond_one_chunk(monkeypatch)
     monkeypatch.setattr(identification, "LONG_RUNS", 2)
     cfg = DEFAULT.replace(restarts=3, more_restarts=0, generations=3, lag_search_neurons=4, neurons=6, max_lag_cap=0,
                           max_lag_y=3, max_lag_u=3, search_rows=300, fallback_neurons=())

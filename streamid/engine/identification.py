@@ -334,7 +334,8 @@ def identify(
         )
 
     # beyond one chunk the median is not made (ROBUST_BEYOND), and the restarts past LONG_RUNS only feed it
-    made_restarts = min(cfg.restarts, LONG_RUNS) if (cfg.run_ensembles and n > CHUNK_ROWS) else cfg.restarts
+    no_median_here = cfg.run_ensembles and n > CHUNK_ROWS
+    made_restarts = min(cfg.restarts, LONG_RUNS) if no_median_here else cfg.restarts
     seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=made_restarts)]
     # A long lag space chosen from the data (>= twice the floor) is hedged: the odd restarts use the floor's.
     hedge = lag_evidence is not None and cfg.max_lag >= 2 * floor
@@ -443,7 +444,7 @@ def identify(
         if ll is not None:  # the state and history are the run's whose network it keeps
             final, score, chosen = ll, float(complexity["long_linear"]["r2_fr_est"]), int(complexity["long_linear"]["run"])
     robust: Model | None = None
-    if cfg.run_ensembles and complexity is not None and n > CHUNK_ROWS:  # its cost grows with the record: not made
+    if no_median_here and complexity is not None:  # its cost grows with the record: not made
         fewer = f"; {made_restarts} of the {cfg.restarts} restarts made (the others feed only the median)"
         complexity["robust"] = {"combine": "median", "taken": False,
                                 "reason": ROBUST_BEYOND + (fewer if made_restarts < cfg.restarts else "")}
