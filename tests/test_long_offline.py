@@ -476,7 +476,8 @@ def test_beyond_one_chunk_only_long_runs_restarts_are_made_where_the_median_woul
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The restarts past ``LONG_RUNS`` feed the median of the finished restarts, which a record beyond one chunk
     never makes: there only ``LONG_RUNS`` runs are made (the first seeds drawn, as the same config up to a chunk
-    makes them), and the model says so; with ``run_ensembles`` off, or up to one chunk, every restart is made."""
+    makes them), and the model says so; with ``run_ensembles`` off, with selection "fitness" (no median at any
+    length), or up to one chunk, every restart is made."""
     from benchmarks.long_records import reactor_record
     import streamid.engine.identification as identification
 
@@ -493,6 +494,8 @@ def test_beyond_one_chunk_only_long_runs_restarts_are_made_where_the_median_woul
     every = identify(u, y, cfg.replace(run_ensembles=False), 0)  # no median anywhere: every restart is made
     assert len(every.runs) == 3 and "restarts_made" not in every.model.metrics
     assert [r.seed for r in every.runs[:2]] == [r.seed for r in long.runs]  # the same first seeds
+    fitness = identify(u, y, cfg.replace(selection="fitness"), 0)  # no median at any length: every restart is made
+    assert len(fitness.runs) == 3 and "restarts_made" not in fitness.model.metrics
     monkeypatch.undo()  # up to one chunk (the record's 1,500 rows): every restart is made
     monkeypatch.setattr(identification, "LONG_RUNS", 2)
     short = identify(u, y, cfg, 0)

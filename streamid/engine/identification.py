@@ -333,8 +333,9 @@ def identify(
             chosen=0,
         )
 
-    # beyond one chunk the median is not made (ROBUST_BEYOND), and the restarts past LONG_RUNS only feed it
-    no_median_here = cfg.run_ensembles and n > CHUNK_ROWS
+    # beyond one chunk the median is not made (ROBUST_BEYOND), and the restarts past LONG_RUNS only feed it (the
+    # median is made with selection "fr_est" only: with "fitness" every restart is made, at any length)
+    no_median_here = cfg.run_ensembles and cfg.selection == "fr_est" and n > CHUNK_ROWS
     made_restarts = min(cfg.restarts, LONG_RUNS) if no_median_here else cfg.restarts
     seeds = [int(s) for s in gen.integers(0, 2**63 - 1, size=made_restarts)]
     # A long lag space chosen from the data (>= twice the floor) is hedged: the odd restarts use the floor's.
