@@ -91,6 +91,39 @@ def test_coverage_counts_the_samples_inside_the_band() -> None:
     assert "does not know" not in interval_text({"level": 0.9, "coverage": 0.9, "width": 1.0, "width_over_std": 0.1}, "x")
 
 
+def test_the_report_says_what_makes_the_band_wide() -> None:
+    """``assess`` (``validate``, ``identify``'s validation) splits the band's mean half-width into its terms: the
+    error's scale, the networks' disagreement, the distance beyond the domain; the line names the parts that count."""
+    from streamid.engine.validation import assess
+    from streamid.model.uncertainty import coverage_figures
+
+    ms = [_net(0, (Y1, U1)), _net(1, (Y1, U1, U3), 5), _net(2, (Y1, U1), 3)]
+    interval = Interval(LEVELS, (0.5, 1.0, 1.5, 2.0, 3.0), 0.1, 100, beyond=BEYOND)
+    ens = replace(ensemble_of(ms, combine="median"), interval=interval)
+    u, y = _data()
+    L = ens.max_lag
+    rep = assess(ens, u, y).interval
+    assert rep is not None
+    spread = member_spread(ens.member_paths(u, y))[L:]
+    past = BEYOND * far_from_domain(ens, u, ens.simulate(u, y))[L:]
+    total = 0.1 + float(np.mean(spread)) + float(np.mean(past))
+    want = {"scale": 0.1 / total, "spread": float(np.mean(spread)) / total, "beyond": float(np.mean(past)) / total}
+    assert rep["width_from"] == pytest.approx(want, rel=1e-9) and want["spread"] > 0.01
+    assert math.isclose(rep["width"], 2 * 1.5 * total, rel_tol=1e-9)  # the parts are the width's own terms
+    text = interval_text(rep, "validation")
+    assert f"its width: {100 * want['scale']:.0f} % from the error's scale, {100 * want['spread']:.0f} % from the " \
+           "networks' disagreement" in text
+    single = replace(ms[0], interval=replace(interval, beyond=0.0))
+    one = assess(single, u, y).interval  # one network, a band without the growth past the domain: the scale alone
+    assert one is not None and one["width_from"] == {"scale": 1.0, "spread": 0.0, "beyond": 0.0}
+    assert "; its width: 100 % from the error's scale; under 80 %: the model does not know" in interval_text(one, "v")
+    far = {"level": 0.9, **coverage_figures(0.95, 3.0, 1.0, (0.1, 0.0, 0.9))}  # mostly beyond the domain
+    assert interval_text(far, "x").endswith("; its width: 10 % from the error's scale, 90 % from the distance beyond "
+                                            "the estimation domain")
+    assert "width_from" not in coverage_figures(0.5, math.inf, 1.0, (0.1, math.inf, 0.0))  # a run that diverged
+    assert "its width" not in interval_text({"level": 0.9, "coverage": 0.9, "width": 1.0, "width_over_std": 0.1}, "x")
+
+
 def test_the_domain_is_each_regressors_estimation_range() -> None:
     net = _net(0, (Y1, U3))
     u = np.zeros((10, 1))

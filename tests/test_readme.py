@@ -172,7 +172,10 @@ def test_journey_1_identify_a_csv_and_read_the_output(tmp_path: Path) -> None:
     assert "long linear part" in explained and longlin in section
     band = next(ln for ln in p.stdout.splitlines() if ln.startswith("interval: "))  # issue 51: the model's band
     assert re.fullmatch(r"interval: the 90 % free-run band covers \d+\.\d % of the validation samples, mean width "
-                        r"[0-9.]+ \([0-9.]+ of the output's standard deviation\)(; under 80 %: .+)?", band), band
+                        r"[0-9.]+ \([0-9.]+ of the output's standard deviation\); its width: \d+ % from the error's scale"
+                        r"(, \d+ % from the networks' disagreement)?(, \d+ % from the distance beyond the estimation "
+                        r"domain)?(; under 80 %: .+)?", band), band
+    assert "The line ends with what makes the band wide" in section  # and the README says how to read that part
     domain = next(ln for ln in p.stdout.splitlines() if ln.startswith("estimation domain: "))
     assert "interval" in explained and "estimation domain" in explained and domain in section
     assert (work / "mr_damper.json").is_file()

@@ -97,6 +97,9 @@ def _same_report(got: dict[str, Any], want: dict[str, Any]) -> None:
         assert got["interval"]["coverage"] == want["interval"]["coverage"]
         for k in ("width", "width_over_std"):
             assert _close(got["interval"][k], want["interval"][k]), k
+        assert got["interval"]["width_from"].keys() == want["interval"]["width_from"].keys()
+        for k, v in want["interval"]["width_from"].items():  # what makes the band wide, summed the same way
+            assert _close(got["interval"]["width_from"][k], v), k
     gc, wc = got["correlation"], want["correlation"]
     assert (gc["n"], gc["band"], list(gc["tests"])) == (wc["n"], wc["band"], list(wc["tests"]))
     for name, t in wc["tests"].items():

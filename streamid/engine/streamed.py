@@ -182,7 +182,7 @@ class StreamedRecord:
         self.interval = getattr(model, "interval", None)
         self.regs = domain_regressors(model)
         self.moments = Moments()
-        self.sse_osa = self.sse_fr = self.width_sum = 0.0
+        self.sse_osa = self.sse_fr = self.width_sum = self.spread_sum = self.beyond_sum = 0.0
         self.inside = self.outside_n = 0
         self.diverged: int | None = None
         self.y_first: Any = 0.0
@@ -249,6 +249,9 @@ class StreamedRecord:
                 lo, hi = bd.lower[s - a :], bd.upper[s - a :]
                 self.inside += int(np.count_nonzero((y[s - a :] >= lo) & (y[s - a :] <= hi)))
                 self.width_sum += float(np.sum(hi - lo))
+                spread, past = self.interval.terms(paths, far)  # what makes it wide (coverage_figures' parts)
+                self.spread_sum += float(np.sum(spread[s - a :]))
+                self.beyond_sum += 0.0 if past is None else float(np.sum(past[s - a :]))
         self._ranges(u, y)
         self.arx.add(u_ext, y_ext, max(h, ArxSums.ORDER))
         self.tail_u, self.tail_y = u_ext[u_ext.shape[0] - self.keep :], y_ext[y_ext.shape[0] - self.keep :]
@@ -293,7 +296,8 @@ class StreamedRecord:
         figures = None
         if self.interval is not None:
             figures = {"level": float(DEFAULT_LEVEL),
-                       **coverage_figures(self.inside / m, self.width_sum / m, float(np.sqrt(ss / m)))}
+                       **coverage_figures(self.inside / m, self.width_sum / m, float(np.sqrt(ss / m)),
+                                          (self.interval.scale, self.spread_sum / m, self.beyond_sum / m))}
         values = {k: p.values() for k, p in self.pairs.items()}
         corr = correlation_report(m, self.max_lag, self.model.n_inputs, self.model.input_names, values)
         return RecordReport(

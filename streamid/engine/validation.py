@@ -194,7 +194,7 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_la
     L, n = model.max_lag, int(y.shape[0])
     ys = y[L:]
     mean = ys.mean()
-    ss = sse_osa = sse_fr = width_sum = 0.0
+    ss = sse_osa = sse_fr = width_sum = spread_sum = beyond_sum = 0.0
     inside, diverged = 0, None
     res = np.empty(n - L)
     osa_all, fr_all = (y.copy(), np.empty(n)) if keep else (None, None)
@@ -224,6 +224,9 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_la
                 lo, hi = bd.lower[s - a :], bd.upper[s - a :]
                 inside += int(np.count_nonzero((y[s:b] >= lo) & (y[s:b] <= hi)))
                 width_sum += float(np.sum(hi - lo))
+                spread, past = interval.terms(paths, far)  # what makes it wide (coverage_figures' parts)
+                spread_sum += float(np.sum(spread[s - a :]))
+                beyond_sum += 0.0 if past is None else float(np.sum(past[s - a :]))
     m = n - L
     if ss == 0.0:
         raise DataError(f"r2 is undefined for a constant measured signal (all values {ys[0]!r})")
@@ -232,7 +235,8 @@ def _record(model: Model, u: NDArray[np.float64], y: NDArray[np.float64], max_la
         rmse_fr = float(np.sqrt(sse_fr / m))
     figures = None
     if interval is not None:
-        figures = {"level": float(DEFAULT_LEVEL), **coverage_figures(inside / m, width_sum / m, float(np.sqrt(ss / m)))}
+        figures = {"level": float(DEFAULT_LEVEL), **coverage_figures(inside / m, width_sum / m, float(np.sqrt(ss / m)),
+                                                                      (interval.scale, spread_sum / m, beyond_sum / m))}
     return RecordReport(
         n=n, n_scored=m, osa=1.0 - sse_osa / ss, fr=fr_r2, rmse_osa=float(np.sqrt(sse_osa / m)),
         rmse_fr=rmse_fr if np.isfinite(rmse_fr) else None,

@@ -33,8 +33,8 @@ from numpy.typing import ArrayLike, NDArray
 from streamid.errors import DataError, ModelFormatError
 from streamid.model.domain import far_from_domain
 
-__all__ = ["BEYOND", "Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "band_coverage", "coverage_figures", "conformal_quantiles",
-           "interval_report", "interval_text", "member_spread"]
+__all__ = ["BEYOND", "Band", "DEFAULT_LEVEL", "Interval", "LEVELS", "LOW_COVERAGE", "WIDTH_PARTS", "band_coverage", "coverage_figures",
+           "conformal_quantiles", "interval_report", "interval_text", "member_spread"]
 
 #: The levels whose quantiles a model carries; the default one is drawn and reported.
 LEVELS: tuple[float, ...] = (0.5, 0.8, 0.9, 0.95, 0.99)
@@ -120,10 +120,18 @@ class Interval:
     def widths(self, paths: NDArray[np.float64], far: NDArray[np.float64] | None) -> NDArray[np.float64]:
         """``scale + spread(t) + beyond * far(t)``: the band's half-width over its quantile (and the calibration
         scores' denominator)."""
-        w = self.scale + member_spread(paths)
-        if far is not None and self.beyond > 0.0:
-            w = w + self.beyond * far
+        spread, past = self.terms(paths, far)
+        w = self.scale + spread
+        if past is not None:
+            w = w + past
         return w
+
+    def terms(self, paths: NDArray[np.float64],
+              far: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """The half-width's two terms that vary along a run (over its quantile): the members' ``spread(t)`` and
+        ``beyond * far(t)`` (None without the rule or without ``far``)."""
+        past = self.beyond * far if far is not None and self.beyond > 0.0 else None
+        return member_spread(paths), past
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"method": self.method, "levels": list(self.levels), "quantiles": list(self.quantiles),
@@ -166,11 +174,26 @@ def band_coverage(y: ArrayLike, band: Band, start: int = 0) -> dict[str, float]:
     return coverage_figures(float(np.mean(inside)), width, float(np.std(ya)))
 
 
-def coverage_figures(coverage: float, width: float, std: float) -> dict[str, float]:
+def coverage_figures(coverage: float, width: float, std: float,
+                     parts: tuple[float, float, float] | None = None) -> dict[str, Any]:
     """:func:`band_coverage`'s figures from the share inside, the mean width and the measured output's standard
-    deviation (a record judged a piece at a time sums them itself: ``streamid.engine.validation``)."""
-    return {"coverage": coverage, "width": width if math.isfinite(width) else math.inf,
-            "width_over_std": (width / std) if std > 0 and math.isfinite(width) else math.inf}
+    deviation (a record judged a piece at a time sums them itself: ``streamid.engine.validation``). ``parts``: the
+    means over the scored samples of the half-width's three terms (``scale``, the members' ``spread``, the growth
+    ``beyond`` the domain: :meth:`Interval.widths`); given, ``width_from`` says what share of the width each is
+    (omitted where they are not finite: a run that diverged)."""
+    out: dict[str, Any] = {"coverage": coverage, "width": width if math.isfinite(width) else math.inf,
+                           "width_over_std": (width / std) if std > 0 and math.isfinite(width) else math.inf}
+    if parts is not None:
+        total = math.fsum(parts)
+        if math.isfinite(total) and total > 0.0:
+            out["width_from"] = {k: v / total for k, v in zip(WIDTH_PARTS, parts)}
+    return out
+
+
+#: The band's half-width terms, in the order :func:`coverage_figures` takes them, and how a report names them.
+WIDTH_PARTS: tuple[str, ...] = ("scale", "spread", "beyond")
+_PART_TEXT = {"scale": "the error's scale", "spread": "the networks' disagreement",
+              "beyond": "the distance beyond the estimation domain"}
 
 
 def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], level: float = DEFAULT_LEVEL,
@@ -203,6 +226,12 @@ def interval_text(report: Mapping[str, Any] | None, record: str, unit: str = "")
     cov, width, rel = float(report["coverage"]), float(report["width"]), float(report["width_over_std"])
     line = (f"interval: the {100 * report['level']:g} % free-run band covers {100 * cov:.1f} % of the {record} samples, "
             f"mean width {width:.4g}{(' ' + unit) if unit else ''} ({rel:.2f} of the output's standard deviation)")
+    parts = report.get("width_from")
+    if parts:
+        said = [f"{100 * float(parts[k]):.0f} % from {_PART_TEXT[k]}" for k in WIDTH_PARTS
+                if 100 * float(parts.get(k, 0.0)) >= 0.5]
+        if said:
+            line += "; its width: " + ", ".join(said)
     if cov < LOW_COVERAGE:
         line += (f"; under {100 * LOW_COVERAGE:g} %: the model does not know this record (a finding, not an error: "
                  "trust its free run here less than its R2 says)")
