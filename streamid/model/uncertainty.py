@@ -48,6 +48,11 @@ BEYOND = 1.0
 _FORM = ("an object with levels (a list of numbers in (0, 1)), quantiles (one number >= 0 each), scale (a number >= 0), "
          "samples (an integer), method (text) and optionally beyond (a number >= 0)")
 
+#: The band's half-width terms, in the order :func:`coverage_figures` takes them, and how a report names them.
+WIDTH_PARTS: tuple[str, ...] = ("scale", "spread", "beyond")
+_PART_TEXT = {"scale": "the error's scale", "spread": "the networks' disagreement",
+              "beyond": "the distance beyond the estimation domain"}
+
 
 class Band(NamedTuple):
     """A free run with its interval: the simulated output and the band's lower and upper paths (output units)."""
@@ -188,12 +193,6 @@ def coverage_figures(coverage: float, width: float, std: float,
         if math.isfinite(total) and total > 0.0:
             out["width_from"] = {k: v / total for k, v in zip(WIDTH_PARTS, parts)}
     return out
-
-
-#: The band's half-width terms, in the order :func:`coverage_figures` takes them, and how a report names them.
-WIDTH_PARTS: tuple[str, ...] = ("scale", "spread", "beyond")
-_PART_TEXT = {"scale": "the error's scale", "spread": "the networks' disagreement",
-              "beyond": "the distance beyond the estimation domain"}
 
 
 def interval_report(model: Any, u: NDArray[np.float64], y: NDArray[np.float64], level: float = DEFAULT_LEVEL,
